@@ -1,0 +1,34 @@
+# Each target does its own setup on a fresh machine.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test slow bench lint clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(STAMP): $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	MPLBACKEND=Agg $(BIN)/dvs demo --out demo-output
+
+test: $(STAMP)
+	$(BIN)/ruff check symbolic solvers experiments tests
+	MPLBACKEND=Agg $(BIN)/python -m pytest
+
+slow: $(STAMP)
+	MPLBACKEND=Agg $(BIN)/python -m pytest -m slow
+
+bench: $(STAMP)
+	MPLBACKEND=Agg $(BIN)/python -m experiments.bench
+
+lint: $(STAMP)
+	$(BIN)/ruff check symbolic solvers experiments tests
+
+clean:
+	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache
