@@ -137,13 +137,18 @@ class BSplineBasis:
             Both of shape (len(t), p + 1).
         """
         t = np.asarray(t, dtype=float).ravel()
-        dense = self.evaluate_dense(t, derivative)
-        first = self.span_index(np.clip(t, 0.0, 1.0)) - self.degree
+        # tensor grids repeat each 1-D value many times: evaluate the distinct ones
+        distinct, inverse = np.unique(t, return_inverse=True)
+        dense = self.evaluate_dense(distinct, derivative)
+        first = self.span_index(np.clip(distinct, 0.0, 1.0)) - self.degree
         indices = first[:, None] + np.arange(self.degree + 1)
-        return np.take_along_axis(dense, indices, axis=1), indices
+        values = np.take_along_axis(dense, indices, axis=1)
+        return values[inverse], indices[inverse]
 
 
-def gauss_rule(basis: BSplineBasis, points_per_span: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def gauss_rule(
+    basis: BSplineBasis, points_per_span: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre points and weights over every non-empty knot span of a basis.
 
     Parameters
@@ -229,7 +234,9 @@ class VolumeBasis:
         matrix.eliminate_zeros()
         return matrix
 
-    def collocation(self, points: np.ndarray, derivative: DerivativeOrder = (0, 0, 0)) -> sp.csr_matrix:
+    def collocation(
+        self, points: np.ndarray, derivative: DerivativeOrder = (0, 0, 0)
+    ) -> sp.csr_matrix:
         """Sparse matrix of J (or a derivative of it) at parameter points.
 
         Parameters

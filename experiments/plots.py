@@ -1,0 +1,60 @@
+"""Figures shared by the research scripts and the CLI (matplotlib, headless)."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from experiments.atomic import atomic_savefig  # noqa: E402
+from symbolic.volume import VolumeSpline  # noqa: E402
+
+
+def surface_grid(volume: VolumeSpline, positions: np.ndarray, count: int = 41) -> np.ndarray:
+    """The outer surface of the volume with control points ``positions``, (count, count, 3)."""
+    t = np.linspace(0.0, 1.0, count)
+    uu, vv = np.meshgrid(t, t, indexing="ij")
+    params = volume.outer_params(np.column_stack([uu.ravel(), vv.ravel()]))
+    return (volume.collocation(params) @ positions).reshape(count, count, 3)
+
+
+def plot_deformation(volume: VolumeSpline, deformed: np.ndarray, path, title: str = "") -> None:
+    """Normal displacement map of the skin and a mid-section, rest against deformed.
+
+    Parameters
+    ----------
+    volume : VolumeSpline
+        The rest volume (its control points are B0).
+    deformed : numpy.ndarray
+        Deformed control points B, (n, 3) [mm].
+    path : str or Path
+        Output file; the format follows the suffix (png, pdf).
+    """
+    rest = surface_grid(volume, volume.control_points)
+    moved = surface_grid(volume, deformed)
+    count = rest.shape[0]
+    t = np.linspace(0, 1, count)
+    normals = volume.outer_normal(np.column_stack([np.repeat(t, count), np.tile(t, count)]))
+    normal_disp = np.sum((moved - rest).reshape(-1, 3) * normals, axis=1).reshape(count, count)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4.2))
+    image = left.contourf(rest[..., 0], rest[..., 1], normal_disp, levels=20, cmap="viridis")
+    fig.colorbar(image, ax=left, label="normal displacement [mm]")
+    left.set(xlabel="x [mm]", ylabel="y [mm]", title="skin displacement", aspect="equal")
+    section = np.column_stack([t, np.full(count, 0.5)])
+    for w, style in ((1.0, "-"), (0.0, "--")):
+        params = np.column_stack([section, np.full(count, w)])
+        before = volume.collocation(params) @ volume.control_points
+        after = volume.collocation(params) @ deformed
+        label = "skin" if w == 1.0 else "inner surface"
+        right.plot(before[:, 0], before[:, 2], style, color="0.6", label=f"{label}, rest")
+        right.plot(after[:, 0], after[:, 2], style, color="C3", label=f"{label}, loaded")
+    right.set(xlabel="x [mm]", ylabel="z [mm]", title="section v = 0.5")
+    right.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,194 @@
+"""Static forward solve of K(B; x)(B - B0) = F_B by Newton's method (MODEL.md eq. 22).
+
+The residual and its sparse Jacobian come from CasADi; each Newton step is one
+sparse LU solve (SuperLU through scipy). A backtracking line search on |g|
+guards the nonlinear model; near the solution full steps give quadratic
+convergence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from symbolic.model import TissueModel
+
+
+class EquilibriumError(RuntimeError):
+    """Newton's method did not reach the requested residual."""
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    """Settings of the Newton solver.
+
+    Attributes
+    ----------
+    tolerance : float
+        Stop when |g(s)| <= tolerance * |g(0)| (relative residual).
+    max_iterations : int
+        Give up after this many Newton steps.
+    line_search : bool
+        Halve the step until |g| decreases (at most 30 halvings).
+    """
+
+    tolerance: float = 1e-10
+    max_iterations: int = 30
+    line_search: bool = True
+
+    def __post_init__(self) -> None:
+        if not (0 < self.tolerance < 1):
+            raise ValueError(f"tolerance must lie in (0, 1), got {self.tolerance}")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 1:
+            raise ValueError(
+                f"max_iterations must be a positive integer, got {self.max_iterations}"
+            )
+
+
+@dataclass
+class Equilibrium:
+    """A converged static state.
+
+    Attributes
+    ----------
+    positions : numpy.ndarray
+        B, all control points, (n, 3) [mm].
+    state : numpy.ndarray
+        s = [vec(B_free - B0_free); vec(lam)].
+    multipliers : numpy.ndarray
+        lam, (r, 3) [N]; empty without prescribed displacements.
+    iterations : int
+        Newton steps taken.
+    residual_history : list of float
+        Relative residual |g| / |g(0)| before each step and at the end.
+    jacobian : scipy.sparse.csc_matrix
+        dg/ds at the solution (for sensitivities).
+    """
+
+    positions: np.ndarray
+    state: np.ndarray
+    multipliers: np.ndarray
+    iterations: int
+    residual_history: list[float] = field(default_factory=list)
+    jacobian: sp.csc_matrix | None = None
+
+
+def casadi_to_scipy(matrix: ca.DM) -> sp.csc_matrix:
+    """A CasADi sparse DM as a scipy CSC matrix."""
+    pattern = matrix.sparsity()
+    indptr, indices = pattern.get_ccs()
+    return sp.csc_matrix((np.asarray(matrix.nonzeros()), indices, indptr), shape=matrix.shape)
+
+
+class EquilibriumSolver:
+    """Newton solver for one model and one choice of symbolic parameters.
+
+    The CasADi Functions are built once in the constructor; ``solve`` can be
+    called for many parameter values and loads.
+
+    Parameters
+    ----------
+    model : TissueModel
+        The model.
+    names : tuple of str
+        Parameters passed as ``x`` to ``solve`` (the others are fixed).
+    settings : NewtonSettings
+        Tolerances.
+    """
+
+    def __init__(self, model: TissueModel, names: tuple[str, ...] = (), settings=None):
+        self.model = model
+        self.names = tuple(names)
+        self.settings = settings or NewtonSettings()
+        g = model.state_residual(self.names)
+        s, x, force, prescribed = g.mx_in()
+        value = g(s, x, force, prescribed)
+        self.residual = g
+        self.jacobian = ca.Function(
+            "dg_ds",
+            [s, x, force, prescribed],
+            [ca.jacobian(value, s)],
+            ["s", "x", "F_B", "d"],
+            ["dg_ds"],
+        )
+        self.n_state = g.size1_in(0)
+
+    def _x(self, x) -> np.ndarray:
+        x = np.asarray([] if x is None else x, dtype=float).reshape(-1)
+        if x.size != len(self.names):
+            raise ValueError(f"expected {len(self.names)} values for {self.names}, got {x.size}")
+        return x
+
+    def solve(self, force: np.ndarray, x=None, prescribed=None, start=None) -> Equilibrium:
+        """Solve for the equilibrium under one load case.
+
+        Parameters
+        ----------
+        force : numpy.ndarray
+            F_B on the free points, (n_free, 3) [N] (``model.generalized_force``).
+        x : array_like, optional
+            Values of the symbolic parameters ``names``.
+        prescribed : numpy.ndarray, optional
+            d, prescribed displacements (m, 3) [mm].
+        start : numpy.ndarray, optional
+            Initial state s (default zero: the rest shape).
+
+        Raises
+        ------
+        EquilibriumError
+            When the relative residual does not reach the tolerance.
+        """
+        x = self._x(x)
+        rows = self.model._constraint_rows.shape[1]
+        prescribed = np.zeros((rows, 3)) if prescribed is None else np.asarray(prescribed, float)
+        args = (x, np.asarray(force, dtype=float), prescribed)
+        state = np.zeros(self.n_state) if start is None else np.array(start, dtype=float)
+        scale = float(np.linalg.norm(self.residual(np.zeros(self.n_state), *args).full()))
+        if scale == 0.0:
+            scale = 1.0
+        g = self.residual(state, *args).full().ravel()
+        history = [float(np.linalg.norm(g)) / scale]
+        iterations = 0
+        while history[-1] > self.settings.tolerance:
+            if iterations == self.settings.max_iterations:
+                raise EquilibriumError(
+                    f"Newton did not converge in {iterations} iterations (relative residual "
+                    f"{history[-1]:.2e} > {self.settings.tolerance:.0e}); reduce the load or "
+                    "the stiffening k0, or give a better start"
+                )
+            jacobian = casadi_to_scipy(self.jacobian(state, *args))
+            step = spla.splu(jacobian).solve(-g)
+            state, g = self._line_search(state, step, g, args)
+            history.append(float(np.linalg.norm(g)) / scale)
+            iterations += 1
+        jacobian = casadi_to_scipy(self.jacobian(state, *args))
+        n_points = 3 * self.model.n_free
+        delta = state[:n_points].reshape(3, -1).T
+        return Equilibrium(
+            positions=self.model.full_positions(delta),
+            state=state,
+            multipliers=state[n_points:].reshape(3, -1).T,
+            iterations=iterations,
+            residual_history=history,
+            jacobian=jacobian,
+        )
+
+    def _line_search(self, state, step, g, args):
+        """Full step, halved while the residual norm does not decrease."""
+        norm = np.linalg.norm(g)
+        trial = state + step
+        g_trial = self.residual(trial, *args).full().ravel()
+        if not self.settings.line_search:
+            return trial, g_trial
+        length = 1.0
+        for _ in range(30):
+            if np.linalg.norm(g_trial) < norm or np.linalg.norm(g_trial) == 0.0:
+                break
+            length *= 0.5
+            trial = state + length * step
+            g_trial = self.residual(trial, *args).full().ravel()
+        return trial, g_trial

@@ -1,0 +1,156 @@
+"""Generalised forces F_B (MODEL.md eq. 20) and prescribed displacements.
+
+- A point force f at the material point p: F_B = J(p)^T f, an (n, 3) array.
+- A probe of radius r: a surface traction f g(x) / integral g dA with a
+  Gaussian g of standard deviation r / 2 around the contact point
+  (**choice**: about 86 % of the force lies within the radius).
+- Prescribed displacements of outer-surface material points p_i:
+  J(p_i) (B - B0) = d_i, imposed with Lagrange multipliers by the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.basis import gauss_rule
+from symbolic.volume import VolumeSpline
+
+
+def _as_vector(value, name: str) -> np.ndarray:
+    vector = np.asarray(value, dtype=float).reshape(-1)
+    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
+    return vector
+
+
+def _contact_uv(volume: VolumeSpline, uv, point) -> np.ndarray:
+    """(u, v) of the contact: given directly, or by projecting a 3-D point."""
+    if (uv is None) == (point is None):
+        raise ValueError("give the contact either as uv=(u, v) or as point=(x, y, z), not both")
+    if uv is not None:
+        uv = np.asarray(uv, dtype=float).reshape(-1)
+        if uv.shape != (2,) or np.any(uv < 0) or np.any(uv > 1):
+            raise ValueError(f"contact uv must be two values in [0, 1], got {uv!r}")
+        return uv
+    found, _ = volume.project_to_outer(_as_vector(point, "contact point")[None])
+    return found[0]
+
+
+@dataclass(frozen=True)
+class PointForce:
+    """A force [N] at one material point of the outer surface.
+
+    Parameters
+    ----------
+    force : array_like
+        Force vector f, shape (3,) [N].
+    uv : array_like, optional
+        Contact as surface parameters (u, v).
+    point : array_like, optional
+        Contact as a 3-D point [mm], projected onto the rest outer surface.
+    """
+
+    force: np.ndarray
+    uv: np.ndarray | None = None
+    point: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "force", _as_vector(self.force, "force"))
+
+    def generalized(self, volume: VolumeSpline) -> np.ndarray:
+        """F_B = J(p)^T f, shape (n, 3) [N]."""
+        uv = _contact_uv(volume, self.uv, self.point)
+        row = volume.collocation(volume.outer_params(uv[None]))
+        return np.asarray(row.T @ self.force[None, :])
+
+
+@dataclass(frozen=True)
+class ProbeForce:
+    """A force [N] spread by a probe of radius r [mm] as a normalised Gaussian patch."""
+
+    force: np.ndarray
+    radius: float
+    uv: np.ndarray | None = None
+    point: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "force", _as_vector(self.force, "force"))
+        if not np.isfinite(self.radius) or self.radius <= 0:
+            raise ValueError(f"probe radius must be > 0 mm, got {self.radius!r}")
+
+    def generalized(self, volume: VolumeSpline) -> np.ndarray:
+        """F_B = sum_q J(p_q)^T f g_q A_q / sum_q g_q A_q, shape (n, 3) [N]."""
+        uv0 = _contact_uv(volume, self.uv, self.point)
+        center = volume.evaluate(volume.outer_params(uv0[None]))[0]
+        sigma = 0.5 * self.radius
+        params, area = surface_quadrature(volume, spacing=sigma / 3.0)
+        positions = volume.evaluate(params)
+        gauss = np.exp(-np.sum((positions - center) ** 2, axis=1) / (2.0 * sigma**2)) * area
+        keep = gauss > 1e-14 * gauss.max()
+        weights = gauss[keep] / gauss[keep].sum()
+        collocation = volume.collocation(params[keep])
+        return np.asarray(collocation.T @ (weights[:, None] * self.force[None, :]))
+
+
+def surface_quadrature(volume: VolumeSpline, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss points on the outer surface w = 1 with physical area weights [mm^2].
+
+    The number of points per knot span is chosen so that neighbouring points
+    are at most about ``spacing`` [mm] apart.
+    """
+    rules = []
+    for axis, basis in enumerate(volume.basis.bases[:2]):
+        ends = basis.breakpoints
+        mid = np.column_stack([0.5 * np.ones(3), 0.5 * np.ones(3), np.ones(3)])
+        mid[:, axis] = [0.0, 0.5, 1.0]
+        length = np.linalg.norm(np.diff(volume.evaluate(mid), axis=0), axis=1).sum()
+        per_span = int(np.clip(np.ceil(length / (len(ends) - 1) / spacing), basis.degree + 1, 60))
+        rules.append(gauss_rule(basis, per_span))
+    (u, wu), (v, wv) = rules
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    params = np.column_stack([uu.ravel(), vv.ravel(), np.ones(uu.size)])
+    jacobian = np.linalg.norm(
+        np.cross(volume.evaluate(params, (1, 0, 0)), volume.evaluate(params, (0, 1, 0))), axis=1
+    )
+    return params, np.outer(wu, wv).ravel() * jacobian
+
+
+@dataclass(frozen=True)
+class PrescribedDisplacement:
+    """Material points on the outer surface whose displacement is prescribed.
+
+    Parameters
+    ----------
+    uv : array_like
+        Surface parameters (u, v) of the points, shape (m, 2).
+    """
+
+    uv: np.ndarray
+
+    def __post_init__(self) -> None:
+        uv = np.atleast_2d(np.asarray(self.uv, dtype=float))
+        if uv.ndim != 2 or uv.shape[1] != 2 or uv.shape[0] == 0:
+            raise ValueError(f"prescribed uv must have shape (m, 2) with m >= 1, got {uv.shape}")
+        if np.any(~np.isfinite(uv)) or np.any(uv < 0) or np.any(uv > 1):
+            raise ValueError("prescribed uv must be finite and lie in [0, 1]")
+        object.__setattr__(self, "uv", uv)
+
+    def constraint_matrix(self, volume: VolumeSpline) -> sp.csr_matrix:
+        """A with rows J(p_i), so that A (B - B0) = d, shape (m, n)."""
+        return volume.collocation(volume.outer_params(self.uv)).tocsr()
+
+
+def independent_rows(matrix: np.ndarray, tol: float = 1e-10) -> np.ndarray:
+    """Orthonormal combination Q (r, m) of the rows of A with Q A of full row rank.
+
+    Prescribing many points on a patch covered by few control points gives
+    dependent rows; the reduced constraint Q A (B - B0) = Q d keeps the
+    same solution set whenever d is consistent, and the KKT system stays
+    non-singular.
+    """
+    left, singular, _ = np.linalg.svd(np.asarray(matrix, dtype=float), full_matrices=False)
+    rank = int(np.sum(singular > tol * singular[0])) if singular.size else 0
+    return left[:, :rank].T

@@ -1,0 +1,313 @@
+"""TissueModel: parameters by name, boundary conditions and the residual Function.
+
+The steady state of eq. (22) is the residual
+
+    R(B_free, x) = K(B; x) (B - B0) - F_B = 0          on the free control points,
+
+with B0 the fitted, stress-free rest shape (**choice**, MODEL.md section 2).
+Prescribed displacements of material points add Lagrange multipliers lam:
+
+    R = K(B; x)(B - B0) + A^T lam - F_B,      C = A (B - B0) - d.
+
+``x`` is any subset of the named parameters; the others are fixed numbers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.energy import STIFFNESS_TERMS, damping_matrix, mass_matrix, stiffness_terms
+from symbolic.loads import PrescribedDisplacement, independent_rows
+from symbolic.stiffening import EdgeSet, StiffeningFunction, quadratic_stiffening, to_casadi_sparse
+from symbolic.volume import VolumeSpline
+
+
+@dataclass(frozen=True)
+class ParameterInfo:
+    """A named model parameter: default (the paper's start value), unit, meaning."""
+
+    default: float
+    unit: str
+    meaning: str
+
+
+PARAMETERS: dict[str, ParameterInfo] = {
+    "mu": ParameterInfo(1e-4, "t", "mass density per unit parameter volume (eq. 13)"),
+    "gamma": ParameterInfo(15.0, "N s/mm", "damping density per unit parameter volume (eq. 16)"),
+    "alpha_u": ParameterInfo(0.5, "N/mm", "tension along u (eq. 18)"),
+    "alpha_v": ParameterInfo(0.5, "N/mm", "tension along v (eq. 18)"),
+    "alpha_w": ParameterInfo(0.5, "N/mm", "tension through the thickness, w (eq. 18)"),
+    "beta": ParameterInfo(0.0, "N/mm", "rigidity, common factor of the six beta_ij (eq. 18)"),
+    "k0": ParameterInfo(0.0, "1", "stiffening in s(eps) = 1 + k0 eps^2 (eq. 1)"),
+}
+"""Every parameter the inverse can estimate, with the paper's start values."""
+
+
+def term_parameter(term: str) -> str:
+    """The parameter that multiplies a stiffness term: alpha_u -> alpha_u, beta_uv -> beta."""
+    return "beta" if term.startswith("beta_") else term
+
+
+@dataclass(frozen=True)
+class BoundaryConditions:
+    """Which control points are fixed (zero displacement).
+
+    Attributes
+    ----------
+    fix_inner : bool
+        Fix the inner layer c = 0 (w = 0), attached to the fascia. Default.
+    fix_lateral : bool
+        Also fix the lateral ring a in {0, M-1} or b in {0, N-1}, as for a patch
+        cut out of a larger face.
+    """
+
+    fix_inner: bool = True
+    fix_lateral: bool = False
+
+    def fixed_mask(self, shape: tuple[int, int, int]) -> np.ndarray:
+        """Boolean (M, N, L) array, True where a control point is fixed."""
+        mask = np.zeros(shape, dtype=bool)
+        if self.fix_inner:
+            mask[:, :, 0] = True
+        if self.fix_lateral:
+            mask[[0, -1], :, :] = True
+            mask[:, [0, -1], :] = True
+        return mask
+
+
+def check_parameters(values: dict[str, float]) -> dict[str, float]:
+    """Merge values over the defaults, rejecting unknown names and bad numbers."""
+    unknown = set(values) - set(PARAMETERS)
+    if unknown:
+        raise ValueError(f"unknown parameters {sorted(unknown)}; known: {list(PARAMETERS)}")
+    merged = {name: info.default for name, info in PARAMETERS.items()}
+    merged.update({k: float(v) for k, v in values.items()})
+    for name, value in merged.items():
+        if not np.isfinite(value):
+            raise ValueError(f"parameter {name} must be finite, got {value}")
+        if name != "k0" and value < 0:
+            raise ValueError(f"parameter {name} must be >= 0, got {value}")
+    return merged
+
+
+@dataclass
+class TissueModel:
+    """The dynamic volume spline model of the skin and fat layer.
+
+    Parameters
+    ----------
+    volume : VolumeSpline
+        The fitted rest shape; its control points are B0 [mm].
+    parameters : dict, optional
+        Parameter values by name (see ``PARAMETERS``); missing ones take defaults.
+    boundary : BoundaryConditions
+        Fixed control points.
+    stiffening : callable
+        s(eps, k0) of eq. (1).
+    prescribed : PrescribedDisplacement, optional
+        Outer-surface material points whose displacement each load case prescribes.
+    fields : dict, optional
+        Spatial shapes of coefficients by term name, e.g. ``{"alpha_u": f}``.
+    extra_points : int
+        Additional Gauss points per knot span (default rule is exact).
+    """
+
+    volume: VolumeSpline
+    parameters: dict[str, float] = field(default_factory=dict)
+    boundary: BoundaryConditions = field(default_factory=BoundaryConditions)
+    stiffening: StiffeningFunction = quadratic_stiffening
+    prescribed: PrescribedDisplacement | None = None
+    fields: dict | None = None
+    extra_points: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.volume, VolumeSpline):
+            raise ValueError("volume must be a VolumeSpline (see VolumeSpline.fit)")
+        self.parameters = check_parameters(self.parameters)
+        fields = dict(self.fields or {})
+        self.terms = stiffness_terms(
+            self.volume.basis,
+            {k: v for k, v in fields.items() if k in STIFFNESS_TERMS},
+            self.extra_points,
+        )
+        self._unit_mass = mass_matrix(self.volume.basis, fields.get("mu", 1.0), self.extra_points)
+        self._unit_damping = damping_matrix(
+            self.volume.basis, fields.get("gamma", 1.0), self.extra_points
+        )
+        fixed = self.boundary.fixed_mask(self.volume.shape).reshape(-1)
+        self.free = np.flatnonzero(~fixed)
+        self.fixed = np.flatnonzero(fixed)
+        if self.free.size == 0:
+            raise ValueError("every control point is fixed; relax the boundary conditions")
+        self._setup_constraints()
+        self._edges: EdgeSet | None = None
+
+    # ----------------------------------------------------------------- numbers
+    @property
+    def rest(self) -> np.ndarray:
+        """B0, the rest control points, shape (n, 3) [mm]."""
+        return self.volume.control_points
+
+    @property
+    def n_free(self) -> int:
+        """Number of free control points."""
+        return int(self.free.size)
+
+    @property
+    def n_constraints(self) -> int:
+        """Independent prescribed-displacement rows (0 without prescribed points)."""
+        return int(self._constraint_rows.shape[0])
+
+    def values(self, overrides: dict[str, float] | None = None) -> dict[str, float]:
+        """All parameter values, with optional overrides."""
+        return check_parameters({**self.parameters, **(overrides or {})})
+
+    def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
+        """Linear K0 (eq. 18) for the current parameters, full (n, n) [N/mm]."""
+        values = self.values(overrides)
+        return sum(values[term_parameter(t)] * m for t, m in self.terms.items()).tocsr()
+
+    def mass_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
+        """M = mu M_1 (eq. 13), full (n, n) [t]."""
+        return (self.values(overrides)["mu"] * self._unit_mass).tocsr()
+
+    def damping_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
+        """D = gamma D_1 (eq. 16), full (n, n) [N s/mm]."""
+        return (self.values(overrides)["gamma"] * self._unit_damping).tocsr()
+
+    def free_block(self, matrix: sp.spmatrix) -> sp.csr_matrix:
+        """Rows and columns of the free control points."""
+        return sp.csr_matrix(matrix)[self.free][:, self.free]
+
+    def generalized_force(self, load) -> np.ndarray:
+        """F_B of a load (PointForce, ProbeForce or an (n, 3) array) on the free points."""
+        force = load if isinstance(load, np.ndarray) else load.generalized(self.volume)
+        force = np.asarray(force, dtype=float)
+        if force.shape != self.rest.shape:
+            raise ValueError(f"generalised force must have shape {self.rest.shape}")
+        return force[self.free]
+
+    def full_positions(self, delta_free: np.ndarray) -> np.ndarray:
+        """B = B0 + Delta with Delta = 0 on fixed points, shape (n, 3) [mm]."""
+        positions = self.rest.copy()
+        positions[self.free] += np.asarray(delta_free).reshape(self.n_free, 3)
+        return positions
+
+    # --------------------------------------------------------------- symbolic
+    def _setup_constraints(self) -> None:
+        if self.prescribed is None:
+            self._constraint_rows = np.zeros((0, 0))
+            self._constraint_free = sp.csr_matrix((0, self.n_free))
+            return
+        a_full = self.prescribed.constraint_matrix(self.volume)
+        a_free = a_full[:, self.free].toarray()
+        reduce = independent_rows(a_free)
+        if reduce.shape[0] == 0:
+            raise ValueError("prescribed points touch no free control point")
+        self._constraint_rows = reduce
+        self._constraint_free = sp.csr_matrix(reduce @ a_free)
+
+    @property
+    def is_linear_fixed(self) -> bool:
+        """True when K does not depend on B for the fixed parameter values."""
+        return self.parameters["k0"] == 0.0
+
+    def edges(self) -> EdgeSet:
+        """The coupled pairs of control points used by the nonlinear K(B) (built once)."""
+        if self._edges is None:
+            self._edges = EdgeSet.build(list(self.terms.values()), self.rest, self.free)
+        return self._edges
+
+    def _term_coefficients(self, values: dict) -> ca.MX:
+        """Column of term coefficients (alpha_u, ..., beta_vw) as CasADi expressions."""
+        return ca.vertcat(*[values[term_parameter(t)] for t in self.terms])
+
+    def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
+        """K(B; x)(B - B0) on the free points as an expression in delta and x."""
+        if "k0" in symbolic or not self.is_linear_fixed:
+            return self.edges().elastic_force(
+                delta, self._term_coefficients(values), values["k0"], self.stiffening
+            )
+        force = 0
+        for term, matrix in self.terms.items():
+            coefficient = values[term_parameter(term)]
+            if isinstance(coefficient, float) and coefficient == 0.0:
+                continue
+            force = force + coefficient * ca.mtimes(
+                to_casadi_sparse(self.free_block(matrix)), delta
+            )
+        return force
+
+    def symbolic_values(self, names: tuple[str, ...]) -> tuple[ca.MX, dict]:
+        """A symbol x for the named parameters and the full value dict with it inserted."""
+        names = tuple(names)
+        unknown = set(names) - set(PARAMETERS)
+        if unknown or len(set(names)) != len(names):
+            raise ValueError(f"parameter names must be distinct, from {list(PARAMETERS)}")
+        x = ca.MX.sym("x", len(names))
+        values: dict = dict(self.parameters)
+        values.update({name: x[i] for i, name in enumerate(names)})
+        return x, values
+
+    def residual_function(self, names: tuple[str, ...] = ()) -> ca.Function:
+        """The named Function R(B_free, x, F_B, lam, d) -> (R, C).
+
+        Parameters
+        ----------
+        names : tuple of str
+            Parameters that are symbolic inputs ``x``; the rest keep their values.
+
+        Returns
+        -------
+        casadi.Function
+            Inputs ``B_free`` (n_free, 3) [mm], ``x`` (len(names),), ``F_B``
+            (n_free, 3) [N], ``lam`` (r, 3) [N], ``d`` (m, 3) [mm]. Outputs
+            ``R`` (n_free, 3) [N] and ``C`` (r, 3) [mm].
+        """
+        x, values = self.symbolic_values(names)
+        positions = ca.MX.sym("B_free", self.n_free, 3)
+        force = ca.MX.sym("F_B", self.n_free, 3)
+        rows = self._constraint_rows
+        lam = ca.MX.sym("lam", rows.shape[0], 3)
+        prescribed = ca.MX.sym("d", rows.shape[1], 3)
+        delta = positions - ca.DM(self.rest[self.free])
+        a_free = to_casadi_sparse(self._constraint_free)
+        residual = self.elastic_force(delta, values, tuple(names)) - force
+        residual = residual + ca.mtimes(a_free.T, lam)
+        constraint = ca.mtimes(a_free, delta) - ca.mtimes(ca.DM(rows), prescribed)
+        return ca.Function(
+            "R",
+            [positions, x, force, lam, prescribed],
+            [residual, constraint],
+            ["B_free", "x", "F_B", "lam", "d"],
+            ["R", "C"],
+        )
+
+    def state_residual(self, names: tuple[str, ...] = ()) -> ca.Function:
+        """Flat form g(s, x, F_B, d) for solvers, s = [vec(B_free - B0_free); vec(lam)].
+
+        vec stacks columns (x components first, CasADi's convention).
+        """
+        x, values = self.symbolic_values(names)
+        rows = self._constraint_rows
+        n_state = 3 * (self.n_free + rows.shape[0])
+        state = ca.MX.sym("s", n_state)
+        force = ca.MX.sym("F_B", self.n_free, 3)
+        prescribed = ca.MX.sym("d", rows.shape[1], 3)
+        delta = ca.reshape(state[: 3 * self.n_free], self.n_free, 3)
+        lam = ca.reshape(state[3 * self.n_free :], rows.shape[0], 3)
+        a_free = to_casadi_sparse(self._constraint_free)
+        residual = (
+            self.elastic_force(delta, values, tuple(names)) - force + ca.mtimes(a_free.T, lam)
+        )
+        constraint = ca.mtimes(a_free, delta) - ca.mtimes(ca.DM(rows), prescribed)
+        g = ca.vertcat(ca.vec(residual), ca.vec(constraint))
+        return ca.Function("g", [state, x, force, prescribed], [g], ["s", "x", "F_B", "d"], ["g"])
+
+    def constraint_force(self, lam: np.ndarray) -> np.ndarray:
+        """Total force [N] the prescribed points exert on the tissue, -1^T Q^T lam."""
+        return -(self._constraint_rows.T @ np.asarray(lam).reshape(-1, 3)).sum(axis=0)
