@@ -23,6 +23,79 @@ def _demo(args: argparse.Namespace) -> int:
     return demo.run(args.out)
 
 
+def parse_grid(text: str) -> tuple[int, int, int]:
+    """'9x9x2' -> (9, 9, 2)."""
+    try:
+        grid = tuple(int(part) for part in text.lower().split("x"))
+    except ValueError:
+        grid = ()
+    if len(grid) != 3 or min(grid) < 2:
+        raise UsageError(f"--grid must look like 9x9x2 (three integers >= 2), got {text!r}")
+    return grid
+
+
+def parse_names(text: str) -> tuple[str, ...]:
+    """'alpha_u,alpha_v' -> ('alpha_u', 'alpha_v'), checked against the known names."""
+    from symbolic.model import PARAMETERS
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in PARAMETERS]
+    if not names or unknown:
+        raise UsageError(
+            f"--params takes a comma list from {', '.join(PARAMETERS)}; unknown: {unknown}"
+        )
+    return names
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from experiments.dataset import save_dataset
+    from experiments.simulate import SimulationSettings, simulate
+
+    if args.noise < 0:
+        raise UsageError(f"--noise must be >= 0 mm, got {args.noise}")
+    if args.out.suffix != ".npz":
+        raise UsageError(f"--out must name a .npz file, got {args.out}")
+    truth = None
+    if args.effect:
+        from experiments.effects_cli import truth_with_effects
+
+        truth = truth_with_effects(args.effect)
+    dataset = simulate(
+        measurement=SimulationSettings(noise_mm=args.noise, seed=args.seed), model=truth
+    )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_dataset(args.out, dataset)
+    print(
+        f"wrote {args.out}: {dataset.n_loads} load cases, "
+        f"{dataset.outer_rest.shape[0]}x{dataset.outer_rest.shape[1]} markers, "
+        f"noise {args.noise} mm, seed {args.seed}"
+    )
+    return 0
+
+
+def _fit(args: argparse.Namespace) -> int:
+    from experiments.dataset import load_dataset
+    from experiments.fitting import FitSettings, fit_dataset, write_fit_outputs
+
+    dataset = load_dataset(args.dataset)
+    objective = "control_points" if args.method == "paper" else "markers"
+    settings = FitSettings(
+        names=parse_names(args.params) if args.params else FitSettings().names,
+        grid=parse_grid(args.grid),
+        objective=args.objective or objective,
+    )
+    print(f"fitting {args.dataset} ({dataset.n_loads} load cases) with the {args.method} method")
+    problem, result, report, document = fit_dataset(dataset, settings, args.method)
+    write_fit_outputs(args.out, problem, result, document)
+    for line in report.summary_lines():
+        print("  " + line)
+    print(
+        f"  rms {document['rms_mm'] * 1e3:.2f} um; {result.status}; {result.iterations} "
+        f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand."""
     parser = argparse.ArgumentParser(
@@ -33,6 +106,37 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="run the main job on the embedded forehead phantom")
     demo.add_argument("--out", type=Path, default=Path("demo-output"), help="output directory")
     demo.set_defaults(handler=_demo)
+
+    sim = commands.add_parser("simulate", help="write a synthetic dataset from the phantom")
+    sim.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="NAME[=VALUE]",
+        help="an effect the dataset does not declare (repeatable)",
+    )
+    sim.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
+    sim.add_argument("--seed", type=int, default=0, help="random seed")
+    sim.add_argument("--out", type=Path, required=True, help="output .npz file")
+    sim.set_defaults(handler=_simulate)
+
+    fit = commands.add_parser("fit", help="estimate parameters from a dataset")
+    fit.add_argument("dataset", type=Path, help="dataset v1 (.npz)")
+    fit.add_argument(
+        "--method", choices=("simultaneous", "nested", "paper"), default="simultaneous"
+    )
+    fit.add_argument(
+        "--params", default="", help="comma list, default alpha_u,alpha_v,alpha_w,mu,gamma"
+    )
+    fit.add_argument("--grid", default="9x9x2", help="control grid MxNxL")
+    fit.add_argument(
+        "--objective",
+        choices=("markers", "control_points"),
+        default=None,
+        help="default markers (control_points for --method paper)",
+    )
+    fit.add_argument("--out", type=Path, required=True, help="output directory")
+    fit.set_defaults(handler=_fit)
     return parser
 
 

@@ -58,3 +58,69 @@ def plot_deformation(volume: VolumeSpline, deformed: np.ndarray, path, title: st
     fig.tight_layout()
     atomic_savefig(fig, path, dpi=120)
     plt.close(fig)
+
+
+def plot_residual_maps(problem, states, path, title: str = "") -> None:
+    """Marker residuals |S B - Y| on the rest skin, one panel per load case.
+
+    Parameters
+    ----------
+    problem : InverseProblem
+        The fitted problem (its cases know which markers were seen).
+    states : list of numpy.ndarray
+        Equilibrium states at the estimate.
+    path : str or Path
+        Output file.
+    """
+    errors = problem.point_errors(states)
+    count = len(problem.cases)
+    fig, axes = plt.subplots(1, count, figsize=(4.6 * count, 4.0), squeeze=False)
+    top = max(float(e.max()) for e in errors) * 1e3 or 1.0
+    for ax, case, error in zip(axes[0], problem.cases, errors):
+        image = ax.scatter(
+            case.rest_points[:, 0],
+            case.rest_points[:, 1],
+            c=error * 1e3,
+            s=70,
+            cmap="magma_r",
+            vmin=0,
+            vmax=top,
+        )
+        rms = np.sqrt(np.mean(error**2)) * 1e3
+        ax.set(
+            xlabel="x [mm]",
+            ylabel="y [mm]",
+            aspect="equal",
+            title=f"{case.label}: RMS {rms:.1f} um",
+        )
+    fig.colorbar(image, ax=axes[0].tolist(), label="marker residual [um]")
+    if title:
+        fig.suptitle(title)
+    atomic_savefig(fig, path, dpi=120)
+    plt.close(fig)
+
+
+def plot_fitted_section(problem, states, path) -> None:
+    """Measured and fitted marker displacement along the marker row nearest the contact."""
+    fig, axes = plt.subplots(
+        1, len(problem.cases), figsize=(4.6 * len(problem.cases), 3.6), squeeze=False
+    )
+    free = problem.model.free
+    for ax, case, state in zip(axes[0], problem.cases, states):
+        delta = state[: 3 * len(free)].reshape(3, -1).T
+        fitted = case.rows @ delta
+        measured = fitted - (case.rows @ delta + case.offset)
+        center_y = case.rest_points[np.argmax(np.linalg.norm(measured, axis=1)), 1]
+        row = (
+            np.abs(case.rest_points[:, 1] - center_y)
+            < 1e-6 + 0.25 * np.ptp(case.rest_points[:, 1]) / 8
+        )
+        order = np.argsort(case.rest_points[row, 0])
+        x = case.rest_points[row, 0][order]
+        ax.plot(x, measured[row, 2][order], "o", label="measured")
+        ax.plot(x, fitted[row, 2][order], "-", label="fitted")
+        ax.set(xlabel="x [mm]", ylabel="z displacement [mm]", title=case.label)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=120)
+    plt.close(fig)

@@ -3,7 +3,9 @@
 - Outer surface: a 40 x 40 mm patch of a sphere of radius 80 mm (the skin).
 - Inner surface: the same patch offset 5 mm inwards (soft-tissue thickness).
 - Segmentation: 15 x 15 x 2 points, fitted by a 9 x 9 x 2 volume of degrees (3, 3, 1).
-- Markers: a 9 x 9 grid of material points on the outer surface.
+- Markers: a 9 x 9 grid of material points spanning the outer surface. **choice**:
+  the grid spans the whole modelled patch, because the inverse rebuilds the
+  geometry from the markers; a grid 5 % short of the patch biases alpha_u by 20 %.
 - Loads: a probe at the centre pressing along the inward normal with 0.17 N and 0.25 N.
 - True parameters close to the paper's data set 2: alpha = (2.6, 0.18, 1.7) N/mm.
 """
@@ -33,7 +35,7 @@ class PhantomSettings:
     grid: tuple[int, int, int] = (9, 9, 2)
     degrees: tuple[int, int, int] = (3, 3, 1)
     markers: tuple[int, int] = (9, 9)
-    marker_margin: float = 0.05
+    marker_margin: float = 0.0
     forces: tuple[float, ...] = (0.17, 0.25)
     probe_radius: float = 0.0
     fix_lateral: bool = False

@@ -1,0 +1,224 @@
+"""From a dataset to an inverse problem, a fit and ``result.json`` (``dvs fit``).
+
+The rest geometry is rebuilt from the dataset: the volume is fitted to the
+(outer_rest, inner_rest) grid, and each marker's material coordinates (u, v)
+are its projection onto the fitted skin.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from experiments.dataset import Dataset
+from solvers.identifiability import IdentifiabilityReport, analyse
+from solvers.nested import NestedSolver
+from solvers.problem import (
+    InverseProblem,
+    ParameterSpace,
+    control_point_case,
+    observation_case,
+)
+from solvers.result import InverseResult
+from solvers.simultaneous import SimultaneousSolver
+from symbolic.loads import PointForce, ProbeForce
+from symbolic.model import BoundaryConditions, TissueModel
+from symbolic.volume import VolumeSpline
+
+DEFAULT_NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")
+"""The paper estimated mu and alpha; gamma is included to show it is not identifiable."""
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How a dataset becomes an inverse problem.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Estimated parameters.
+    grid, degrees : tuple of int
+        Control grid and degrees of the volume.
+    objective : {"markers", "control_points"}
+        Compare marker positions (default) or, as the paper did, the control
+        points of a spline fitted to the measured loaded skin.
+    fix_lateral : bool
+        Also fix the lateral ring of control points.
+    fixed : dict
+        Values of parameters that are not estimated.
+    """
+
+    names: tuple[str, ...] = DEFAULT_NAMES
+    grid: tuple[int, int, int] = (9, 9, 2)
+    degrees: tuple[int, int, int] = (3, 3, 1)
+    objective: str = "markers"
+    fix_lateral: bool = False
+    fixed: dict | None = None
+
+    def __post_init__(self) -> None:
+        if self.objective not in ("markers", "control_points"):
+            raise ValueError("objective must be 'markers' or 'control_points'")
+
+
+def rest_geometry(dataset: Dataset, settings: FitSettings) -> tuple[VolumeSpline, np.ndarray]:
+    """Volume fitted to the rest markers and inner surface; markers' (u, v)."""
+    grid = np.stack([dataset.inner_rest, dataset.outer_rest], axis=2)
+    volume, _ = VolumeSpline.fit(grid, settings.grid[:2] + (2,), settings.degrees[:2] + (1,))
+    if settings.grid[2] != 2:
+        volume = volume.with_layers(settings.grid[2], settings.degrees[2])
+    uv, _ = volume.project_to_outer(dataset.outer_rest.reshape(-1, 3))
+    return volume, uv
+
+
+def dataset_loads(dataset: Dataset, volume: VolumeSpline) -> list:
+    """Point or probe loads at the dataset's contacts (projected onto the skin)."""
+    loads = []
+    radius = dataset.probe_radius if dataset.probe_radius is not None else np.zeros(dataset.n_loads)
+    for force, contact, r in zip(dataset.forces, dataset.contacts, radius):
+        uv = volume.project_to_outer(contact[None])[0][0]
+        loads.append(ProbeForce(force, float(r), uv=uv) if r > 0 else PointForce(force, uv=uv))
+    return loads
+
+
+def build_problem(
+    dataset: Dataset, settings: FitSettings | None = None, cases: list[int] | None = None
+) -> InverseProblem:
+    """The inverse problem of a dataset (all load cases jointly, or the chosen ones)."""
+    settings = settings or FitSettings()
+    volume, uv = rest_geometry(dataset, settings)
+    boundary = BoundaryConditions(fix_lateral=settings.fix_lateral)
+    model = TissueModel(volume, dict(settings.fixed or {}), boundary)
+    loads = dataset_loads(dataset, volume)
+    chosen = range(dataset.n_loads) if cases is None else cases
+    problem_cases = []
+    for k in chosen:
+        label = f"{np.linalg.norm(dataset.forces[k]):.3g} N"
+        observed = dataset.outer_loaded[k].reshape(-1, 3)
+        if settings.objective == "markers":
+            problem_cases.append(observation_case(model, loads[k], observed, uv, label=label))
+        else:
+            target = loaded_control_points(model, uv, observed)
+            problem_cases.append(control_point_case(model, loads[k], target, label=label))
+    space = ParameterSpace.create(settings.names)
+    return InverseProblem(model, problem_cases, space, dataset.noise_mm)
+
+
+def loaded_control_points(model: TissueModel, uv: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """Control points of the spline fitted to the measured loaded skin (paper's 'bend').
+
+    Only the outer layer moves; it is the minimum-norm least-squares change
+    from the rest shape that fits the observed markers.
+    """
+    seen = np.all(np.isfinite(observed), axis=1)
+    outer = np.zeros(model.rest.shape[0], dtype=bool)
+    outer.reshape(model.volume.shape)[:, :, -1] = True
+    rows = model.volume.collocation(model.volume.outer_params(uv[seen])).toarray()
+    shift = np.linalg.lstsq(rows[:, outer], observed[seen] - rows @ model.rest, rcond=None)[0]
+    target = model.rest.copy()
+    target[outer] += shift
+    return target
+
+
+SOLVERS = {"simultaneous": SimultaneousSolver, "nested": NestedSolver}
+
+
+def solve(problem: InverseProblem, method: str = "simultaneous") -> InverseResult:
+    """Solve with one method by name ("simultaneous", "nested" or "paper")."""
+    if method == "paper":
+        from solvers.nested import PaperNestedSolver
+
+        return PaperNestedSolver(problem).solve()
+    if method not in SOLVERS:
+        raise ValueError(f"unknown method {method!r}; use simultaneous, nested or paper")
+    return SOLVERS[method](problem).solve()
+
+
+def result_document(
+    problem: InverseProblem,
+    result: InverseResult,
+    report: IdentifiabilityReport,
+    settings: FitSettings,
+) -> dict:
+    """The ``result.json`` document (schema dvs-result/1, DESIGN.md)."""
+    errors = problem.point_errors(result.states)
+    every = np.concatenate(errors)
+    return {
+        "schema": "dvs-result/1",
+        "method": result.method,
+        "parameters": {
+            p.name: {
+                "value": p.value,
+                "std": p.std,
+                "unit": p.unit,
+                "identifiable": p.identifiable,
+                "at_bound": p.at_bound,
+                "note": p.note,
+            }
+            for p in report.parameters
+        },
+        "rms_mm": float(np.sqrt(np.mean(every**2))),
+        "max_residual_mm": float(every.max()),
+        "per_load_rms_mm": {
+            case.label: float(np.sqrt(np.mean(e**2))) for case, e in zip(problem.cases, errors)
+        },
+        "cost": result.cost,
+        "solver": {
+            "status": result.status,
+            "success": result.success,
+            "iterations": result.iterations,
+            "forward_solves": result.forward_solves,
+            "wall_time_s": result.build_time_s + result.solve_time_s,
+            "build_time_s": result.build_time_s,
+        },
+        "identifiability": {
+            "singular_values": report.singular_values.tolist(),
+            "rank": report.rank,
+            "sigma_mm": report.sigma,
+            "sigma_source": report.sigma_source,
+            "correlation": report.correlation.tolist(),
+        },
+        "model": {
+            "grid": list(problem.model.volume.shape),
+            "degrees": list(problem.model.volume.basis.degrees),
+            "boundary_conditions": {
+                "fix_inner": problem.model.boundary.fix_inner,
+                "fix_lateral": problem.model.boundary.fix_lateral,
+            },
+            "objective": settings.objective,
+            "fixed_parameters": {
+                k: v for k, v in problem.model.parameters.items() if k not in problem.names
+            },
+        },
+    }
+
+
+def write_fit_outputs(out, problem, result, document) -> None:
+    """result.json plus the residual map and the measured-vs-fitted section."""
+    from pathlib import Path
+
+    from experiments.atomic import atomic_write_json
+    from experiments.plots import plot_fitted_section, plot_residual_maps
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    plot_residual_maps(
+        problem, result.states, out / "residual_map.png", f"{result.method}: marker residuals"
+    )
+    plot_fitted_section(problem, result.states, out / "fitted_section.png")
+    atomic_write_json(out / "result.json", document)
+
+
+def fit_dataset(
+    dataset: Dataset, settings: FitSettings | None = None, method: str = "simultaneous"
+) -> tuple[InverseProblem, InverseResult, IdentifiabilityReport, dict]:
+    """Build, solve, analyse; returns the pieces and the result.json document."""
+    settings = settings or FitSettings()
+    start = time.perf_counter()
+    problem = build_problem(dataset, settings)
+    setup = time.perf_counter() - start
+    result = solve(problem, method)
+    result.build_time_s += setup
+    report = analyse(problem, result.x)
+    return problem, result, report, result_document(problem, result, report, settings)

@@ -1,0 +1,314 @@
+"""The inverse problem, stated once: model, observations, parameters (MODEL.md eq. 24).
+
+    f(x) = 1/2 sum_k | W_k (S_k B^k(x) - Y_k) |^2,    K(B^k; x)(B^k - B0) = F_B^k,
+
+where S_k picks the model's material points that were observed (rows of J at
+the markers' (u, v, 1), or the outer control points in the paper's variant),
+Y_k are the measurements and W_k optional weights. The solvers in
+``solvers.simultaneous`` and ``solvers.nested`` are interchangeable strategies
+over this object and must agree on it.
+
+Parameters live in an internal coordinate z: log(x) for the positive ones
+(alpha, mu, gamma), x / scale for those that may be 0 (beta, k0). That keeps
+alpha away from 0 and makes the problem well scaled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.model import PARAMETERS, TissueModel
+
+DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
+    "mu": (1e-8, 1.0),
+    "gamma": (1e-3, 1e4),
+    "alpha_u": (1e-2, 1e2),
+    "alpha_v": (1e-2, 1e2),
+    "alpha_w": (1e-2, 1e2),
+    "beta": (0.0, 10.0),
+    "k0": (0.0, 1e3),
+}
+"""Default bounds [natural units]; alpha spans four decades around the paper's values."""
+
+LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w"})
+DYNAMIC_ONLY = frozenset({"mu", "gamma"})
+"""Parameters that drop out of the steady state (eq. 22)."""
+
+
+@dataclass(frozen=True)
+class ParameterSpace:
+    """Names, start values and bounds of the estimated parameters, and their scaling.
+
+    Parameters
+    ----------
+    names : tuple of str
+        Estimated parameters, from ``symbolic.model.PARAMETERS``.
+    start, lower, upper : numpy.ndarray
+        Start values and bounds in natural units.
+    """
+
+    names: tuple[str, ...]
+    start: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @classmethod
+    def create(cls, names, start=None, bounds=None) -> ParameterSpace:
+        """Defaults: the paper's start values and ``DEFAULT_BOUNDS``."""
+        names = tuple(names)
+        if not names:
+            raise ValueError("choose at least one parameter to estimate, e.g. alpha_u")
+        unknown = [n for n in names if n not in PARAMETERS]
+        if unknown or len(set(names)) != len(names):
+            raise ValueError(f"parameters must be distinct names from {list(PARAMETERS)}")
+        start = {**{n: PARAMETERS[n].default for n in names}, **(start or {})}
+        bounds = {**DEFAULT_BOUNDS, **(bounds or {})}
+        x0 = np.array([float(start[n]) for n in names])
+        lower = np.array([float(bounds[n][0]) for n in names])
+        upper = np.array([float(bounds[n][1]) for n in names])
+        for name, lo, hi, value in zip(names, lower, upper, x0):
+            if not lo < hi:
+                raise ValueError(f"bounds of {name} must satisfy lower < upper, got [{lo}, {hi}]")
+            if name in LOG_PARAMETERS and lo <= 0:
+                raise ValueError(
+                    f"lower bound of {name} must be > 0 (it is estimated in log space)"
+                )
+            if not lo <= value <= hi:
+                raise ValueError(f"start value of {name} = {value} lies outside [{lo}, {hi}]")
+        return cls(names, x0, lower, upper)
+
+    @property
+    def log_scaled(self) -> np.ndarray:
+        """True where the internal coordinate is log(x)."""
+        return np.array([n in LOG_PARAMETERS for n in self.names])
+
+    @property
+    def linear_scale(self) -> np.ndarray:
+        """Scale of the linear coordinates z = x / scale (the upper bound)."""
+        return np.where(self.log_scaled, 1.0, np.maximum(np.abs(self.upper), 1e-12))
+
+    def to_internal(self, x: np.ndarray) -> np.ndarray:
+        """z from x."""
+        x = np.asarray(x, dtype=float)
+        return np.where(self.log_scaled, np.log(np.maximum(x, 1e-300)), x / self.linear_scale)
+
+    def to_natural(self, z):
+        """x from z; works on numbers and on CasADi expressions."""
+        import casadi as ca
+
+        if isinstance(z, ca.MX | ca.SX):
+            parts = [
+                ca.exp(z[i]) if log else z[i] * scale
+                for i, (log, scale) in enumerate(zip(self.log_scaled, self.linear_scale))
+            ]
+            return ca.vertcat(*parts)
+        z = np.asarray(z, dtype=float)
+        return np.where(self.log_scaled, np.exp(z), z * self.linear_scale)
+
+    def natural_derivative(self, z: np.ndarray) -> np.ndarray:
+        """dx/dz, elementwise."""
+        return np.where(self.log_scaled, np.exp(z), self.linear_scale)
+
+    def internal_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds on z."""
+        return self.to_internal(self.lower), self.to_internal(self.upper)
+
+
+@dataclass(frozen=True)
+class LoadCase:
+    """One measured load case.
+
+    Attributes
+    ----------
+    force : numpy.ndarray
+        F_B on the free control points, (n_free, 3) [N].
+    rows : scipy.sparse.csr_matrix
+        S restricted to the free control points, (n_obs, n_free).
+    offset : numpy.ndarray
+        S B0 - Y, the residual at rest, (n_obs, 3) [mm].
+    weights : numpy.ndarray
+        W, one weight per observed point, (n_obs,).
+    prescribed : numpy.ndarray
+        d, prescribed displacements (m, 3) [mm]; empty without prescribed points.
+    rest_points : numpy.ndarray
+        Rest positions S B0 of the observed points, (n_obs, 3) [mm] (for plots).
+    label : str
+        Name for reports, e.g. "0.25 N".
+    """
+
+    force: np.ndarray
+    rows: sp.csr_matrix
+    offset: np.ndarray
+    weights: np.ndarray
+    prescribed: np.ndarray
+    rest_points: np.ndarray
+    label: str = ""
+
+    @property
+    def n_observations(self) -> int:
+        """Number of observed points (each has 3 coordinates)."""
+        return int(self.rows.shape[0])
+
+    def force_scale(self) -> float:
+        """A force magnitude [N] used to scale this case's equilibrium constraints."""
+        scale = float(np.abs(self.force).sum())
+        return scale if scale > 0 else 1.0
+
+
+def observation_case(
+    model: TissueModel,
+    load,
+    observed: np.ndarray,
+    material_uv: np.ndarray,
+    weights: np.ndarray | None = None,
+    prescribed: np.ndarray | None = None,
+    label: str = "",
+) -> LoadCase:
+    """A load case that observes skin material points (the default objective).
+
+    Parameters
+    ----------
+    model : TissueModel
+        The model.
+    load : PointForce, ProbeForce or numpy.ndarray
+        The load (or F_B on all control points).
+    observed : numpy.ndarray
+        Measured positions Y, (n_markers, 3) [mm]; NaN rows are unseen and dropped.
+    material_uv : numpy.ndarray
+        (u, v) of every marker on the rest skin, (n_markers, 2).
+    weights : numpy.ndarray, optional
+        One weight per marker (default 1).
+    """
+    observed = np.asarray(observed, dtype=float).reshape(-1, 3)
+    material_uv = np.asarray(material_uv, dtype=float).reshape(-1, 2)
+    if observed.shape[0] != material_uv.shape[0]:
+        raise ValueError("observed markers and their (u, v) must have the same count")
+    seen = np.all(np.isfinite(observed), axis=1)
+    if not seen.any():
+        raise ValueError(f"load case {label or '?'} has no observed marker")
+    weights = np.ones(len(observed)) if weights is None else np.asarray(weights, dtype=float)
+    rows = model.volume.collocation(model.volume.outer_params(material_uv[seen]))
+    rest_points = rows @ model.rest
+    return LoadCase(
+        force=model.generalized_force(load),
+        rows=rows[:, model.free].tocsr(),
+        offset=rest_points - observed[seen],
+        weights=weights[seen],
+        prescribed=_prescribed(model, prescribed),
+        rest_points=rest_points,
+        label=label,
+    )
+
+
+def control_point_case(
+    model: TissueModel,
+    load,
+    target: np.ndarray,
+    label: str = "",
+    prescribed: np.ndarray | None = None,
+) -> LoadCase:
+    """The paper's variant: compare the free outer control points with fitted ones.
+
+    Parameters
+    ----------
+    target : numpy.ndarray
+        Control points of the spline fitted to the measured loaded surface, (n, 3) [mm].
+    """
+    outer = np.zeros(model.rest.shape[0], dtype=bool)
+    outer.reshape(model.volume.shape)[:, :, -1] = True
+    picked = np.flatnonzero(outer[model.free])
+    selection = sp.csr_matrix(
+        (np.ones(len(picked)), (np.arange(len(picked)), picked)), shape=(len(picked), model.n_free)
+    )
+    points = model.free[picked]
+    return LoadCase(
+        force=model.generalized_force(load),
+        rows=selection,
+        offset=model.rest[points] - np.asarray(target, dtype=float)[points],
+        weights=np.ones(len(picked)),
+        prescribed=_prescribed(model, prescribed),
+        rest_points=model.rest[points],
+        label=label,
+    )
+
+
+def _prescribed(model: TissueModel, prescribed) -> np.ndarray:
+    rows = model._constraint_rows.shape[1]
+    if prescribed is None:
+        return np.zeros((rows, 3))
+    prescribed = np.asarray(prescribed, dtype=float).reshape(-1, 3)
+    if prescribed.shape[0] != rows:
+        raise ValueError(f"prescribed displacements need {rows} rows, got {prescribed.shape[0]}")
+    return prescribed
+
+
+@dataclass
+class InverseProblem:
+    """Model + load cases + estimated parameters: everything a solver needs.
+
+    Parameters
+    ----------
+    model : TissueModel
+        The forward model (fixed parameters taken from ``model.parameters``).
+    cases : list of LoadCase
+        The measured load cases; they share the parameters (a joint estimate).
+    space : ParameterSpace
+        What is estimated, from where, within which bounds.
+    noise_mm : float, optional
+        Standard deviation of a marker coordinate, if known [mm].
+    """
+
+    model: TissueModel
+    cases: list[LoadCase]
+    space: ParameterSpace
+    noise_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        if not self.cases:
+            raise ValueError("an inverse problem needs at least one load case")
+        self.g = self.model.state_residual(self.space.names)
+        self.n_state = self.g.size1_in(0)
+        pattern = self.g.jac_sparsity(0, 1)  # d g / d x
+        touched = set(pattern.get_col())
+        self.active = np.array([i in touched for i in range(len(self.space.names))])
+
+    @property
+    def inactive_names(self) -> tuple[str, ...]:
+        """Parameters that do not enter the equilibrium (mu and gamma at steady state)."""
+        return tuple(n for n, a in zip(self.space.names, self.active) if not a)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Estimated parameter names."""
+        return self.space.names
+
+    @property
+    def n_residuals(self) -> int:
+        """Total number of scalar residuals (3 per observed point)."""
+        return sum(3 * case.n_observations for case in self.cases)
+
+    def case_residual(self, case: LoadCase, state: np.ndarray) -> np.ndarray:
+        """W (S B - Y) for one case, flattened column-wise (all x, then y, then z) [mm]."""
+        delta = state[: 3 * self.model.n_free].reshape(3, -1).T
+        residual = case.weights[:, None] * (case.rows @ delta + case.offset)
+        return residual.T.reshape(-1)
+
+    def case_residual_jacobian(self, case: LoadCase) -> sp.csr_matrix:
+        """d(residual)/d(state), constant: kron(I3, W S), padded for multipliers."""
+        block = sp.diags(case.weights) @ case.rows
+        jac = sp.kron(sp.identity(3), block)
+        extra = self.n_state - jac.shape[1]
+        if extra:
+            jac = sp.hstack([jac, sp.csr_matrix((jac.shape[0], extra))])
+        return jac.tocsr()
+
+    def point_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
+        """Per case, the distance |S B - Y| of every observed point [mm] (unweighted)."""
+        errors = []
+        for case, state in zip(self.cases, states):
+            delta = state[: 3 * self.model.n_free].reshape(3, -1).T
+            errors.append(np.linalg.norm(case.rows @ delta + case.offset, axis=1))
+        return errors

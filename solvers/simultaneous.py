@@ -1,0 +1,178 @@
+"""Simultaneous (full-space) inverse: one IPOPT NLP (MODEL.md section 3, the design card).
+
+    min_{z, s_k, e_k}  1/2 sum_k |e_k|^2 / scale_f
+    s.t.               g(s_k, x(z), F_k, d_k) / |F_k| = 0         for every load case k
+                       W_k (S_k Delta_k + c_k) - e_k = 0
+                       z_lower <= z <= z_upper
+
+- x(z) is exp(z) for alpha, mu, gamma (log space) and a scaled z otherwise;
+- every equilibrium constraint is divided by its case's force magnitude;
+- the residuals e_k are lifted into variables, so the objective's Hessian is
+  the identity and the KKT matrix stays as sparse as the stiffness matrices
+  (instead of the denser S^T S blocks);
+- the states are warm-started from a forward solve at the start values;
+- IPOPT uses CasADi's exact Hessian of the Lagrangian.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from solvers.equilibrium import EquilibriumSolver
+from solvers.problem import InverseProblem
+from solvers.result import InverseResult
+from symbolic.stiffening import to_casadi_sparse
+
+
+@dataclass(frozen=True)
+class IpoptSettings:
+    """Options of the simultaneous solver; ``options`` passes anything through to nlpsol.
+
+    Attributes
+    ----------
+    tol : float
+        IPOPT's convergence tolerance (scaled NLP error).
+    max_iter : int
+        IPOPT iteration limit.
+    print_level : int
+        IPOPT verbosity, 0 (silent) to 12.
+    expand : bool
+        Expand the MX graph to SX. Evaluation gets faster but building the
+        derivative graphs takes seconds (colouring of K's rows), so off by default.
+    options : dict
+        Extra nlpsol options, e.g. ``{"ipopt.mu_strategy": "adaptive"}``; they
+        override the defaults above.
+    """
+
+    tol: float = 1e-10
+    max_iter: int = 300
+    print_level: int = 0
+    expand: bool = False
+    options: dict = field(default_factory=dict)
+
+    def nlpsol_options(self) -> dict:
+        """Defaults merged with the user's options (user wins); never mutates either."""
+        defaults = {
+            "ipopt.tol": self.tol,
+            "ipopt.max_iter": self.max_iter,
+            "ipopt.print_level": self.print_level,
+            "ipopt.sb": "yes",
+            "ipopt.hessian_approximation": "exact",
+            "ipopt.mu_strategy": "adaptive",
+            "print_time": False,
+            "expand": self.expand,
+        }
+        return {**defaults, **self.options}
+
+
+class SimultaneousSolver:
+    """Fit and equilibrium of all load cases in one NLP, solved by IPOPT.
+
+    Parameters
+    ----------
+    problem : InverseProblem
+        The problem.
+    settings : IpoptSettings
+        Options.
+    """
+
+    name = "simultaneous"
+
+    def __init__(self, problem: InverseProblem, settings: IpoptSettings | None = None):
+        start = time.perf_counter()
+        self.problem = problem
+        self.settings = settings or IpoptSettings()
+        self.options = self.settings.nlpsol_options()
+        space = problem.space
+        z = ca.MX.sym("z", len(space.names))
+        x = space.to_natural(z)
+        variables, objective, constraints = [z], 0, []
+        self.objective_scale = self._objective_scale()
+        for k, case in enumerate(problem.cases):
+            s = ca.MX.sym(f"s{k}", problem.n_state)
+            jac = to_casadi_sparse(problem.case_residual_jacobian(case))
+            e = ca.MX.sym(f"e{k}", jac.shape[0])
+            variables += [s, e]
+            offset = ca.DM((case.weights[:, None] * case.offset).T.reshape(-1))
+            objective = objective + 0.5 * ca.sumsqr(e) / self.objective_scale
+            g = problem.g(s, x, ca.DM(case.force), ca.DM(case.prescribed))
+            constraints += [g / case.force_scale(), ca.mtimes(jac, s) + offset - e]
+        self.block_sizes = [int(v.numel()) for v in variables]
+        nlp = {"x": ca.vertcat(*variables), "f": objective, "g": ca.vertcat(*constraints)}
+        self.solver = ca.nlpsol("inverse", "ipopt", nlp, self.options)
+        self.warm = EquilibriumSolver(problem.model, space.names)
+        self.build_time = time.perf_counter() - start
+
+    def _objective_scale(self) -> float:
+        """Residuals of 0.01 mm on every observation make the objective O(1)."""
+        return max(self.problem.n_residuals, 1) * 1e-4
+
+    def warm_start(self, x: np.ndarray) -> list[np.ndarray]:
+        """Equilibrium states of every load case at x (forward solves)."""
+        return [
+            self.warm.solve(case.force, x, case.prescribed).state for case in self.problem.cases
+        ]
+
+    def solve(self, start: np.ndarray | None = None) -> InverseResult:
+        """Solve from ``start`` (natural units; default: the space's start values)."""
+        space, problem = self.problem.space, self.problem
+        x0 = space.start if start is None else np.asarray(start, dtype=float)
+        lower, upper = space.internal_bounds()
+        begin = time.perf_counter()
+        try:
+            states0 = self.warm_start(x0)
+        except Exception as error:  # noqa: BLE001  no equilibrium at this start
+            return self._failed(x0, f"warm start failed: {error}", begin)
+        guess = [space.to_internal(x0)]
+        for case, state in zip(problem.cases, states0):
+            guess += [state, problem.case_residual(case, state)]
+        guess = np.concatenate(guess)
+        n_x = len(space.names)
+        lbx = np.full(guess.size, -np.inf)
+        ubx = np.full(guess.size, np.inf)
+        lbx[:n_x], ubx[:n_x] = lower, upper
+        # parameters absent from the equilibrium (mu, gamma) stay at their start values
+        inactive = ~problem.active
+        lbx[:n_x][inactive] = ubx[:n_x][inactive] = guess[:n_x][inactive]
+        solution = self.solver(x0=guess, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
+        elapsed = time.perf_counter() - begin
+        stats = self.solver.stats()
+        blocks = np.split(solution["x"].full().ravel(), np.cumsum(self.block_sizes)[:-1])
+        states = blocks[1::2]
+        residual = np.concatenate(
+            [problem.case_residual(c, s) for c, s in zip(problem.cases, states)]
+        )
+        variables = blocks[0]
+        return InverseResult(
+            method=self.name,
+            names=space.names,
+            x=space.to_natural(variables),
+            cost=0.5 * float(residual @ residual),
+            states=list(states),
+            success=bool(stats["success"]),
+            status=str(stats["return_status"]),
+            iterations=int(stats["iter_count"]),
+            forward_solves=len(problem.cases),
+            build_time_s=self.build_time,
+            solve_time_s=elapsed,
+            extra={"constraint_violation": float(np.abs(solution["g"].full()).max())},
+        )
+
+    def _failed(self, x0, status, begin) -> InverseResult:
+        return InverseResult(
+            self.name,
+            self.problem.space.names,
+            np.asarray(x0),
+            np.inf,
+            [],
+            False,
+            status,
+            0,
+            0,
+            self.build_time,
+            time.perf_counter() - begin,
+        )
