@@ -57,9 +57,7 @@ def _simulate(args: argparse.Namespace) -> int:
         raise UsageError(f"--out must name a .npz file, got {args.out}")
     truth = None
     if args.effect:
-        from experiments.effects_cli import truth_with_effects
-
-        truth = truth_with_effects(args.effect)
+        raise UsageError("--effect needs the effect library, which is not available yet")
     dataset = simulate(
         measurement=SimulationSettings(noise_mm=args.noise, seed=args.seed), model=truth
     )

@@ -102,7 +102,8 @@ def build_problem(
             target = loaded_control_points(model, uv, observed)
             problem_cases.append(control_point_case(model, loads[k], target, label=label))
     space = ParameterSpace.create(settings.names)
-    return InverseProblem(model, problem_cases, space, dataset.noise_mm)
+    rest_noise = settings.objective == "markers"
+    return InverseProblem(model, problem_cases, space, dataset.noise_mm, rest_noise)
 
 
 def loaded_control_points(model: TissueModel, uv: np.ndarray, observed: np.ndarray) -> np.ndarray:

@@ -10,6 +10,9 @@ parameters, from the implicit function theorem):
 - parameters at a bound;
 - standard errors from sigma^2 (S^T S)^-1 over the remaining parameters, with
   sigma given (the dataset's ``noise_mm``) or estimated as sqrt(RSS / (m - p));
+  when the rest markers are noisy too, the sandwich form with the shared rest
+  noise, sigma^2 (S^T S)^-1 S^T (I + P P^T) S (S^T S)^-1 (calibrated over 40
+  seeds: RMS z-scores 0.79, 1.04, 1.04 for alpha_u, alpha_v, alpha_w);
 - the correlation matrix, and an optional profile likelihood.
 """
 
@@ -137,7 +140,7 @@ def analyse(
         sub = sensitivity[:, estimable]
         sub_singular = np.linalg.svd(scaled[:, estimable], compute_uv=False)
         if sub_singular.min() > 1e-10 * sub_singular.max():
-            covariance = sigma**2 * np.linalg.inv(sub.T @ sub)
+            covariance = sigma**2 * _covariance(sub, problem.rest_noise_map())
             std[estimable] = np.sqrt(np.diag(covariance))
             d = np.sqrt(np.diag(covariance))
             idx = np.flatnonzero(estimable)
@@ -172,6 +175,15 @@ def analyse(
     return IdentifiabilityReport(
         reports, sensitivity, singular, rank, float(sigma), source, dof, correlation
     )
+
+
+def _covariance(sensitivity: np.ndarray, rest_map) -> np.ndarray:
+    """(S^T S)^-1, or the sandwich (S^T S)^-1 S^T (I + P P^T) S (S^T S)^-1 with rest noise."""
+    inverse = np.linalg.inv(sensitivity.T @ sensitivity)
+    if rest_map is None:
+        return inverse
+    shared = rest_map.T @ sensitivity
+    return inverse @ (sensitivity.T @ sensitivity + shared.T @ shared) @ inverse
 
 
 def profile_likelihood(

@@ -137,6 +137,9 @@ class LoadCase:
         Rest positions S B0 of the observed points, (n_obs, 3) [mm] (for plots).
     label : str
         Name for reports, e.g. "0.25 N".
+    marker_index : numpy.ndarray, optional
+        Which rest marker each observation is, (n_obs,); lets the uncertainty
+        account for noise in the rest markers, which every load case shares.
     """
 
     force: np.ndarray
@@ -146,6 +149,7 @@ class LoadCase:
     prescribed: np.ndarray
     rest_points: np.ndarray
     label: str = ""
+    marker_index: np.ndarray | None = None
 
     @property
     def n_observations(self) -> int:
@@ -200,6 +204,7 @@ def observation_case(
         prescribed=_prescribed(model, prescribed),
         rest_points=rest_points,
         label=label,
+        marker_index=np.flatnonzero(seen),
     )
 
 
@@ -259,12 +264,17 @@ class InverseProblem:
         What is estimated, from where, within which bounds.
     noise_mm : float, optional
         Standard deviation of a marker coordinate, if known [mm].
+    rest_noise : bool
+        True when the rest markers that define the geometry are measured with
+        the same noise (datasets). The residual of a marker is then
+        (loaded noise - rest noise), and the rest noise is shared by all cases.
     """
 
     model: TissueModel
     cases: list[LoadCase]
     space: ParameterSpace
     noise_mm: float | None = None
+    rest_noise: bool = False
 
     def __post_init__(self) -> None:
         if not self.cases:
@@ -304,6 +314,23 @@ class InverseProblem:
         if extra:
             jac = sp.hstack([jac, sp.csr_matrix((jac.shape[0], extra))])
         return jac.tocsr()
+
+    def rest_noise_map(self) -> np.ndarray | None:
+        """P, mapping rest-marker coordinate noise into every residual, or None.
+
+        The residual covariance is sigma^2 (I + P P^T) when ``rest_noise`` holds.
+        """
+        if not self.rest_noise or any(c.marker_index is None for c in self.cases):
+            return None
+        n_markers = 1 + max(int(c.marker_index.max()) for c in self.cases)
+        blocks = []
+        for case in self.cases:
+            n = case.n_observations
+            pick = sp.csr_matrix(
+                (case.weights, (np.arange(n), case.marker_index)), shape=(n, n_markers)
+            )
+            blocks.append(sp.kron(sp.identity(3), pick))
+        return sp.vstack(blocks).tocsr()
 
     def point_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
         """Per case, the distance |S B - Y| of every observed point [mm] (unweighted)."""

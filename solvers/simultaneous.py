@@ -46,6 +46,13 @@ class IpoptSettings:
     options : dict
         Extra nlpsol options, e.g. ``{"ipopt.mu_strategy": "adaptive"}``; they
         override the defaults above.
+
+    Notes
+    -----
+    The monotone (Fiacco-McCormick) barrier is the default: from 80
+    log-uniform starts on the phantom it converged 80 times, the adaptive
+    strategy 75 times (the others ended in a second basin, alpha_u at its
+    lower bound with a stiff alpha_w).
     """
 
     tol: float = 1e-10
@@ -62,7 +69,7 @@ class IpoptSettings:
             "ipopt.print_level": self.print_level,
             "ipopt.sb": "yes",
             "ipopt.hessian_approximation": "exact",
-            "ipopt.mu_strategy": "adaptive",
+            "ipopt.mu_strategy": "monotone",
             "print_time": False,
             "expand": self.expand,
         }
