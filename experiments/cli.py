@@ -17,6 +17,13 @@ class UsageError(ValueError):
     """Bad input that a user can fix; printed as one line, exit code 2."""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (and exit code 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _demo(args: argparse.Namespace) -> int:
     from experiments import demo
 
@@ -96,11 +103,13 @@ def _fit(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="dvs",
         description="Dynamic volume spline models of soft tissue: forward and inverse solutions.",
     )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser
+    )
     demo = commands.add_parser("demo", help="run the main job on the embedded forehead phantom")
     demo.add_argument("--out", type=Path, default=Path("demo-output"), help="output directory")
     demo.set_defaults(handler=_demo)
