@@ -290,8 +290,65 @@ class TissueModel:
     def state_residual(self, names: tuple[str, ...] = ()) -> ca.Function:
         """Flat form g(s, x, F_B, d) for solvers, s = [vec(B_free - B0_free); vec(lam)].
 
-        vec stacks columns (x components first, CasADi's convention).
+        vec stacks columns (x components first, CasADi's convention). For the
+        linear model the Function carries its exact Jacobian in closed form
+        (see ``_linear_jacobian``), which is ~7x cheaper than AD colouring.
         """
+        function = self._state_residual(tuple(names))
+        if "k0" in names or not self.is_linear_fixed:
+            return function
+        jacobian = self._linear_jacobian(tuple(names))
+        return ca.Function(
+            "g",
+            function.mx_in(),
+            function.call(function.mx_in()),
+            ["s", "x", "F_B", "d"],
+            ["g"],
+            {"custom_jacobian": jacobian, "jac_penalty": 0, "never_inline": True},
+        )
+
+    def _linear_jacobian(self, names: tuple[str, ...]) -> ca.Function:
+        """Closed-form Jacobian of the linear g with respect to s, x, F_B and d.
+
+        dg/ds = [[I3 (x) A(x), I3 (x) C^T], [I3 (x) C, 0]] with A = sum_t c_t K_t
+        assembled from the nonzeros of the unit terms; dg/dx = sum_t vec(K_t Delta)
+        dc_t/dx; dg/dF_B = [-I; 0]; dg/dd = [0; -I3 (x) Q].
+        """
+        x, values = self.symbolic_values(names)
+        n, rows = 3 * self.n_free, self._constraint_rows
+        m_rows, m_cols = 3 * rows.shape[0], 3 * rows.shape[1]
+        terms = list(self.terms)
+        blocks = [sp.kron(sp.identity(3), self.free_block(self.terms[t])).tocsc() for t in terms]
+        pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
+        pattern.sort_indices()
+        r, c = pattern.nonzero()
+        order = np.lexsort((r, c))
+        r, c = r[order], c[order]
+        unit = np.column_stack([np.asarray(b[r, c]).ravel() for b in blocks])
+        sparsity = ca.Sparsity(n, n, pattern.indptr.tolist(), pattern.indices.tolist())
+        coefficients = self._term_coefficients(values)
+        stiffness = ca.MX(sparsity, ca.mtimes(ca.DM(unit), coefficients))
+        state = ca.MX.sym("s", n + m_rows)
+        force = ca.MX.sym("F_B", self.n_free, 3)
+        prescribed = ca.MX.sym("d", rows.shape[1], 3)
+        nominal = ca.MX.sym("out_g", n + m_rows)
+        coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
+        d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
+        columns = ca.horzcat(*[ca.mtimes(to_casadi_sparse(b), state[:n]) for b in blocks])
+        d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
+        d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
+        reduce = to_casadi_sparse(sp.kron(sp.identity(3), sp.csr_matrix(rows)))
+        d_prescribed = ca.vertcat(ca.MX(n, m_cols), -reduce)
+        return ca.Function(
+            "jac_g",
+            [state, x, force, prescribed, nominal],
+            [d_s, d_x, d_force, d_prescribed],
+            ["s", "x", "F_B", "d", "out_g"],
+            ["jac_g_s", "jac_g_x", "jac_g_F_B", "jac_g_d"],
+        )
+
+    def _state_residual(self, names: tuple[str, ...]) -> ca.Function:
+        """g(s, x, F_B, d) by plain expressions (AD derivatives)."""
         x, values = self.symbolic_values(names)
         rows = self._constraint_rows
         n_state = 3 * (self.n_free + rows.shape[0])

@@ -142,3 +142,22 @@ def test_newton_reports_failure_clearly():
     solver = EquilibriumSolver(model, settings=NewtonSettings(max_iterations=2))
     with pytest.raises(EquilibriumError, match="did not converge in 2 iterations"):
         solver.solve(force)
+
+
+@pytest.mark.parametrize("prescribed", [False, True])
+def test_closed_form_jacobian_equals_automatic_differentiation(prescribed):
+    """The linear model's custom Jacobian is exact: same as CasADi AD on all inputs."""
+    base = forehead_model()
+    pad = PrescribedDisplacement(np.array([[0.2, 0.5], [0.25, 0.5], [0.8, 0.4]]))
+    model = TissueModel(base.volume, TRUE_PARAMETERS, prescribed=pad if prescribed else None)
+    names = ("alpha_u", "alpha_w", "beta")
+    fast, plain = model.state_residual(names), model._state_residual(names)
+    rng = np.random.default_rng(2)
+    args = [rng.normal(size=fast.size_in(i)) for i in range(4)]
+    for function in (fast, plain):
+        assert function.n_in() == 4
+    for i in range(4):
+        jac = [f.jacobian()(*args, f(*args))[i].full() for f in (fast, plain)]
+        if jac[1].size == 0:  # no prescribed points: d has no entries
+            continue
+        assert np.max(np.abs(jac[0] - jac[1])) < 1e-12 * max(1.0, np.abs(jac[1]).max())
