@@ -101,6 +101,18 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from experiments import compare
+    from experiments.dataset import load_dataset
+
+    dataset = load_dataset(args.dataset)
+    if args.starts < 1 or args.paper_starts < 0:
+        raise UsageError("--starts must be >= 1 and --paper-starts >= 0")
+    rows = compare.run(dataset, args.out, args.starts, args.paper_starts)
+    print(compare.table(rows))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand."""
     parser = OneLineParser(
@@ -144,6 +156,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     fit.add_argument("--out", type=Path, required=True, help="output directory")
     fit.set_defaults(handler=_fit)
+
+    cmp_ = commands.add_parser("compare", help="simultaneous vs nested vs paper-faithful")
+    cmp_.add_argument("dataset", type=Path, help="dataset v1 (.npz)")
+    cmp_.add_argument("--starts", type=int, default=20, help="multi-start points")
+    cmp_.add_argument(
+        "--paper-starts",
+        type=int,
+        default=3,
+        help="multi-start points for the (slow) paper-faithful method",
+    )
+    cmp_.add_argument("--out", type=Path, required=True, help="output directory")
+    cmp_.set_defaults(handler=_compare)
     return parser
 
 
