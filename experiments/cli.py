@@ -113,6 +113,17 @@ def _compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _transient(args: argparse.Namespace) -> int:
+    from experiments import transient
+
+    summary = transient.run(args.out)
+    print(
+        f"relative distance to equilibrium {summary['relative_distance_to_equilibrium']:.2e}, "
+        f"settling time {summary['settling_time_s']:.3g} s -> {args.out / 'transient.json'}"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand."""
     parser = OneLineParser(
@@ -168,6 +179,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cmp_.add_argument("--out", type=Path, required=True, help="output directory")
     cmp_.set_defaults(handler=_compare)
+
+    tr = commands.add_parser("transient", help="transient from rest against the equilibrium")
+    tr.add_argument("--out", type=Path, default=Path("transient-output"), help="output directory")
+    tr.set_defaults(handler=_transient)
     return parser
 
 

@@ -98,13 +98,17 @@ class EquilibriumSolver:
         Parameters passed as ``x`` to ``solve`` (the others are fixed).
     settings : NewtonSettings
         Tolerances.
+    residual : casadi.Function, optional
+        ``model.state_residual(names)`` if the caller already built it.
     """
 
-    def __init__(self, model: TissueModel, names: tuple[str, ...] = (), settings=None):
+    def __init__(
+        self, model: TissueModel, names: tuple[str, ...] = (), settings=None, residual=None
+    ):
         self.model = model
         self.names = tuple(names)
         self.settings = settings or NewtonSettings()
-        g = model.state_residual(self.names)
+        g = model.state_residual(self.names) if residual is None else residual
         s, x, force, prescribed = g.mx_in()
         value = g(s, x, force, prescribed)
         self.residual = g

@@ -50,7 +50,7 @@ class NestedSolver:
         self.method = method
         self.tolerance = tolerance
         self.max_evaluations = max_evaluations
-        self.equilibrium = EquilibriumSolver(problem.model, problem.names)
+        self.equilibrium = EquilibriumSolver(problem.model, problem.names, residual=problem.g)
         s, x, force, prescribed = problem.g.mx_in()
         self.g_x = ca.Function(
             "dg_dx", [s, x, force, prescribed], [ca.jacobian(problem.g(s, x, force, prescribed), x)]
@@ -162,7 +162,8 @@ class PaperNestedSolver:
         self.steady_tol = steady_tol
         self.t_max = t_max
         self.max_evaluations = max_evaluations
-        self.transient = TransientSolver(problem.model, problem.names)
+        # generalised-alpha (rho_inf = 0) damps the stiff modes; Newmark's do not decay
+        self.transient = TransientSolver(problem.model, problem.names, "generalized_alpha")
         self.build_time = time.perf_counter() - start
         self.forward_solves = 0
         self._states: list = [None] * len(problem.cases)

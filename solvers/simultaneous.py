@@ -111,7 +111,7 @@ class SimultaneousSolver:
         self.block_sizes = [int(v.numel()) for v in variables]
         nlp = {"x": ca.vertcat(*variables), "f": objective, "g": ca.vertcat(*constraints)}
         self.solver = ca.nlpsol("inverse", "ipopt", nlp, self.options)
-        self.warm = EquilibriumSolver(problem.model, space.names)
+        self.warm = EquilibriumSolver(problem.model, space.names, residual=problem.g)
         self.build_time = time.perf_counter() - start
 
     def _objective_scale(self) -> float:

@@ -1,0 +1,704 @@
+"""Transient solution of M B'' + D B' + K(B)(B - B0) = F_B(t) (MODEL.md eq. 22, 23).
+
+On the free control points, with u = vec(B_free - B0_free) (x components, then y, z),
+
+    M u'' + D u' + f(u; x) = F(t),     f(u; x) = K(B; x)(B - B0) = g(u, x, 0, d),
+
+M = kron(I3, mu M_1), D = kron(I3, gamma D_1) (eq. 13, 16) and g the static residual
+of ``TissueModel.state_residual``. Steady state, f(u) = F, is the paper's forward
+solution; mu and gamma only shape the way there.
+
+Schemes (one step n -> n+1, implicit, A-stable):
+
+- ``newmark``: average acceleration (beta = 1/4, gamma_N = 1/2), 2nd order, no
+  numerical damping;
+- ``generalized_alpha``: Chung-Hulbert with spectral radius rho_inf at dt -> inf
+  (2nd order; rho_inf < 1 damps the unresolved stiff modes);
+- ``backward_euler``: 1st order, L-stable.
+
+Each step solves r(du) = 0 for du = u_{n+1} - u_n by (modified) Newton with the
+CasADi tangent df/du (sparse, SuperLU). For the linear model (k0 = 0) the effective
+matrix is constant for a given dt: one factorisation per step size. Adaptive steps
+use the embedded local error estimate C dt^2 (a_{n+1} - a_n) and step sizes dt_0 2^k,
+so few factorisations are needed. Newmark has no numerical dissipation: at large dt its
+unresolved stiff modes (rate gamma/mu) do not decay, so runs to steady state use
+generalised-alpha with rho_inf = 0 (see docs/transient.md).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.optimize import brentq
+
+from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
+from solvers.modal import SETTLING_BAND, probe_observation
+from symbolic.model import TissueModel
+from symbolic.stiffening import to_casadi_sparse
+
+
+class TransientError(RuntimeError):
+    """A time step could not be completed (Newton failed at the smallest step)."""
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """A one-step scheme: a_{n+1} = c_a du + a_hat, v_{n+1} = c_v du + v_hat.
+
+    The equation of motion is enforced at t_{n+1-alpha_f} with the inertia at
+    n+1-alpha_m (generalised-alpha); alpha_m = alpha_f = 0 is Newmark.
+    """
+
+    name: str
+    alpha_m: float = 0.0
+    alpha_f: float = 0.0
+    beta: float = 0.25
+    gamma: float = 0.5
+    order: int = 2
+
+    @property
+    def error_constant(self) -> float:
+        """C in the local displacement error C dt^2 (a_{n+1} - a_n), |beta - gamma/2 + 1/12|.
+
+        Zienkiewicz-Xie's beta - 1/6 for Newmark; the algorithmic acceleration of
+        generalised-alpha lags by (gamma - 1/2) dt, which shifts it by -(gamma - 1/2)/2.
+        """
+        return abs(self.beta - 0.5 * self.gamma + 1.0 / 12.0)
+
+    def matrix_coefficients(self, dt: float) -> tuple[float, float]:
+        """(c_a, c_v): d a_{n+1} / d du [1/s^2] and d v_{n+1} / d du [1/s]."""
+        if self.name == "backward_euler":
+            return 1.0 / dt**2, 1.0 / dt
+        return 1.0 / (self.beta * dt**2), self.gamma / (self.beta * dt)
+
+    def predictors(self, dt: float, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(a_hat, v_hat): a_{n+1} and v_{n+1} at du = 0."""
+        if self.name == "backward_euler":
+            return -v / dt, np.zeros_like(v)
+        a_hat = -v / (self.beta * dt) - (0.5 / self.beta - 1.0) * a
+        return a_hat, v + dt * ((1.0 - self.gamma) * a + self.gamma * a_hat)
+
+
+def generalized_alpha(rho_inf: float = 0.0) -> Scheme:
+    """Chung-Hulbert generalised-alpha with spectral radius rho_inf in [0, 1] at dt -> inf.
+
+    rho_inf = 1 is Newmark's average acceleration; rho_inf = 0 (the default and
+    ``SCHEMES["generalized_alpha"]``) annihilates unresolved modes.
+    """
+    if not 0.0 <= rho_inf <= 1.0:
+        raise ValueError(f"rho_inf must lie in [0, 1], got {rho_inf}")
+    alpha_m = (2.0 * rho_inf - 1.0) / (rho_inf + 1.0)
+    alpha_f = rho_inf / (rho_inf + 1.0)
+    gamma = 0.5 - alpha_m + alpha_f
+    return Scheme(
+        "generalized_alpha", alpha_m, alpha_f, 0.25 * (1.0 - alpha_m + alpha_f) ** 2, gamma
+    )
+
+
+_REFRESH, _SLOW = 0.5, 6
+"""Modified Newton: a new tangent when |r| falls by less than _REFRESH in an iteration,
+or at the next step after one that needed more than _SLOW iterations."""
+
+SCHEMES = {
+    "newmark": Scheme("newmark"),
+    "generalized_alpha": generalized_alpha(0.0),
+    "backward_euler": Scheme("backward_euler", order=1),
+}
+"""The schemes by name; pass a ``Scheme`` for other parameters."""
+
+
+def _one(t):
+    return 1.0
+
+
+@dataclass(frozen=True)
+class Load:
+    """F_B(t) = profile(t) F on the free points (eq. 20), F of shape (n_free, 3) [N].
+
+    ``profile`` maps t [s] to a scale; written with casadi operations (``ca.fmin``,
+    ``ca.if_else``) it also works symbolically, as ``integrate_casadi`` needs.
+    """
+
+    force: np.ndarray
+    profile: Callable = _one
+
+    def __call__(self, t: float) -> np.ndarray:
+        return float(self.profile(t)) * np.asarray(self.force, dtype=float)
+
+
+@dataclass(frozen=True)
+class _Ramp:
+    duration: float
+
+    def __call__(self, t):
+        return ca.fmin(t / self.duration, 1.0)
+
+
+def step_load(force: np.ndarray) -> Load:
+    """F applied in full at t = 0 [N]."""
+    return Load(np.asarray(force, dtype=float))
+
+
+def ramp_load(force: np.ndarray, duration: float) -> Load:
+    """F rising linearly from 0 to F over ``duration`` [s], then held."""
+    if duration <= 0:
+        raise ValueError(f"ramp duration must be positive, got {duration}")
+    return Load(np.asarray(force, dtype=float), _Ramp(float(duration)))
+
+
+def _as_load(load) -> Callable[[float], np.ndarray]:
+    """An array is a step load; a Load or any callable t -> (n_free, 3) array is used as is."""
+    return step_load(load) if isinstance(load, np.ndarray) else load
+
+
+@dataclass(frozen=True)
+class StepSettings:
+    """Step-size and Newton settings.
+
+    Attributes
+    ----------
+    dt : float or None
+        Fixed step [s]; None for adaptive steps.
+    rtol, atol : float
+        Adaptive steps keep the embedded estimate of the local displacement error
+        (RMS) below atol + rtol RMS(u) [mm].
+    dt_initial : float or None
+        First adaptive step [s]; default sqrt(2 atol / RMS(a_0)).
+    dt_max : float
+        Largest adaptive step [s].
+    newton_tol : float
+        Newton stops at |r| <= newton_tol max(|F|, |f(u)|) [relative].
+    max_newton : int
+        Newton iterations per step before the step is rejected.
+    max_steps : int
+        Accepted steps before giving up.
+    """
+
+    dt: float | None = None
+    rtol: float = 1e-4
+    atol: float = 1e-9
+    dt_initial: float | None = None
+    dt_max: float = np.inf
+    newton_tol: float = 1e-12
+    max_newton: int = 25
+    max_steps: int = 200_000
+
+
+class _State(NamedTuple):
+    t: float
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    f: np.ndarray
+
+
+@dataclass
+class TransientResult:
+    """A transient run (MODEL.md eq. 22), from rest unless a start was given.
+
+    Attributes
+    ----------
+    times : numpy.ndarray
+        t_n of the accepted steps, (k,) [s].
+    displacements, velocities : numpy.ndarray
+        B_free - B0_free and B_free', (k, n_free, 3) [mm], [mm/s].
+    probe : numpy.ndarray
+        Displacement of the skin centre (u, v) = (0.5, 0.5), (k, 3) [mm].
+    state : numpy.ndarray
+        Final s = vec(B_free - B0_free) (the ``state_residual`` ordering).
+    positions : numpy.ndarray
+        Final B, (n, 3) [mm].
+    steps, rejected, newton_iterations, jacobian_evaluations : int
+        Work done.
+    steady : bool
+        Whether the steady-state rule was met before t_max.
+    steady_time : float or None
+        Time at which it was met [s].
+    settling_time, probe_settling_time : float
+        First time after which |u(t) - u_end| <= 1 % |u_end| for good, for all free
+        control points and for the probe [s] (cubic Hermite between steps).
+    static_residual, kinetic_ratio : float
+        |f(u) - F| / |F| and sqrt(v^T M v / u^T f(u)) at the end.
+    """
+
+    times: np.ndarray
+    displacements: np.ndarray
+    velocities: np.ndarray
+    probe: np.ndarray
+    state: np.ndarray
+    positions: np.ndarray
+    steps: int
+    rejected: int
+    newton_iterations: int
+    jacobian_evaluations: int
+    steady: bool
+    steady_time: float | None
+    settling_time: float
+    probe_settling_time: float
+    static_residual: float
+    kinetic_ratio: float
+    method: str = ""
+
+    def observe(self, observation) -> np.ndarray:
+        """History of observed points O (p, n_free) @ displacement, (k, p, 3) [mm]."""
+        return np.einsum("pn,knc->kpc", np.asarray(observation), self.displacements)
+
+
+def settling_time(times, values, rates, band: float = SETTLING_BAND) -> float:
+    """First t after which |y(t) - y_end| <= band |y_end| for good [s].
+
+    ``values`` and ``rates`` are (k, m) samples of y and y'; between samples y is the
+    cubic Hermite interpolant, and the last crossing is found by brentq.
+    """
+    values = np.asarray(values).reshape(len(times), -1)
+    rates = np.asarray(rates).reshape(len(times), -1)
+    final, limit = values[-1], band * np.linalg.norm(values[-1])
+    outside = np.flatnonzero(np.linalg.norm(values - final, axis=1) > limit)
+    if outside.size == 0:
+        return float(times[0])
+    last = int(outside[-1])
+    t0, h = times[last], times[last + 1] - times[last]
+
+    def excess(theta):
+        p = [2 * theta**3 - 3 * theta**2 + 1, theta**3 - 2 * theta**2 + theta]
+        p += [-2 * theta**3 + 3 * theta**2, theta**3 - theta**2]
+        y = p[0] * values[last] + p[1] * h * rates[last]
+        y = y + p[2] * values[last + 1] + p[3] * h * rates[last + 1]
+        return np.linalg.norm(y - final) - limit
+
+    return float(t0 + h * brentq(excess, 0.0, 1.0, xtol=1e-12))
+
+
+class TransientSolver:
+    """The transient of one model for one choice of symbolic parameters ``names``.
+
+    The CasADi Functions f(u, x) and df/du are built once; ``integrate`` can be
+    called for many x, loads, mu and gamma.
+    """
+
+    def __init__(self, model: TissueModel, names: tuple[str, ...] = (), method="newmark"):
+        if model.n_constraints:
+            raise ValueError("transients with prescribed displacements are not supported")
+        self.model, self.names = model, tuple(names)
+        self.scheme = method if isinstance(method, Scheme) else SCHEMES.get(method)
+        if self.scheme is None:
+            raise ValueError(f"unknown method {method!r}; use one of {list(SCHEMES)}")
+        g = model.state_residual(self.names)
+        s, x = ca.MX.sym("s", g.size1_in(0)), ca.MX.sym("x", len(self.names))
+        force = g(s, x, ca.MX(model.n_free, 3), ca.MX(0, 3))
+        self.internal = ca.Function("f", [s, x], [force], ["s", "x"], ["f"])
+        self.tangent = ca.Function("df_ds", [s, x], [ca.jacobian(force, s)], ["s", "x"], ["K"])
+        self.unit_mass = model.free_block(model.mass_matrix({"mu": 1.0}))
+        self.unit_damping = model.free_block(model.damping_matrix({"gamma": 1.0}))
+        self.probe = probe_observation(model)
+
+    def values(self, x, overrides) -> tuple[np.ndarray, dict]:
+        """x as an array and all parameter values, with mu and gamma from overrides or x."""
+        x = np.asarray([] if x is None else x, dtype=float).reshape(-1)
+        if x.size != len(self.names):
+            raise ValueError(f"expected {len(self.names)} values for {self.names}, got {x.size}")
+        unknown = set(overrides or {}) - {"mu", "gamma"}
+        if unknown:
+            raise ValueError(
+                f"overrides may set mu and gamma only, got {sorted(unknown)}; "
+                "pass stiffness parameters as names and x"
+            )
+        dynamic = {n: v for n, v in zip(self.names, x) if n in ("mu", "gamma")}
+        return x, self.model.values({**(overrides or {}), **dynamic})
+
+    def integrate(
+        self,
+        load,
+        t_end: float,
+        x=None,
+        overrides=None,
+        settings=None,
+        start=None,
+        steady_tol: float | None = None,
+    ) -> TransientResult:
+        """Integrate eq. (22) from ``start`` (default rest), at rest velocity, to ``t_end``.
+
+        Parameters
+        ----------
+        load : numpy.ndarray, Load or callable
+            F_B(t) on the free points, (n_free, 3) [N]; an array is a step load.
+        t_end : float
+            Final time [s] (the run stops earlier at steady state if ``steady_tol``).
+        x : array_like, optional
+            Values of ``names``; mu and gamma among them set the dynamics.
+        overrides : dict, optional
+            mu [t] and gamma [N s/mm] for M and D (eq. 13, 16).
+        settings : StepSettings, optional
+            Fixed or adaptive steps, tolerances.
+        start : numpy.ndarray, optional
+            Initial s = vec(B_free - B0_free) [mm].
+        steady_tol : float, optional
+            Stop when |f(u) - F| <= tol |F| and sqrt(v^T M v / u^T f(u)) <= tol.
+        """
+        x, values = self.values(x, overrides)
+        run = _Run(self, _as_load(load), x, values, settings or StepSettings(), start)
+        return run.solve(float(t_end), steady_tol)
+
+
+def _factorize(matrix: sp.spmatrix) -> Callable[[np.ndarray], np.ndarray]:
+    """SuperLU solve function (also for small blocks: it avoids BLAS thread overhead)."""
+    return spla.splu(sp.csc_matrix(matrix)).solve
+
+
+class _Run:
+    """One integration: matrices for given mu, gamma and x, factorisations, counters.
+
+    States are (n_free, 3) arrays; M and D act on each column with the same block.
+    """
+
+    def __init__(self, solver: TransientSolver, load, x, values, settings, start):
+        self.solver, self.load, self.x, self.settings = solver, load, x, settings
+        self.scheme, n = solver.scheme, solver.model.n_free
+        self.mass = values["mu"] * solver.unit_mass
+        self.damping = values["gamma"] * solver.unit_damping
+        k0 = dict(zip(solver.names, x)).get("k0", solver.model.parameters["k0"])
+        self.linear = k0 == 0.0
+        self.factors: dict[float, Callable] = {}
+        self.newton = self.jacobians = 0
+        self.refresh = False
+        u = np.zeros((n, 3)) if start is None else _matrix(np.asarray(start, dtype=float), n)
+        self.stiffness = self._tangent(u)
+        if self.linear:
+            self.stiffness = _diagonal_block(self.stiffness, n)
+        f = self.force(u)
+        load0 = self._load(0.0)
+        self.scale = max(np.linalg.norm(load0), np.linalg.norm(f), 1e-300)
+        a = _factorize(self.mass)(load0 - f)
+        self.state = _State(0.0, u, np.zeros((n, 3)), a, f)
+
+    def _load(self, t: float) -> np.ndarray:
+        return np.asarray(self.load(t), dtype=float).reshape(-1, 3)
+
+    def force(self, u: np.ndarray) -> np.ndarray:
+        """f(u) = K(B; x)(B - B0) on the free points, (n_free, 3) [N]."""
+        if self.linear:
+            return self.stiffness @ u
+        return _matrix(np.asarray(self.solver.internal(u.ravel(order="F"), self.x)), len(u))
+
+    def _tangent(self, u: np.ndarray) -> sp.csc_matrix:
+        self.jacobians += 1
+        self.factors.clear()
+        return casadi_to_scipy(self.solver.tangent(u.ravel(order="F"), self.x))
+
+    def _solve(self, dt: float, rhs: np.ndarray) -> np.ndarray:
+        if dt not in self.factors:
+            s = self.scheme
+            c_a, c_v = s.matrix_coefficients(dt)
+            block = (1 - s.alpha_m) * c_a * self.mass + (1 - s.alpha_f) * c_v * self.damping
+            if not self.linear:
+                block = sp.kron(sp.eye(3), block)
+            self.factors[dt] = _factorize(block + (1 - s.alpha_f) * self.stiffness)
+        if self.linear:
+            return self.factors[dt](rhs)
+        return _matrix(self.factors[dt](rhs.ravel(order="F")), len(rhs))
+
+    def step(self, st: _State, dt: float) -> _State | None:
+        """One step of the scheme; None when Newton fails."""
+        s = self.scheme
+        c_a, c_v = s.matrix_coefficients(dt)
+        a_hat, v_hat = s.predictors(dt, st.v, st.a)
+        load = (1 - s.alpha_f) * self._load(st.t + dt) + s.alpha_f * self._load(st.t)
+        known = self.mass @ (s.alpha_m * st.a + (1 - s.alpha_m) * a_hat)
+        known += self.damping @ (s.alpha_f * st.v + (1 - s.alpha_f) * v_hat)
+        known += st.f - load
+        if self.linear:  # r(du) = known + J du exactly
+            du = -self._solve(dt, known)
+            self.newton += 1
+            f = self.stiffness @ (st.u + du)
+            return _State(st.t + dt, st.u + du, c_v * du + v_hat, c_a * du + a_hat, f)
+        return self._newton(st, dt, known, c_a, c_v, a_hat, v_hat, load)
+
+    def _newton(self, st, dt, known, c_a, c_v, a_hat, v_hat, load) -> _State | None:
+        """Modified Newton: the tangent is refreshed when the contraction is poor."""
+        s = self.scheme
+        tol = self.settings.newton_tol * max(self.scale, np.linalg.norm(load))
+        du = dt * st.v + 0.5 * dt**2 * st.a  # Taylor predictor
+        f, previous = (st.f if not du.any() else self.force(st.u + du)), np.inf
+        mass, damping = (1 - s.alpha_m) * c_a * self.mass, (1 - s.alpha_f) * c_v * self.damping
+        for iteration in range(self.settings.max_newton + 1):
+            residual = known + mass @ du + damping @ du + (1 - s.alpha_f) * (f - st.f)
+            norm = np.linalg.norm(residual)
+            if norm <= tol:
+                break
+            if iteration == self.settings.max_newton or not np.isfinite(norm):
+                self.refresh = True
+                return None
+            if self.refresh or norm > _REFRESH * previous:
+                self.stiffness, self.refresh = self._tangent(st.u + du), False
+            increment = self._solve(dt, residual)
+            du = du - increment
+            f, previous = self.force(st.u + du), norm
+            self.newton += 1
+            if np.linalg.norm(increment) <= 1e-13 * np.linalg.norm(st.u + du):
+                break
+        self.refresh = iteration > _SLOW
+        return _State(st.t + dt, st.u + du, c_v * du + v_hat, c_a * du + a_hat, f)
+
+    def _embedded(self, st: _State, dt: float) -> tuple[_State | None, float]:
+        """One step and its local error estimate (Zienkiewicz-Xie for the 2nd-order schemes)."""
+        new = self.step(st, dt)
+        if new is None:
+            return None, np.inf
+        if self.scheme.order == 1:
+            error = 0.5 * dt * (new.v - st.v)
+        else:
+            error = dt**2 * self.scheme.error_constant * (new.a - st.a)
+        return new, self._error_norm(error, new)
+
+    def _error_norm(self, error: np.ndarray, new: _State) -> float:
+        bound = self.settings.atol + self.settings.rtol * np.sqrt(np.mean(new.u**2))
+        return float(np.sqrt(np.mean(error**2)) / bound)
+
+    def steady_measures(self, st: _State) -> tuple[float, float]:
+        """(|f(u) - F| / |F|, sqrt(v^T M v / u^T f(u))) at a state."""
+        load = self._load(st.t)
+        static = np.linalg.norm(st.f - load) / max(self.scale, np.linalg.norm(load))
+        energy, kinetic = float(np.vdot(st.u, st.f)), float(np.vdot(st.v, self.mass @ st.v))
+        return float(static), float(np.sqrt(kinetic / energy)) if energy > 0 else np.inf
+
+    def _first_step(self) -> float:
+        if self.settings.dt_initial is not None:
+            return self.settings.dt_initial
+        acceleration = np.sqrt(np.mean(self.state.a**2))
+        return float(np.sqrt(2 * self.settings.atol / acceleration)) if acceleration else 1e-6
+
+    def solve(self, t_end: float, steady_tol: float | None) -> TransientResult:
+        """Step to t_end (or steady state); adaptive steps double at most every other step.
+
+        Holding dt for a step after each change keeps the algorithmic velocity and
+        acceleration of generalised-alpha decaying at large dt (with dt doubling every
+        step they decay only by 1/2 per step). Steps never exceed the elapsed time.
+        """
+        cfg, st = self.settings, self.state
+        history, dt, rejected, steady_time = [st], cfg.dt or self._first_step(), 0, None
+        previous = None
+        while st.t < t_end * (1 - 1e-14) and len(history) <= cfg.max_steps:
+            h = min(dt, t_end - st.t)
+            if cfg.dt is not None:
+                new = self.step(st, h)
+                if new is None:
+                    raise TransientError(
+                        f"Newton failed at t = {st.t:.4g} s with dt = {h:.3g} s; "
+                        "use a smaller dt or adaptive steps (dt=None)"
+                    )
+            else:
+                new, error = self._embedded(st, h)
+                if new is None or error > 1.0:
+                    rejected, dt = rejected + 1, 0.5 * h
+                    if dt < 1e-14 * max(t_end, 1.0):
+                        raise TransientError(
+                            f"step size underflow at t = {st.t:.4g} s; reduce the load "
+                            "or the stiffening k0, or loosen rtol"
+                        )
+                    continue
+                if h == previous and error * 2.0 ** (self.scheme.order + 1) <= 0.8:
+                    dt = min(2.0 * h, cfg.dt_max, max(new.t, h))
+            st, previous = new, h
+            history.append(st)
+            if steady_tol is not None and max(self.steady_measures(st)) <= steady_tol:
+                steady_time = st.t
+                break
+        return self._result(history, rejected, steady_time)
+
+    def _result(self, history: list[_State], rejected: int, steady_time) -> TransientResult:
+        model = self.solver.model
+        times = np.array([s.t for s in history])
+        displacements = np.array([s.u for s in history])
+        velocities = np.array([s.v for s in history])
+        probe = np.einsum("pn,knc->kpc", self.solver.probe, displacements)
+        probe_rate = np.einsum("pn,knc->kpc", self.solver.probe, velocities)
+        static, kinetic = self.steady_measures(history[-1])
+        return TransientResult(
+            times=times,
+            displacements=displacements,
+            velocities=velocities,
+            probe=probe[:, 0],
+            state=history[-1].u.ravel(order="F"),
+            positions=model.full_positions(displacements[-1]),
+            steps=len(history) - 1,
+            rejected=rejected,
+            newton_iterations=self.newton,
+            jacobian_evaluations=self.jacobians,
+            steady=steady_time is not None,
+            steady_time=steady_time,
+            settling_time=settling_time(times, displacements, velocities),
+            probe_settling_time=settling_time(times, probe, probe_rate),
+            static_residual=static,
+            kinetic_ratio=kinetic,
+            method=self.scheme.name,
+        )
+
+
+def _matrix(vector: np.ndarray, n: int) -> np.ndarray:
+    """vec(U) (columns stacked) back to U, (n, 3)."""
+    return np.asarray(vector).reshape(3, n).T
+
+
+def _diagonal_block(matrix: sp.spmatrix, n: int) -> sp.csr_matrix:
+    """The common diagonal block K of kron(I3, K), checked."""
+    matrix = sp.csr_matrix(matrix)
+    block = matrix[:n, :n]
+    if abs(matrix - sp.kron(sp.eye(3), block)).max() > 1e-12 * abs(block).max():
+        raise ValueError("the linear stiffness is not the same for the three components")
+    return block
+
+
+_SOLVERS: OrderedDict = OrderedDict()
+
+
+def transient_solver(model: TissueModel, names=(), method="newmark") -> TransientSolver:
+    """A TransientSolver from a small cache (the last 8 models, names and methods)."""
+    key = (id(model), tuple(names), method, tuple(sorted(model.parameters.items())))
+    if key in _SOLVERS and _SOLVERS[key].model is model:
+        _SOLVERS.move_to_end(key)
+        return _SOLVERS[key]
+    _SOLVERS[key] = TransientSolver(model, names, method)
+    while len(_SOLVERS) > 8:
+        _SOLVERS.popitem(last=False)
+    return _SOLVERS[key]
+
+
+def run_to_steady_state(
+    model: TissueModel,
+    force_free,
+    x=None,
+    names=(),
+    overrides=None,
+    dt=None,
+    method="generalized_alpha",
+    tol=1e-10,
+    t_max=1e3,
+    start=None,
+    settings=None,
+) -> TransientResult:
+    """Integrate eq. (22) from rest until it is steady: the paper-faithful forward solve.
+
+    Parameters
+    ----------
+    model : TissueModel
+        The model (without prescribed displacements).
+    force_free : numpy.ndarray, Load or callable
+        F_B on the free points, (n_free, 3) [N]; an array is a step load at t = 0.
+    x, names :
+        Symbolic stiffness parameters and their values, as for ``EquilibriumSolver``.
+    overrides : dict, optional
+        mu and gamma for M and D, e.g. the paper's ``{"mu": 1e-4, "gamma": 15.0}``.
+    dt : float, optional
+        Fixed step [s]; default adaptive (rtol 1e-4 of the displacement per step).
+    method : str or Scheme
+        ``newmark``, ``generalized_alpha`` or ``backward_euler``.
+    tol : float
+        Steady when |f(u) - F| <= tol |F| and sqrt(v^T M v / u^T f(u)) <= tol.
+    t_max : float
+        Give up (``steady`` False) after this time [s].
+    start : numpy.ndarray, optional
+        Initial displacement s, at rest.
+    """
+    settings = settings or StepSettings()
+    settings = settings if dt is None else replace(settings, dt=float(dt))
+    solver = transient_solver(model, names, method)
+    return solver.integrate(force_free, t_max, x, overrides, settings, start, steady_tol=tol)
+
+
+def compare_with_equilibrium(
+    model: TissueModel,
+    force_free: np.ndarray,
+    x=None,
+    names=(),
+    overrides=None,
+    method="generalized_alpha",
+    tol=1e-10,
+    **kwargs,
+) -> dict:
+    """The transient's end state against the static equilibrium (EquilibriumSolver).
+
+    Arguments are those of ``run_to_steady_state`` (extra keywords go there too).
+
+    Returns
+    -------
+    dict
+        ``relative_distance_to_equilibrium`` |B_end - B_eq| / |B_eq - B0|,
+        ``settling_time_s`` (all free points), ``probe_settling_time_s``,
+        ``steady_time_s``, ``steady``, ``steps``, and the ``result`` and
+        ``equilibrium`` objects themselves.
+    """
+    result = run_to_steady_state(
+        model, force_free, x, names, overrides, method=method, tol=tol, **kwargs
+    )
+    equilibrium = EquilibriumSolver(model, names).solve(force_free, x)
+    distance = np.linalg.norm(result.positions - equilibrium.positions)
+    return {
+        "relative_distance_to_equilibrium": float(
+            distance / np.linalg.norm(equilibrium.positions - model.rest)
+        ),
+        "settling_time_s": result.settling_time,
+        "probe_settling_time_s": result.probe_settling_time,
+        "steady_time_s": result.steady_time,
+        "steady": result.steady,
+        "steps": result.steps,
+        "result": result,
+        "equilibrium": equilibrium,
+    }
+
+
+def integrate_casadi(
+    model: TissueModel,
+    load,
+    times,
+    x=None,
+    names=(),
+    overrides=None,
+    plugin="cvodes",
+    rtol=1e-10,
+    atol=1e-12,
+) -> np.ndarray:
+    """Cross-check: SUNDIALS (CVODES, or IDAS) on the first-order system (23), from rest.
+
+    y = [u; v], u' = v, v' = M^-1 (F(t) - f(u)) - (M^-1 D) v. M_ff is small and SPD,
+    so M^-1 is formed once per component block (dense); the run starts at rest at
+    ``times[0]``. ``load`` must be an array or a ``Load`` with a casadi-friendly profile.
+
+    Returns
+    -------
+    numpy.ndarray
+        Displacements B_free - B0_free at ``times`` (starting at 0), (k, n_free, 3) [mm].
+    """
+    load = _as_load(load)
+    solver = transient_solver(model, names)
+    x, values = solver.values(x, overrides)
+    n = model.n_free
+    inverse = np.linalg.inv(
+        values["mu"] * model.free_block(model.mass_matrix({"mu": 1.0})).toarray()
+    )
+    rate = inverse @ (values["gamma"] * model.free_block(model.damping_matrix({"gamma": 1.0})))
+    inverse, rate = (
+        to_casadi_sparse(sp.kron(sp.eye(3), sp.csc_matrix(m))) for m in (inverse, rate)
+    )
+    u, v, t = ca.MX.sym("u", 3 * n), ca.MX.sym("v", 3 * n), ca.MX.sym("t")
+    try:
+        force = ca.vec(ca.DM(np.asarray(load.force, dtype=float))) * load.profile(t)
+    except Exception as error:  # any failure means "not symbolic"
+        raise ValueError(
+            "integrate_casadi needs a Load whose profile accepts a casadi symbol "
+            "(use ca.fmin, ca.if_else)"
+        ) from error
+    acceleration = ca.mtimes(inverse, force - solver.internal(u, x)) - ca.mtimes(rate, v)
+    dae = {"x": ca.vertcat(u, v), "t": t, "ode": ca.vertcat(v, acceleration)}
+    times = np.asarray(times, dtype=float)
+    options = {"abstol": atol, "reltol": rtol, "max_num_steps": 1_000_000}
+    integrator = ca.integrator("transient", plugin, dae, float(times[0]), times[1:], options)
+    states = np.asarray(integrator(x0=np.zeros(6 * n))["xf"])
+    path = np.hstack([np.zeros((6 * n, 1)), states])[: 3 * n].T
+    return path.reshape(len(times), 3, n).transpose(0, 2, 1)
