@@ -140,6 +140,14 @@ class LoadCase:
     marker_index : numpy.ndarray, optional
         Which rest marker each observation is, (n_obs,); lets the uncertainty
         account for noise in the rest markers, which every load case shares.
+    force_rows : scipy.sparse.csr_matrix, optional
+        Rows mapping vec(lam) to measured force components, (p, 3 r)
+        (``TissueModel.point_force_rows``): a force sensor on prescribed points.
+    force_target : numpy.ndarray, optional
+        The measured force components, (p,) [N].
+    force_weight : float
+        Weight of the force residual [mm/N], so that it is comparable with
+        marker residuals in mm.
     """
 
     force: np.ndarray
@@ -150,6 +158,9 @@ class LoadCase:
     rest_points: np.ndarray
     label: str = ""
     marker_index: np.ndarray | None = None
+    force_rows: sp.csr_matrix | None = None
+    force_target: np.ndarray | None = None
+    force_weight: float = 1.0
 
     @property
     def n_observations(self) -> int:
@@ -301,19 +312,43 @@ class InverseProblem:
         return sum(3 * case.n_observations for case in self.cases)
 
     def case_residual(self, case: LoadCase, state: np.ndarray) -> np.ndarray:
-        """W (S B - Y) for one case, flattened column-wise (all x, then y, then z) [mm]."""
-        delta = state[: 3 * self.model.n_free].reshape(3, -1).T
-        residual = case.weights[:, None] * (case.rows @ delta + case.offset)
-        return residual.T.reshape(-1)
+        """W (S B - Y) for one case, flattened column-wise (all x, then y, then z) [mm],
+        followed by the weighted force residual if the case measures a force."""
+        return self.case_residual_jacobian(case) @ state + self.case_offset(case)
+
+    def case_offset(self, case: LoadCase) -> np.ndarray:
+        """The residual at s = 0 (rest): vec(W (S B0 - Y)), then -w_f * force target."""
+        markers = (case.weights[:, None] * case.offset).T.reshape(-1)
+        if case.force_rows is None:
+            return markers
+        return np.concatenate([markers, -case.force_weight * np.asarray(case.force_target)])
 
     def case_residual_jacobian(self, case: LoadCase) -> sp.csr_matrix:
-        """d(residual)/d(state), constant: kron(I3, W S), padded for multipliers."""
-        block = sp.diags(case.weights) @ case.rows
-        jac = sp.kron(sp.identity(3), block)
-        extra = self.n_state - jac.shape[1]
+        """d(residual)/d(state), constant: kron(I3, W S) on Delta, w_f R on lam."""
+        block = sp.kron(sp.identity(3), sp.diags(case.weights) @ case.rows)
+        extra = self.n_state - block.shape[1]
         if extra:
-            jac = sp.hstack([jac, sp.csr_matrix((jac.shape[0], extra))])
-        return jac.tocsr()
+            block = sp.hstack([block, sp.csr_matrix((block.shape[0], extra))])
+        if case.force_rows is not None:
+            force = sp.hstack(
+                [
+                    sp.csr_matrix((case.force_rows.shape[0], 3 * self.model.n_free)),
+                    case.force_weight * sp.csr_matrix(case.force_rows),
+                ]
+            )
+            block = sp.vstack([block, force])
+        return block.tocsr()
+
+    def force_errors(self, states: list[np.ndarray]) -> list[np.ndarray | None]:
+        """Per case, model minus measured force components [N] (None without a sensor)."""
+        errors = []
+        for case, state in zip(self.cases, states):
+            if case.force_rows is None:
+                errors.append(None)
+                continue
+            lam = state[3 * self.model.n_free :]
+            errors.append(case.force_rows @ lam - np.asarray(case.force_target))
+        return errors
 
     def rest_noise_map(self) -> np.ndarray | None:
         """P, mapping rest-marker coordinate noise into every residual, or None.

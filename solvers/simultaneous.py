@@ -104,7 +104,7 @@ class SimultaneousSolver:
             jac = to_casadi_sparse(problem.case_residual_jacobian(case))
             e = ca.MX.sym(f"e{k}", jac.shape[0])
             variables += [s, e]
-            offset = ca.DM((case.weights[:, None] * case.offset).T.reshape(-1))
+            offset = ca.DM(problem.case_offset(case))
             objective = objective + 0.5 * ca.sumsqr(e) / self.objective_scale
             g = problem.g(s, x, ca.DM(case.force), ca.DM(case.prescribed))
             constraints += [g / case.force_scale(), ca.mtimes(jac, s) + offset - e]

@@ -365,6 +365,14 @@ class TissueModel:
         g = ca.vertcat(ca.vec(residual), ca.vec(constraint))
         return ca.Function("g", [state, x, force, prescribed], [g], ["s", "x", "F_B", "d"], ["g"])
 
+    def point_force_rows(self, points: np.ndarray | None = None) -> sp.csr_matrix:
+        """Rows R (3, 3 r) with R vec(lam) = force [N] exerted on the tissue by the chosen
+        prescribed points (indices into ``prescribed.uv``; default all of them)."""
+        rows = self._constraint_rows
+        chosen = np.arange(rows.shape[1]) if points is None else np.asarray(points)
+        weights = -rows[:, chosen].sum(axis=1)
+        return sp.csr_matrix(sp.kron(sp.identity(3), weights[None, :]))
+
     def constraint_force(self, lam: np.ndarray) -> np.ndarray:
         """Total force [N] the prescribed points exert on the tissue, -1^T Q^T lam."""
         return -(self._constraint_rows.T @ np.asarray(lam).reshape(-1, 3)).sum(axis=0)

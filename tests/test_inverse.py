@@ -161,3 +161,52 @@ def test_bad_parameter_spaces_are_rejected():
         ParameterSpace.create(("alpha_u",), start={"alpha_u": 500.0})
     with pytest.raises(ValueError, match="log space"):
         ParameterSpace.create(("alpha_u",), bounds={"alpha_u": (0.0, 1.0)})
+
+
+def pad_problem(with_force: bool) -> InverseProblem:
+    """Two 'pads' of prescribed skin points; the moving one travels -0.5 mm along x."""
+    from solvers.problem import LoadCase
+    from symbolic.loads import PrescribedDisplacement
+    from symbolic.model import TissueModel
+
+    base = forehead_model()
+    grid = np.linspace(0.0, 1.0, 4)
+    fixed = [[u, v] for u in 0.15 + 0.1 * grid for v in 0.4 + 0.2 * grid]
+    moving = [[u, v] for u in 0.75 + 0.1 * grid for v in 0.4 + 0.2 * grid]
+    pads = PrescribedDisplacement(np.array(fixed + moving))
+    truth = TissueModel(base.volume, TRUE_PARAMETERS, prescribed=pads)
+    moving_idx = np.arange(len(fixed), len(fixed) + len(moving))
+    shift = np.zeros((len(pads.uv), 3))
+    shift[moving_idx, 0] = -0.5
+    result = EquilibriumSolver(truth).solve(np.zeros((truth.n_free, 3)), prescribed=shift)
+    uv = marker_uv()
+    rows = truth.volume.collocation(truth.volume.outer_params(uv))
+    observed = rows @ result.positions
+    force_rows = truth.point_force_rows(moving_idx)
+    measured = force_rows @ result.state[3 * truth.n_free :]
+    model = TissueModel(base.volume, {}, prescribed=pads)
+    case = observation_case(model, np.zeros_like(base.rest), observed, uv, prescribed=shift)
+    if with_force:
+        case = LoadCase(
+            **{
+                **case.__dict__,
+                "force_rows": force_rows,
+                "force_target": measured,
+                "force_weight": 10.0,
+            }
+        )
+    return InverseProblem(model, [case], ParameterSpace.create(ALPHAS))
+
+
+def test_pad_force_fixes_the_stiffness_scale():
+    """With prescribed displacements, scaling every alpha leaves the field unchanged:
+    markers alone cannot fix the scale, the measured pad force can."""
+    without = pad_problem(with_force=False)
+    scaled = analyse(without, 2.0 * TRUTH, sigma=0.01)
+    assert scaled.rank == 2  # one direction (the common scale) is invisible
+    with_force = pad_problem(with_force=True)
+    simultaneous = SimultaneousSolver(with_force).solve()
+    nested = NestedSolver(with_force).solve()
+    assert np.allclose(simultaneous.x, TRUTH, rtol=1e-6)
+    assert np.allclose(nested.x, simultaneous.x, rtol=1e-6)
+    assert analyse(with_force, simultaneous.x, sigma=0.01).rank == 3
