@@ -67,6 +67,8 @@ class Equilibrium:
         Relative residual |g| / |g(0)| before each step and at the end.
     jacobian : scipy.sparse.csc_matrix
         dg/ds at the solution (for sensitivities).
+    factor : scipy.sparse.linalg.SuperLU
+        Its LU factorisation, for sensitivity solves without refactorising.
     """
 
     positions: np.ndarray
@@ -75,6 +77,32 @@ class Equilibrium:
     iterations: int
     residual_history: list[float] = field(default_factory=list)
     jacobian: sp.csc_matrix | None = None
+    factor: object | None = None
+
+
+class SparseEvaluator:
+    """Evaluates a CasADi Function with one sparse output straight into a scipy matrix.
+
+    The output's pattern is read once; each call writes the nonzeros into a
+    numpy buffer through ``Function.buffer`` (no Python lists, no DM).
+    """
+
+    def __init__(self, function: ca.Function):
+        self.function = function
+        pattern = function.sparsity_out(0)
+        self.indptr, self.indices = (np.asarray(v) for v in pattern.get_ccs())
+        self.shape = pattern.shape
+        self.nonzeros = np.zeros(pattern.nnz())
+        self.buffer, self.trigger = function.buffer()
+        self.buffer.set_res(0, memoryview(self.nonzeros))
+        self._inputs = []
+
+    def __call__(self, *args) -> sp.csc_matrix:
+        self._inputs = [np.ascontiguousarray(np.asarray(a, dtype=float).T.ravel()) for a in args]
+        for i, value in enumerate(self._inputs):
+            self.buffer.set_arg(i, memoryview(value))
+        self.trigger()
+        return sp.csc_matrix((self.nonzeros.copy(), self.indices, self.indptr), shape=self.shape)
 
 
 def casadi_to_scipy(matrix: ca.DM) -> sp.csc_matrix:
@@ -119,7 +147,10 @@ class EquilibriumSolver:
             ["s", "x", "F_B", "d"],
             ["dg_ds"],
         )
+        self._jacobian = SparseEvaluator(self.jacobian)
         self.n_state = g.size1_in(0)
+        self.linear = "k0" not in self.names and model.is_linear_fixed
+        self._cache: tuple | None = None
 
     def _x(self, x) -> np.ndarray:
         x = np.asarray([] if x is None else x, dtype=float).reshape(-1)
@@ -164,12 +195,13 @@ class EquilibriumSolver:
                     f"{history[-1]:.2e} > {self.settings.tolerance:.0e}); reduce the load or "
                     "the stiffening k0, or give a better start"
                 )
-            jacobian = casadi_to_scipy(self.jacobian(state, *args))
-            step = spla.splu(jacobian).solve(-g)
+            jacobian, factor = self._factorized(state, args)
+            step = factor.solve(-g)
             state, g = self._line_search(state, step, g, args)
             history.append(float(np.linalg.norm(g)) / scale)
             iterations += 1
-        jacobian = casadi_to_scipy(self.jacobian(state, *args))
+        if not (self.linear and iterations > 0):  # a linear model's Jacobian is constant
+            jacobian, factor = self._factorized(state, args)
         n_points = 3 * self.model.n_free
         delta = state[:n_points].reshape(3, -1).T
         return Equilibrium(
@@ -179,7 +211,19 @@ class EquilibriumSolver:
             iterations=iterations,
             residual_history=history,
             jacobian=jacobian,
+            factor=factor,
         )
+
+    def _factorized(self, state: np.ndarray, args: tuple):
+        """dg/ds and its LU; for the linear model cached per x (shared by load cases)."""
+        x = args[0]
+        if self.linear and self._cache is not None and np.array_equal(self._cache[0], x):
+            return self._cache[1], self._cache[2]
+        jacobian = self._jacobian(state, *args)
+        factor = spla.splu(jacobian)
+        if self.linear:
+            self._cache = (np.array(x), jacobian, factor)
+        return jacobian, factor
 
     def _line_search(self, state, step, g, args):
         """Full step, halved while the residual norm does not decrease."""

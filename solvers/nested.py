@@ -16,8 +16,6 @@ import time
 
 import casadi as ca
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from scipy.optimize import least_squares
 
 from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
@@ -75,7 +73,7 @@ class NestedSolver:
             self._states[k] = result.state
             args = (result.state, x, case.force, case.prescribed)
             g_x = casadi_to_scipy(self.g_x(*args)).toarray()
-            sensitivity = -spla.splu(sp.csc_matrix(result.jacobian)).solve(g_x)
+            sensitivity = -result.factor.solve(g_x)
             residuals.append(problem.case_residual(case, result.state))
             jacobians.append((self.observation_jacobians[k] @ sensitivity) * dx_dz[None, :])
         r, jac = np.concatenate(residuals), np.vstack(jacobians)

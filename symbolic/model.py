@@ -317,17 +317,22 @@ class TissueModel:
         x, values = self.symbolic_values(names)
         n, rows = 3 * self.n_free, self._constraint_rows
         m_rows, m_cols = 3 * rows.shape[0], 3 * rows.shape[1]
-        terms = list(self.terms)
+        # terms whose coefficient is a fixed zero (beta = 0 by default) contribute nothing
+        terms = [
+            t
+            for t in self.terms
+            if term_parameter(t) in names or self.parameters[term_parameter(t)] != 0.0
+        ]
         blocks = [sp.kron(sp.identity(3), self.free_block(self.terms[t])).tocsc() for t in terms]
         pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
         pattern.sort_indices()
         r, c = pattern.nonzero()
         order = np.lexsort((r, c))
         r, c = r[order], c[order]
-        unit = np.column_stack([np.asarray(b[r, c]).ravel() for b in blocks])
+        unit = sp.csc_matrix(np.column_stack([np.asarray(b[r, c]).ravel() for b in blocks]))
         sparsity = ca.Sparsity(n, n, pattern.indptr.tolist(), pattern.indices.tolist())
-        coefficients = self._term_coefficients(values)
-        stiffness = ca.MX(sparsity, ca.mtimes(ca.DM(unit), coefficients))
+        coefficients = ca.vertcat(*[values[term_parameter(t)] for t in terms])
+        stiffness = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
         state = ca.MX.sym("s", n + m_rows)
         force = ca.MX.sym("F_B", self.n_free, 3)
         prescribed = ca.MX.sym("d", rows.shape[1], 3)
