@@ -295,6 +295,7 @@ class InverseProblem:
         pattern = self.g.jac_sparsity(0, 1)  # d g / d x
         touched = set(pattern.get_col())
         self.active = np.array([i in touched for i in range(len(self.space.names))])
+        self._jacobians: dict[int, sp.csr_matrix] = {}
 
     @property
     def inactive_names(self) -> tuple[str, ...]:
@@ -324,7 +325,13 @@ class InverseProblem:
         return np.concatenate([markers, -case.force_weight * np.asarray(case.force_target)])
 
     def case_residual_jacobian(self, case: LoadCase) -> sp.csr_matrix:
-        """d(residual)/d(state), constant: kron(I3, W S) on Delta, w_f R on lam."""
+        """d(residual)/d(state), constant: kron(I3, W S) on Delta, w_f R on lam (cached)."""
+        key = id(case)
+        if key not in self._jacobians:
+            self._jacobians[key] = self._residual_jacobian(case)
+        return self._jacobians[key]
+
+    def _residual_jacobian(self, case: LoadCase) -> sp.csr_matrix:
         block = sp.kron(sp.identity(3), sp.diags(case.weights) @ case.rows)
         extra = self.n_state - block.shape[1]
         if extra:
