@@ -23,6 +23,24 @@ from solvers.problem import InverseProblem
 from solvers.result import InverseResult
 
 
+def _result(solver, z, residual, success, status, evaluations, elapsed) -> InverseResult:
+    """The InverseResult of a nested solver at internal coordinates z."""
+    space = solver.problem.space
+    return InverseResult(
+        method=solver.name,
+        names=space.names,
+        x=space.to_natural(z),
+        cost=0.5 * float(residual @ residual),
+        states=list(solver._states),
+        success=bool(success),
+        status=str(status),
+        iterations=int(evaluations),
+        forward_solves=solver.forward_solves,
+        build_time_s=solver.build_time,
+        solve_time_s=elapsed,
+    )
+
+
 class NestedSolver:
     """Reduced-space least squares with exact sensitivities.
 
@@ -114,20 +132,7 @@ class NestedSolver:
         except Exception as error:  # noqa: BLE001  a failed forward solve ends this start
             z, success, status, nfev = z_full, False, f"failed: {error}", 0
         elapsed = time.perf_counter() - begin
-        r, _ = self.evaluate(z)
-        return InverseResult(
-            method=self.name,
-            names=space.names,
-            x=space.to_natural(z),
-            cost=0.5 * float(r @ r),
-            states=list(self._states),
-            success=bool(success),
-            status=str(status),
-            iterations=int(nfev),
-            forward_solves=self.forward_solves,
-            build_time_s=self.build_time,
-            solve_time_s=elapsed,
-        )
+        return _result(self, z, self.evaluate(z)[0], success, status, nfev, elapsed)
 
 
 class PaperNestedSolver:
@@ -204,17 +209,4 @@ class PaperNestedSolver:
         except Exception as error:  # noqa: BLE001  a failed transient ends this start
             z, success, status, nfev = z0, False, f"failed: {error}", 0
         elapsed = time.perf_counter() - begin
-        r = self.residual(z)
-        return InverseResult(
-            method=self.name,
-            names=space.names,
-            x=space.to_natural(z),
-            cost=0.5 * float(r @ r),
-            states=list(self._states),
-            success=bool(success),
-            status=str(status),
-            iterations=int(nfev),
-            forward_solves=self.forward_solves,
-            build_time_s=self.build_time,
-            solve_time_s=elapsed,
-        )
+        return _result(self, z, self.residual(z), success, status, nfev, elapsed)
