@@ -7,10 +7,10 @@ import pytest
 
 from experiments.synthetic import TRUE_PARAMETERS, forehead_model, probe_loads
 from solvers.modal import StepResponse, modal_basis, optimal_damping, probe_observation
+from solvers.sundials import integrate_casadi
 from solvers.timestepping import (
     StepSettings,
     compare_with_equilibrium,
-    integrate_casadi,
     ramp_load,
     run_to_steady_state,
     transient_solver,
