@@ -124,6 +124,12 @@ def _transient(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reconstruct(args: argparse.Namespace) -> int:
+    from experiments.stereo import reconstruct
+
+    return reconstruct.main([str(args.folder), "--out", str(args.out)])
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand."""
     parser = OneLineParser(
@@ -183,6 +189,11 @@ def build_parser() -> argparse.ArgumentParser:
     tr = commands.add_parser("transient", help="transient from rest against the equilibrium")
     tr.add_argument("--out", type=Path, default=Path("transient-output"), help="output directory")
     tr.set_defaults(handler=_transient)
+
+    rec = commands.add_parser("reconstruct", help="images of the marked skin -> dataset v1")
+    rec.add_argument("folder", type=Path, help="experiment folder (see docs/stereo.md)")
+    rec.add_argument("--out", type=Path, required=True, help="output .npz file")
+    rec.set_defaults(handler=_reconstruct)
     return parser
 
 

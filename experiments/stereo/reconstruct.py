@@ -1,0 +1,482 @@
+"""Images of a multi-camera experiment -> dataset v1 (``python -m experiments.stereo.reconstruct``).
+
+**Folder** (``c`` camera, ``k`` load, ``j`` board pose; all counted from 0):
+``cam{c}_board{j}.png`` (every camera sees every pose), ``cam{c}_rest.png``,
+``cam{c}_load{k}.png`` (probe in view), ``experiment.json`` and, for frame
+``"segmentation"``, ``segmentation.npz`` (``outer``, ``inner``: (U, V, 3) [mm], the skin at
+the markers and the inner surface below them). ``experiment.json``::
+
+    {"schema": "dvs-stereo-experiment/1", "cameras": C, "markers": [U, V],
+     "board": {"pattern": [cols, rows], "square_mm": s, "views": B},
+     "frame": "segmentation" | "camera0", "segmentation": "segmentation.npz",
+     "thickness_mm": h (frame camera0 only),
+     "loads": [{"force_N": [fx, fy, fz], "contact_mm": [x, y, z], "probe_radius_mm": r}]}
+
+Forces and contacts are given in the output frame. The pipeline (calibration, dots with a
+clean surround, grid indexing, guided matching of the loaded dots, triangulation with
+verification) and the frames are described in ``docs/stereo.md``. In short, frame
+``"segmentation"`` registers the rest markers rigidly (Kabsch) onto the segmentation's
+``outer`` and takes ``inner_rest`` from it, since no camera sees the inner surface; in the
+synthetic check that segmentation is the phantom itself. Frame ``"camera0"`` keeps camera 0's
+frame and offsets the rest grid by ``thickness_mm`` along its inward normal.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from experiments.dataset import Dataset, save_dataset, validate
+
+from .cameras import Camera
+from .dots import detect_dots, to_gray
+from .lattice import grid_lattice
+from .render import write_synthetic_experiment  # noqa: F401  (re-exported)
+from .rig import BoardTarget, RigCalibration, calibrate_rig
+from .surface import rigid_align
+from .triangulation import triangulate
+
+SCHEMA = "dvs-stereo-experiment/1"
+_AXES = (np.eye(2, dtype=int), np.eye(2, dtype=int)[::-1])
+_PERMUTATIONS = [np.diag(s) @ p for p in _AXES for s in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+
+
+@dataclass(frozen=True)
+class ReconstructSettings:
+    """Thresholds of the reconstruction.
+
+    Attributes
+    ----------
+    ring_spread : float
+        Largest spread (1st to 99th percentile, relative to the median) of the grey levels in
+        the ring from 1.5 r + 2 to 3 r + 2 px around a dot of radius r [px].
+    label_px : float
+        Largest median epipolar distance of a grid labelling against camera 0 [px].
+    match_tol : float
+        A loaded dot must lie within this many local dot spacings of its rest position.
+    reject_px, reject_factor : float
+        An observation is dropped when its reprojection residual exceeds both ``reject_px``
+        [px] and ``reject_factor`` times the median residual.
+    max_displacement : float
+        Largest displacement under load, in marker spacings.
+    min_ray_angle : float
+        Smallest angle between two cameras' rays at the working distance [deg].
+    """
+
+    ring_spread: float = 0.25
+    label_px: float = 2.0
+    match_tol: float = 0.25
+    reject_px: float = 0.3
+    reject_factor: float = 6.0
+    max_displacement: float = 0.5
+    min_ray_angle: float = 1.0
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """An experiment folder, read and checked; lengths in mm, forces in N."""
+
+    folder: Path
+    n_cameras: int
+    shape: tuple[int, int]
+    target: BoardTarget
+    n_boards: int
+    forces: np.ndarray
+    contacts: np.ndarray
+    probe_radius: np.ndarray
+    segmentation: tuple[np.ndarray, np.ndarray] | None
+    thickness_mm: float | None
+
+    def image(self, c: int, name: str, size: tuple[int, int] | None = None) -> np.ndarray:
+        """Grey image ``cam{c}_{name}.png``, checked against the calibrated ``size`` (w, h)."""
+        image = cv2.imread(str(self.folder / f"cam{c}_{name}.png"), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise ValueError(f"{self.folder / f'cam{c}_{name}.png'}: not a readable image")
+        if size is not None and tuple(size) != image.shape[::-1]:
+            raise ValueError(
+                f"cam{c}_{name}.png is {image.shape[1]}x{image.shape[0]} px, but "
+                f"the calibration of camera {c} is for {size[0]}x{size[1]} px"
+            )
+        return image
+
+
+def read_experiment(folder) -> Experiment:
+    """Read ``experiment.json`` and check that every image (and the segmentation) is present.
+
+    Raises
+    ------
+    ValueError
+        For a missing or malformed ``experiment.json``, missing images (all named) or a
+        missing or misshapen segmentation.
+    """
+    folder = Path(folder)
+    path = folder / "experiment.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no experiment.json (see experiments.stereo.reconstruct)")
+    try:
+        spec = json.loads(path.read_text())
+        n_cams, (U, V), board = int(spec["cameras"]), spec["markers"], spec["board"]
+        target = BoardTarget(tuple(board["pattern"]), float(board["square_mm"]))
+        loads = [
+            (ld["force_N"], ld["contact_mm"], ld.get("probe_radius_mm", 0)) for ld in spec["loads"]
+        ]
+        forces, contacts, radius = (np.array(v, float) for v in zip(*loads))
+        ok = spec["schema"] == SCHEMA and spec["frame"] in ("segmentation", "camera0")
+        if not (ok and n_cams >= 2 and min(U, V) >= 3 and forces.shape[1:] == (3,)):
+            raise ValueError("need its schema, >= 2 cameras, U, V >= 3, a frame, >= 1 load")
+    except (ValueError, KeyError, TypeError, IndexError) as err:
+        raise ValueError(f"{path}: malformed ({err}); see experiments.stereo.reconstruct") from None
+    views = int(board["views"])
+    names = [
+        "rest",
+        *(f"load{k}" for k in range(len(forces))),
+        *(f"board{j}" for j in range(views)),
+    ]
+    missing = [f"cam{c}_{n}.png" for c in range(n_cams) for n in names]
+    missing = [m for m in missing if not (folder / m).is_file()]
+    if missing:
+        raise ValueError(f"{folder}: missing images {', '.join(missing)}")
+    seg, thickness = None, spec.get("thickness_mm")
+    if spec["frame"] == "segmentation":
+        seg_path = folder / spec.get("segmentation", "segmentation.npz")
+        try:
+            with np.load(seg_path, allow_pickle=False) as data:
+                seg = (np.asarray(data["outer"], float), np.asarray(data["inner"], float))
+        except (OSError, KeyError, ValueError) as err:
+            raise ValueError(f"{seg_path}: no segmentation with outer and inner ({err})") from None
+        if any(a.shape != (U, V, 3) for a in seg):
+            raise ValueError(f"{seg_path}: outer and inner must have shape {(U, V, 3)}")
+    elif not (isinstance(thickness, (int, float)) and thickness > 0):
+        raise ValueError(f"{path}: frame 'camera0' needs thickness_mm > 0")
+    args = (forces, contacts, radius, seg, thickness)
+    return Experiment(folder, n_cams, (U, V), target, views, *args)
+
+
+def detect_markers(image: np.ndarray, ring_spread: float = 0.25) -> np.ndarray:
+    """Centres (n, 2) [px] of dark dots surrounded by clean skin (:func:`.dots.detect_dots`).
+
+    A dot is kept when the grey levels in the ring from ``1.5 r + 2`` to ``3 r + 2`` px
+    (``r`` its equivalent radius) spread by at most ``ring_spread`` of their median
+    (1st to 99th percentile): dots covered, cut or touched by the probe, or next to any other
+    large structure, are dropped instead of being measured with a biased centre.
+    """
+    gray = to_gray(image)
+    dots = detect_dots(gray)
+    h, w = gray.shape
+    keep = np.zeros(len(dots.areas), dtype=bool)
+    for n, (centre, area) in enumerate(zip(dots.centers, dots.areas)):
+        r = np.sqrt(area / np.pi)
+        r_in, r_out = 1.5 * r + 2, 3 * r + 2
+        x0, y0 = (max(int(v - r_out), 0) for v in centre)
+        x1, y1 = min(int(centre[0] + r_out) + 2, w), min(int(centre[1] + r_out) + 2, h)
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        dist = np.hypot(xx - centre[0], yy - centre[1])
+        ring = gray[y0:y1, x0:x1][(dist >= r_in) & (dist <= r_out)].astype(float)
+        if ring.size:
+            lo, med, hi = np.percentile(ring, [1, 50, 99])
+            keep[n] = hi - lo <= ring_spread * med
+    return dots.centers[keep]
+
+
+def _lattice(centres: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lattice coordinates, pixels and affine step matrix (columns: d pixel / d a, d b)."""
+    try:
+        coords, valid = grid_lattice(centres)
+    except ValueError as err:
+        raise ValueError(f"{name}: no dot grid found ({err})") from None
+    ab, pix = coords[valid], centres[valid]
+    design = np.column_stack([np.ones(len(ab)), ab])
+    return ab, pix, np.linalg.lstsq(design, pix, rcond=None)[0][1:].T
+
+
+def _place(ab: np.ndarray, T: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
+    """Grid indices ``T (a, b) - min``, or None unless they span exactly ``shape``."""
+    ij = ab @ T.T
+    ij -= ij.min(axis=0)
+    return ij if tuple(ij.max(axis=0) + 1) == tuple(shape) else None
+
+
+def epipolar_px(a: Camera, b: Camera, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """Symmetric epipolar distance of pixel pairs (n, 2) in cameras a and b [px]."""
+    R = b.R @ a.R.T
+    t = b.t - R @ a.t
+    E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+    xa = np.column_stack([a.undistort_normalized(pa), np.ones(len(pa))])
+    xb = np.column_stack([b.undistort_normalized(pb), np.ones(len(pb))])
+    lb, la = xa @ E.T, xb @ E
+    alg = np.abs(np.sum(xb * lb, axis=1))  # |x_b^T E x_a|, normalised units
+    in_b = alg / np.hypot(lb[:, 0], lb[:, 1]) * b.K[0, 0]
+    in_a = alg / np.hypot(la[:, 0], la[:, 1]) * a.K[0, 0]
+    return 0.5 * (in_a + in_b)
+
+
+def label_rest(centres, cameras, shape, label_px=2.0, names=None) -> np.ndarray:
+    """Index the rest dots of every view: observations (C, U * V, 2) [px] of marker i * V + j.
+
+    Camera 0 takes the signed axis permutation that shows i to the right and j upwards, and
+    its lattice must span exactly U x V sites. Every other view takes the one permutation with
+    the full extent and camera 0's handedness whose pairs with camera 0 fit the calibrated
+    epipolar geometry (median within ``label_px`` [px], the runner-up 10 times worse).
+
+    Raises
+    ------
+    ValueError
+        If a view shows no grid or not all of it, camera 0's grid is turned by about 45
+        degrees, or no labelling (or more than one) of a view agrees with camera 0.
+    """
+    names = names or [f"camera {c}" for c in range(len(cameras))]
+    U, V = shape
+    obs = np.full((len(cameras), U * V, 2), np.nan)
+    ab, pix, M = _lattice(centres[0], names[0])
+    cos = [
+        min(D[0, 0] / np.linalg.norm(D[:, 0]), -D[1, 1] / np.linalg.norm(D[:, 1]))
+        for D in (M @ T.T for T in _PERMUTATIONS)
+    ]
+    T = _PERMUTATIONS[int(np.argmax(cos))]
+    if max(cos) < np.cos(np.radians(40)):
+        raise ValueError(
+            f"{names[0]}: the grid is turned by about 45 degrees; camera 0 must see "
+            "i to the right and j upwards"
+        )
+    ij = _place(ab, T, shape)
+    if ij is None:
+        span = np.ptp(ab @ T.T, axis=0) + 1
+        raise ValueError(
+            f"{names[0]}: the dot lattice spans {span[0]} x {span[1]} sites, not "
+            f"{U} x {V}: the whole grid must be visible in every rest image"
+        )
+    obs[0, ij[:, 0] * V + ij[:, 1]] = pix
+    handed = np.sign(np.linalg.det(M @ T.T))
+    for c in range(1, len(cameras)):
+        ab, pix, M = _lattice(centres[c], names[c])
+        options = []
+        for T in _PERMUTATIONS:
+            ij = _place(ab, T, shape)
+            if ij is None or np.sign(np.linalg.det(M @ T.T)) != handed:
+                continue
+            flat = ij[:, 0] * V + ij[:, 1]
+            both = np.isfinite(obs[0, flat, 0])
+            if both.sum() >= 8:
+                err = epipolar_px(cameras[0], cameras[c], obs[0, flat[both]], pix[both])
+                options.append((float(np.median(err)), flat))
+        options.sort(key=lambda o: o[0])
+        if not options or options[0][0] > label_px:
+            best = f"{options[0][0]:.3g} px" if options else "none spans the whole grid"
+            raise ValueError(
+                f"{names[c]}: no labelling of its dot grid agrees with camera 0 "
+                f"(best epipolar error {best}): the calibration does not match "
+                "these images, or the grid is not wholly in view"
+            )
+        if len(options) > 1 and options[1][0] <= 10 * max(options[0][0], 0.1):
+            raise ValueError(f"{names[c]}: two labellings of its grid fit camera 0 equally well")
+        obs[c, options[0][1]] = pix
+    return obs
+
+
+def match_loaded(centres: np.ndarray, rest: np.ndarray, tol: float = 0.25) -> np.ndarray:
+    """Loaded observations (n, 2) [px]: the dot (of ``centres``) nearest each rest position.
+
+    Accepted within ``tol`` local spacings (distance to the nearest other rest dot) if no
+    other dot lies within ``2 tol`` spacings and no other marker claims it; otherwise NaN.
+    """
+    out = np.full(rest.shape, np.nan)
+    seen = np.flatnonzero(np.isfinite(rest[:, 0]))
+    if len(centres) == 0 or seen.size < 2:
+        return out
+    spacing = np.full(len(rest), np.nan)
+    spacing[seen] = cKDTree(rest[seen]).query(rest[seen], k=2)[0][:, 1]
+    dist, idx = cKDTree(centres).query(rest[seen], k=2)
+    dist, idx = dist.reshape(-1, 2), idx.reshape(-1, 2)
+    ok = (dist[:, 0] <= tol * spacing[seen]) & (dist[:, 1] > 2 * tol * spacing[seen])
+    claimed, counts = np.unique(idx[ok, 0], return_counts=True)
+    ok &= ~np.isin(idx[:, 0], claimed[counts > 1])
+    out[seen[ok]] = centres[idx[ok, 0]]
+    return out
+
+
+def triangulate_markers(
+    cameras: tuple[Camera, ...], obs: np.ndarray, settings: ReconstructSettings
+) -> tuple:
+    """Triangulate markers seen in >= 2 views, dropping observations off their reprojection.
+
+    ``obs`` (C, n, 2) [px], NaN = not seen. Returns ``points`` (n, 3) [mm] (NaN where fewer
+    than two consistent views remain), the observations used (C, n, 2) [px], ``std`` (n,)
+    predicted standard deviation per axis [mm], the RMS reprojection error [px] and the
+    number of observations dropped.
+    """
+    obs = np.array(obs, dtype=float)
+    n = obs.shape[1]
+    dropped = 0
+    while True:
+        seen = np.all(np.isfinite(obs), axis=2)
+        idx = np.flatnonzero(seen.sum(axis=0) >= 2)
+        points, std = np.full((n, 3), np.nan), np.full(n, np.nan)
+        obs[:, seen.sum(axis=0) < 2] = np.nan
+        if idx.size == 0:
+            return points, obs, std, float("nan"), dropped
+        tri = triangulate(cameras, [o[idx] for o in obs], min_ray_angle=settings.min_ray_angle)
+        res = np.linalg.norm(tri.residuals, axis=2)
+        limit = max(settings.reject_px, settings.reject_factor * float(np.nanmedian(res)))
+        if np.nanmax(res) <= limit:
+            points[idx], std[idx] = tri.points, np.sqrt(np.mean(tri.std**2, axis=1))
+            return points, obs, std, tri.rms, dropped
+        c, p = np.unravel_index(np.nanargmax(res), res.shape)
+        if seen[:, idx[p]].sum() > 2:
+            obs[c, idx[p]] = np.nan
+            dropped += 1
+        else:
+            dropped += int(seen[:, idx[p]].sum())
+            obs[:, idx[p]] = np.nan
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """The dataset and how it was measured.
+
+    Attributes
+    ----------
+    dataset : Dataset
+        Format v1, in the experiment's frame [mm, N]. Extra key ``marker_std_mm``
+        (K + 1, U, V): each marker's predicted standard deviation per axis, rest first [mm].
+    calibration : RigCalibration
+        The rig used.
+    observations : numpy.ndarray
+        (K + 1, C, U * V, 2) pixels used per image set (rest first), camera and marker;
+        NaN where not used.
+    reprojection_rms_px : numpy.ndarray
+        (K + 1,) RMS reprojection error per image set, rest first [px].
+    dropped : int
+        Observations (and loaded markers) dropped by the consistency checks.
+    registration_rms_mm : float or None
+        RMS distance of the registered rest markers from the segmentation's [mm].
+    """
+
+    dataset: Dataset
+    calibration: RigCalibration
+    observations: np.ndarray
+    reprojection_rms_px: np.ndarray
+    dropped: int
+    registration_rms_mm: float | None
+
+    @property
+    def views(self) -> np.ndarray:
+        """(K + 1, U, V) number of cameras used per marker, rest first (0 = NaN)."""
+        used = np.isfinite(self.observations[..., 0]).sum(axis=1)
+        return used.reshape(-1, *self.dataset.marker_shape)
+
+
+def reconstruct(
+    folder,
+    calibration: RigCalibration | None = None,
+    settings: ReconstructSettings | None = None,
+    progress=None,
+) -> Reconstruction:
+    """Reconstruct a dataset v1 from an experiment folder (see the module docstring).
+
+    Parameters
+    ----------
+    folder : path-like
+        The experiment folder.
+    calibration : RigCalibration, optional
+        A ready calibration; by default the rig is calibrated from the board images.
+    settings : ReconstructSettings, optional
+        Thresholds.
+    progress : callable, optional
+        Receives one-line progress messages.
+
+    Raises
+    ------
+    ValueError
+        For missing images, no detectable grid, a calibration that does not match the
+        images, degenerate camera geometry, or markers missing at rest.
+    """
+    s, say = settings or ReconstructSettings(), progress or (lambda msg: None)
+    exp = read_experiment(folder)
+    C, (U, V) = exp.n_cameras, exp.shape
+    if calibration is None:
+        say(f"calibrating {C} cameras from {exp.n_boards} board views")
+        boards = [[exp.image(c, f"board{j}") for j in range(exp.n_boards)] for c in range(C)]
+        calibration = calibrate_rig(boards, exp.target)
+    cams = calibration.cameras
+    if len(cams) != C:
+        raise ValueError(f"the calibration has {len(cams)} cameras, the experiment {C}")
+    calibration.check_geometry(s.min_ray_angle)
+    results, rest_obs = [], None
+    for name in ["rest", *(f"load{k}" for k in range(len(exp.forces)))]:
+        say(f"{name}: detecting, indexing and triangulating the markers")
+        images = [exp.image(c, name, cam.image_size) for c, cam in enumerate(cams)]
+        centres = [detect_markers(image, s.ring_spread) for image in images]
+        if rest_obs is None:
+            names = [f"cam{c}_rest.png" for c in range(C)]
+            obs = rest_obs = label_rest(centres, cams, exp.shape, s.label_px, names)
+        else:
+            obs = np.stack([match_loaded(centres[c], rest_obs[c], s.match_tol) for c in range(C)])
+        results.append(triangulate_markers(cams, obs, s))
+    points, used, stds, rms, dropped = zip(*results)
+    rest = points[0].reshape(U, V, 3)
+    if np.isnan(rest).any():
+        lost = [tuple(int(v) for v in ij) for ij in np.argwhere(np.isnan(rest[..., 0]))]
+        raise ValueError(
+            f"markers {lost} were not reconstructed at rest: every marker must be "
+            "seen by two cameras in the rest images"
+        )
+    spacing = min(np.linalg.norm(np.diff(rest, axis=a), axis=-1).min() for a in (0, 1))
+    loaded = np.stack(points[1:]).reshape(-1, U, V, 3)
+    moved = np.linalg.norm(loaded - rest, axis=-1) > s.max_displacement * spacing
+    loaded[moved] = np.nan
+    used = np.stack(used)
+    used[1:].transpose(0, 2, 1, 3)[moved.reshape(len(moved), -1)] = np.nan
+    reg = None
+    if exp.segmentation is not None:
+        outer, inner = exp.segmentation
+        _, R, t = rigid_align(rest.reshape(-1, 3), outer.reshape(-1, 3))
+        rest, loaded = rest @ R.T + t, loaded @ R.T + t
+        reg = float(np.sqrt(np.mean(np.sum((rest - outer) ** 2, axis=-1))))
+    else:
+        normal = np.cross(np.gradient(rest, axis=0), np.gradient(rest, axis=1))
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        normal *= np.sign(np.sum(normal * -rest, axis=-1, keepdims=True))  # towards camera 0
+        inner = rest - exp.thickness_mm * normal
+    std = np.stack(stds).reshape(-1, U, V)
+    std[1:][moved] = np.nan
+    noise = float(np.sqrt(np.nanmean(std**2)))
+    args = (exp.forces, exp.contacts, loaded, noise, exp.probe_radius)
+    dataset = Dataset(rest, inner, *args, extra={"marker_std_mm": std})
+    validate(dataset)
+    return Reconstruction(
+        dataset, calibration, used, np.array(rms), sum(dropped) + int(moved.sum()), reg
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m experiments.stereo.reconstruct FOLDER --out FILE.npz``; exit 2 on bad input."""
+    from experiments.cli import OneLineParser  # one-line usage errors, exit code 2
+
+    parser = OneLineParser(description="Reconstruct a dataset from stereo images.")
+    parser.add_argument("folder", help="experiment folder (see the module docstring)")
+    parser.add_argument("--out", required=True, help="dataset file to write (.npz)")
+    args = parser.parse_args(argv)
+    try:
+        rec = reconstruct(args.folder, progress=lambda m: print(m, file=sys.stderr))
+        save_dataset(args.out, rec.dataset)
+    except (ValueError, OSError, cv2.error) as err:
+        print(f"error: {' '.join(str(err).split())}", file=sys.stderr)
+        return 2
+    seen = rec.views[1:].astype(bool).sum(axis=(1, 2)).tolist()
+    reg = rec.registration_rms_mm
+    print(
+        f"wrote {args.out}: {rec.views.shape[1]} x {rec.views.shape[2]} markers, seen under "
+        f"load {seen}, reprojection RMS {np.round(rec.reprojection_rms_px, 3).tolist()} px"
+        + ("" if reg is None else f", rest markers {reg * 1000:.1f} um RMS from the segmentation")
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
