@@ -102,9 +102,15 @@ def findings(rows: list[dict]) -> str:
     )
 
 
-def run(out: Path, noise_mm: float = 0.02, seed: int = 0, log=print) -> dict:
-    """Simulate the two data sets, fit separately and jointly, write table and JSON."""
-    dataset = simulate(measurement=SimulationSettings(noise_mm=noise_mm, seed=seed))
+def run(out: Path, noise_mm: float = 0.02, seed: int = 0, log=print, dataset=None) -> dict:
+    """Fit the two data sets separately and jointly, write table and JSON.
+
+    The data are simulated (``noise_mm``, ``seed``) unless a ``dataset`` is given,
+    e.g. one reconstructed from images.
+    """
+    if dataset is None:
+        dataset = simulate(measurement=SimulationSettings(noise_mm=noise_mm, seed=seed))
+    noise_mm = dataset.noise_mm if dataset.noise_mm is not None else noise_mm
     rows = []
     for cases, label in (
         ([0], "data set 1 (0.17 N), ours"),
