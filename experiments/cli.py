@@ -56,17 +56,14 @@ def parse_names(text: str) -> tuple[str, ...]:
 
 def _simulate(args: argparse.Namespace) -> int:
     from experiments.dataset import save_dataset
-    from experiments.simulate import SimulationSettings, simulate
+    from experiments.diagnose import parse_effect_specs, simulate_with_effects
 
     if args.noise < 0:
         raise UsageError(f"--noise must be >= 0 mm, got {args.noise}")
     if args.out.suffix != ".npz":
         raise UsageError(f"--out must name a .npz file, got {args.out}")
-    truth = None
-    if args.effect:
-        raise UsageError("--effect needs the effect library, which is not available yet")
-    dataset = simulate(
-        measurement=SimulationSettings(noise_mm=args.noise, seed=args.seed), model=truth
+    dataset = simulate_with_effects(
+        parse_effect_specs(args.effect), noise_mm=args.noise, seed=args.seed
     )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_dataset(args.out, dataset)
@@ -128,6 +125,13 @@ def _reconstruct(args: argparse.Namespace) -> int:
     from experiments.stereo import reconstruct
 
     return reconstruct.main([str(args.folder), "--out", str(args.out)])
+
+
+def _diagnose(args: argparse.Namespace) -> int:
+    from experiments import diagnose
+
+    diagnose.run(args.dataset, args.out)
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -194,6 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("folder", type=Path, help="experiment folder (see docs/stereo.md)")
     rec.add_argument("--out", type=Path, required=True, help="output .npz file")
     rec.set_defaults(handler=_reconstruct)
+
+    diag = commands.add_parser("diagnose", help="find the effect the model lacks")
+    diag.add_argument("dataset", type=Path, help="dataset v1 (.npz)")
+    diag.add_argument("--out", type=Path, required=True, help="output directory")
+    diag.set_defaults(handler=_diagnose)
     return parser
 
 

@@ -1,0 +1,278 @@
+"""What every candidate effect is: a named extension of the model with parameters theta.
+
+An effect adds CasADi expressions to one or more of four places of a load case
+(MODEL.md eq. 20, 22, 24):
+
+- ``internal_force``: a term added to the elastic force K(B; x)(B - B0) on the
+  free control points (a stiffness effect, e.g. bending, eq. 18);
+- ``load``: a change of the applied force f, its contact point or its spread,
+  from which the generalised force F_B of eq. (20) is recomputed;
+- ``extra_points`` / ``extra_residual``: additional state (control points that
+  the base model keeps fixed) with their own equilibrium rows;
+- ``observe``: a map of the predicted marker positions S B before they are
+  compared with the measurements Y (a measurement effect, eq. 24).
+
+Every effect is off at theta = 0: the composed residuals are then *exactly*
+those of the base model. Parameters may be shared by all load cases (a
+property of the tissue or of the set-up) or repeated per case (``per_case``, a
+property of each capture, like a registration error).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.model import TissueModel, term_parameter
+from symbolic.stiffening import to_casadi_sparse
+
+
+@dataclass(frozen=True)
+class CaseData:
+    """Numbers of one load case that effects may use.
+
+    Attributes
+    ----------
+    index : int
+        Position of the case in the dataset (names per-case parameters).
+    force : numpy.ndarray
+        Base generalised force F_B on the free points, (n_free, 3) [N] (eq. 20).
+    force_vector : numpy.ndarray
+        Applied force f, (3,) [N].
+    contact_uv : numpy.ndarray
+        Contact point (u, v) on the rest skin.
+    load_row : numpy.ndarray
+        a with F_B = a f^T on all control points, (n,) (J(p) for a point force).
+    rows : scipy.sparse.csr_matrix
+        S on the free points, (n_obs, n_free).
+    rest_points : numpy.ndarray
+        S B0, rest positions of the observed markers, (n_obs, 3) [mm].
+    offset : numpy.ndarray
+        S B0 - Y, (n_obs, 3) [mm].
+    weights : numpy.ndarray
+        W, one weight per observed marker, (n_obs,).
+    """
+
+    index: int
+    force: np.ndarray
+    force_vector: np.ndarray
+    contact_uv: np.ndarray
+    load_row: np.ndarray
+    rows: sp.csr_matrix
+    rest_points: np.ndarray
+    offset: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def centroid(self) -> np.ndarray:
+        """Centroid of the observed rest markers, (3,) [mm]."""
+        return self.rest_points.mean(axis=0)
+
+
+@dataclass
+class LoadState:
+    """The load of one case as expressions, changed in turn by the load effects.
+
+    Attributes
+    ----------
+    force_vector : casadi.MX or numpy.ndarray
+        f, (3,) [N].
+    uv_shift : casadi.MX, optional
+        Shift of the contact in (u, v).
+    variance : casadi.MX, optional
+        Variance sigma^2 [mm^2] of a Gaussian spread of the contact.
+    """
+
+    force_vector: ca.MX | np.ndarray
+    uv_shift: ca.MX | None = None
+    variance: ca.MX | None = None
+
+    @property
+    def changed(self) -> bool:
+        """True when some load effect is active."""
+        return (
+            self.uv_shift is not None
+            or self.variance is not None
+            or not isinstance(self.force_vector, np.ndarray)
+        )
+
+
+@dataclass
+class CaseSymbols:
+    """Symbols of one load case handed to the effects.
+
+    Attributes
+    ----------
+    delta : casadi.MX
+        B - B0 on the free points, (n_free, 3) [mm].
+    values : dict
+        Model parameter values by name (numbers, or entries of x).
+    extra : dict
+        Extra state by effect name, each (k, 3) [mm].
+    """
+
+    delta: ca.MX
+    values: dict
+    extra: dict = field(default_factory=dict)
+
+
+class Effect:
+    """Base class of a candidate effect; every hook defaults to "no contribution".
+
+    Class attributes
+    ----------------
+    name : str
+        Effect name (DESIGN.md list).
+    parameter_names, units : tuple of str
+        Names and units of theta (one case's block for a per-case effect).
+    scales : tuple of float
+        Typical magnitude of each parameter: the unit of its internal coordinate.
+    lower, upper : tuple of float
+        Bounds in natural units; a lower bound of 0 makes the score test one-sided.
+    per_case : bool
+        One block of theta per load case instead of one shared block.
+    default_magnitude : float
+        A realistic magnitude for synthetic data (``true_parameters``).
+    magnitude_unit : str
+        Unit of that magnitude.
+    equation : str
+        The added term, for reports.
+    """
+
+    name = ""
+    parameter_names: tuple[str, ...] = ()
+    units: tuple[str, ...] = ()
+    scales: tuple[float, ...] = ()
+    lower: tuple[float, ...] = ()
+    upper: tuple[float, ...] = ()
+    per_case = False
+    default_magnitude = 0.0
+    magnitude_unit = ""
+    equation = ""
+
+    def __init__(self) -> None:
+        self._cache: dict = {}
+
+    # ----------------------------------------------------------------- layout
+    @property
+    def dim(self) -> int:
+        """Number of parameters of one block."""
+        return len(self.parameter_names)
+
+    def labels(self, case_indices: list[int]) -> list[str]:
+        """Parameter labels; per-case ones carry the dataset case index, ``omega_x[1]``."""
+        if not self.per_case:
+            return list(self.parameter_names)
+        return [f"{n}[{k}]" for k in case_indices for n in self.parameter_names]
+
+    def block(self, theta: ca.MX, position: int) -> ca.MX:
+        """This case's block of theta (position of the case among the problem's cases)."""
+        if not self.per_case:
+            return theta
+        return theta[position * self.dim : (position + 1) * self.dim]
+
+    def true_parameters(self, magnitude: float, n_cases: int) -> np.ndarray:
+        """theta for synthetic data of the given magnitude (all blocks)."""
+        direction = np.asarray(self.direction(), dtype=float)
+        blocks = [magnitude * direction * self.case_factor(k) for k in range(n_cases)]
+        return np.concatenate(blocks if self.per_case else blocks[:1])
+
+    def direction(self) -> tuple[float, ...]:
+        """Unit pattern of theta that a scalar magnitude scales."""
+        return (1.0,) * self.dim
+
+    def case_factor(self, k: int) -> float:
+        """Per-case variation of synthetic values (per-case effects only)."""
+        return 1.0
+
+    # ------------------------------------------------------------------ hooks
+    def extra_points(self, model: TissueModel) -> int:
+        """Number of extra state points (3 unknowns each)."""
+        return 0
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
+        """Term added to K(B; x)(B - B0) on the free points, (n_free, 3) [N]."""
+        return None
+
+    def extra_residual(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
+        """Equilibrium rows of the extra state, (k, 3)."""
+        return None
+
+    def load(self, model: TissueModel, case: CaseData, load: LoadState, theta) -> LoadState:
+        """The load after this effect."""
+        return load
+
+    def observe(self, model: TissueModel, case: CaseData, predicted: ca.MX, theta) -> ca.MX:
+        """Predicted marker positions after this effect, (n_obs, 3) [mm]."""
+        return predicted
+
+    # ---------------------------------------------------------------- helpers
+    def cached(self, model: TissueModel, key: str, build):
+        """A numeric object built once per model instance."""
+        entry = self._cache.get((id(model), key))
+        if entry is None or entry[0] is not model:
+            entry = (model, build())
+            self._cache[(id(model), key)] = entry
+        return entry[1]
+
+
+def linear_coefficient(values: dict, term: str):
+    """The coefficient of a unit stiffness term K_t (alpha_u, ..., beta for beta_uv)."""
+    return values[term_parameter(term)]
+
+
+def free_matrix(model: TissueModel, matrix: sp.spmatrix) -> ca.DM:
+    """The free rows and columns of an (n, n) matrix as a CasADi sparse constant."""
+    return to_casadi_sparse(model.free_block(matrix))
+
+
+def apply_stacked(matrix: ca.DM, delta: ca.MX) -> ca.MX:
+    """A (3 n_free)-square matrix acting on vec(delta) (columns stacked), as (n_free, 3)."""
+    return ca.reshape(ca.mtimes(matrix, ca.vec(delta)), delta.shape[0], 3)
+
+
+def stacked_free_block(model: TissueModel, matrix: sp.spmatrix) -> sp.csr_matrix:
+    """Rows and columns of the free points of a (3n)-square matrix in stacked order."""
+    n = model.rest.shape[0]
+    index = np.concatenate([model.free + k * n for k in range(3)])
+    return sp.csr_matrix(matrix)[index][:, index]
+
+
+def surface_frame(model: TissueModel, uv: np.ndarray) -> tuple[np.ndarray, ...]:
+    """At (u, v) on the rest skin: V_u, V_v [mm], unit tangents e1, e2 and normal n."""
+    key = (id(model), tuple(np.asarray(uv, dtype=float).ravel()))
+    entry = _FRAMES.get(key)
+    if entry is None or entry[0] is not model:
+        entry = (model, _surface_frame(model, uv))
+        _FRAMES[key] = entry
+    return entry[1]
+
+
+_FRAMES: dict = {}
+
+
+def _surface_frame(model: TissueModel, uv: np.ndarray) -> tuple[np.ndarray, ...]:
+    params = model.volume.outer_params(np.asarray(uv, dtype=float)[None])
+    du = model.volume.evaluate(params, (1, 0, 0))[0]
+    dv = model.volume.evaluate(params, (0, 1, 0))[0]
+    normal = model.volume.outer_normal(np.asarray(uv, dtype=float)[None])[0]
+    e1 = du / np.linalg.norm(du)
+    e2 = np.cross(normal, e1)
+    return du, dv, e1, e2, normal
+
+
+def surface_rule(model: TissueModel, w: float, points_per_span: int | None = None):
+    """Gauss points (u, v, w) on the surface w = const with physical area weights [mm^2]."""
+    from symbolic.basis import gauss_rule
+
+    basis = model.volume.basis
+    (u, wu), (v, wv) = (gauss_rule(b, points_per_span) for b in basis.bases[:2])
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    params = np.column_stack([uu.ravel(), vv.ravel(), np.full(uu.size, float(w))])
+    du = model.volume.evaluate(params, (1, 0, 0))
+    dv = model.volume.evaluate(params, (0, 1, 0))
+    area = np.linalg.norm(np.cross(du, dv), axis=1)
+    return params, np.outer(wu, wv).ravel() * area, du, dv

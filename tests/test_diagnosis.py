@@ -1,0 +1,211 @@
+"""The discrepancy loop: noise model, score test, selection, stopping, outputs.
+
+Synthetic data: the forehead phantom (two probe loads, 0.17 and 0.25 N), noise
+0.02 mm on rest and loaded markers, 3 % of the loaded markers lost at random
+and those under the probe hidden, with one undeclared effect at its realistic
+magnitude (``Effect.default_magnitude``). The "noise level" of the RMS marker
+distance is the expected RMS of a pure-noise residual, sigma sqrt(3 tr(I +
+P P^T) / m) = sigma sqrt(6) = 49 um (``ExtendedProblem.noise_rms``).
+
+Effects that cannot pass a criterion at a realistic magnitude are marked
+``xfail(strict=True)`` with the reason; docs/diagnosis.md gives the numbers.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cache
+
+import numpy as np
+import pytest
+
+from experiments.diagnose import (
+    BASE_NAMES,
+    diagnose_dataset,
+    main,
+    run,
+    simulate_with_effects,
+)
+from experiments.fitting import FitSettings, build_problem, dataset_loads
+from solvers.diagnosis import SCHEMA, DiagnosisSettings
+from solvers.diagnosis_fit import fit
+from solvers.diagnosis_problem import ExtendedProblem, noise_map
+from solvers.diagnosis_stats import score_test
+from symbolic.effects import EFFECT_NAMES, make_effect
+
+SEED = 1
+FAST = ("rigid_motion", "measurement_scale", "force_direction")
+
+NOT_SELECTED = {
+    "heterogeneity": "at +-50 % the score test reaches p = 0.01 only (Bonferroni needs 1e-3)",
+    "bending": "selected in 2 of 4 seeds; contact_patch, which also smooths the load, wins the "
+    "others (seed 1 included)",
+    "base_compliance": "a compliant foundation is absorbed by alpha_w (residual 0.3 um at 5 "
+    "mm^3/N, 1.6 um at 50)",
+    "pre_tension": "on the 2-layer grid the skin pre-stress equals a change of alpha_u, alpha_v "
+    "(residual 0.0 um after refit)",
+}
+NOT_TWICE = "at a realistic magnitude the effect leaves less than sqrt(3) x noise after the refit"
+TWICE = {"rigid_motion", "measurement_scale"}
+
+
+@cache
+def diagnosed(effects: tuple = (), seed: int = SEED):
+    """Document and Diagnosis for synthetic data with the given (name, magnitude) pairs."""
+    dataset = simulate_with_effects(dict(effects), seed=seed)
+    diagnosis = diagnose_dataset(dataset)
+    return diagnosis.document(), diagnosis
+
+
+def _single(name: str):
+    return diagnosed(((name, make_effect(name).default_magnitude),))
+
+
+def _marks(name: str, criterion: str):
+    marks = [] if name in FAST else [pytest.mark.slow]
+    if criterion == "selected" and name in NOT_SELECTED:
+        marks.append(pytest.mark.xfail(strict=True, reason=NOT_SELECTED[name]))
+    if criterion == "twice" and name not in TWICE:
+        marks.append(pytest.mark.xfail(strict=True, reason=NOT_TWICE))
+    return marks
+
+
+def _cases(criterion: str):
+    return [pytest.param(n, marks=_marks(n, criterion), id=n) for n in EFFECT_NAMES]
+
+
+# ----------------------------------------------------------------------- the noise model
+def test_whitening_inverts_the_rest_noise_covariance():
+    """W^2 (I + P P^T) = I, so |W r|^2 / sigma^2 ~ chi^2 under pure noise."""
+    dataset = simulate_with_effects({}, seed=0)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    p_map = noise_map(base.cases, True).toarray()
+    covariance = np.eye(p_map.shape[0]) + p_map @ p_map.T
+    whitening = problem.whitening.toarray()
+    np.testing.assert_allclose(
+        whitening @ whitening @ covariance, np.eye(len(covariance)), atol=1e-12
+    )
+    assert problem.noise_rms(0.02) == pytest.approx(0.02 * np.sqrt(6.0))
+
+
+def test_score_statistic_equals_the_likelihood_ratio_for_a_small_effect():
+    """For a small effect the score statistic and the refit's chi^2 drop agree."""
+    dataset = simulate_with_effects({"measurement_scale": 1e-3}, seed=4)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    current = fit(problem)
+    effect = make_effect("measurement_scale")
+    test = score_test(current, effect, 0.02)
+    refit = fit(problem.with_effects([effect]), np.concatenate([current.p, test.step]))
+    ratio = (current.cost - refit.cost) / 0.02**2
+    assert test.dof == 2
+    assert test.statistic == pytest.approx(ratio, rel=0.02)
+    np.testing.assert_allclose(refit.p[3:], test.step, rtol=0.05)
+
+
+# ------------------------------------------------------------------ negative control + I/O
+def test_negative_control_adds_nothing_and_writes_the_outputs(tmp_path):
+    dataset = simulate_with_effects({}, seed=SEED)
+    document = run(dataset, tmp_path, log=lambda *_: None)
+    assert document["selected"] == []
+    assert document["unexplained"] is False
+    assert document["rms_after_mm"] == document["rms_before_mm"]
+    assert abs(document["rms_after_mm"] / document["noise_rms_mm"] - 1) < 0.2
+    written = json.loads((tmp_path / "diagnosis.json").read_text())
+    assert written["schema"] == SCHEMA
+    for key in ("noise_mm", "rms_before_mm", "rms_after_mm", "steps", "selected", "unexplained"):
+        assert key in written
+    (base,) = written["steps"]
+    assert base["effect"] is None
+    assert set(base) >= {"effect", "rms_mm", "statistic", "p_value", "parameters"}
+    assert set(base["parameters"]) == set(BASE_NAMES)
+    assert all(t["p_value"] > 0.01 / len(EFFECT_NAMES) for t in base["score_tests"])
+    report = (tmp_path / "report.md").read_text()
+    assert "unexplained: **false**" in report and "residuals.png" in report
+    assert (tmp_path / "residuals.png").stat().st_size > 10_000
+
+
+def test_command_line_rejects_a_missing_file(tmp_path, capsys):
+    assert main([str(tmp_path / "missing.npz"), "--out", str(tmp_path / "out")]) == 2
+    assert "diagnose: error" in capsys.readouterr().err
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="level"):
+        DiagnosisSettings(level=2.0)
+    with pytest.raises(ValueError, match="unknown candidate"):
+        DiagnosisSettings(candidates=("gravity",))
+
+
+# ----------------------------------------------------------------------- single effects
+@pytest.mark.parametrize("name", _cases("selected"))
+def test_effect_is_selected_first(name):
+    document, _ = _single(name)
+    assert document["selected"][:1] == [name]
+    step = document["steps"][1]
+    assert step["p_value"] < 0.01 / len(EFFECT_NAMES)
+    assert step["prediction"]["improves"]
+
+
+@pytest.mark.parametrize("name", _cases("near_noise"))
+def test_effect_rms_after_is_near_the_noise_level(name):
+    document, _ = _single(name)
+    assert abs(document["rms_after_mm"] / document["noise_rms_mm"] - 1) < 0.2
+    assert document["unexplained"] is False
+
+
+@pytest.mark.parametrize("name", _cases("twice"))
+def test_effect_rms_before_is_twice_rms_after(name):
+    document, _ = _single(name)
+    assert document["rms_before_mm"] >= 2 * document["rms_after_mm"]
+
+
+def test_recovered_parameters_of_a_measurement_effect():
+    """measurement_scale: the per-capture scales are recovered within 3 standard errors."""
+    document, _ = _single("measurement_scale")
+    truth = make_effect("measurement_scale").true_parameters(8e-3, 2)
+    parameters = document["steps"][1]["parameters"]
+    for k, value in enumerate(truth):
+        entry = parameters[f"scale[{k}]"]
+        assert abs(entry["value"] - value) < 3 * entry["std"]
+
+
+# ---------------------------------------------------------------------- two effects
+def test_two_effects_at_once_are_both_found():
+    document, _ = diagnosed((("rigid_motion", 0.1), ("force_direction", 0.3)), seed=3)
+    assert set(document["selected"]) == {"rigid_motion", "force_direction"}
+    assert abs(document["rms_after_mm"] / document["noise_rms_mm"] - 1) < 0.2
+    assert document["unexplained"] is False
+
+
+# ------------------------------------------------------------------- out of the library
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_out_of_library_data_is_not_confidently_misattributed(seed):
+    """FE slab (stiff skin on soft fat, point probe): nothing in the library is the
+    physics, so the loop must end with an unexplained residual (or add only
+    volumetric_coupling, the one correct partial explanation)."""
+    from experiments.outoflibrary import simulate_slab
+
+    document = diagnose_dataset(simulate_slab(seed=seed)).document()
+    assert document["unexplained"] or set(document["selected"]) <= {"volumetric_coupling"}
+
+
+def test_out_of_library_one_seed():
+    from experiments.outoflibrary import simulate_slab
+
+    document = diagnose_dataset(
+        simulate_slab(seed=0), DiagnosisSettings(max_effects=1, max_attempts=2)
+    ).document()
+    assert document["unexplained"] or set(document["selected"]) <= {"volumetric_coupling"}
+
+
+@pytest.mark.slow
+def test_benchmark_prints_the_cost_of_the_score_tests(capsys):
+    from experiments.diagnose import benchmark
+
+    result = benchmark(repeat=2)
+    printed = capsys.readouterr().out
+    assert "forward solve" in printed
+    assert set(result["candidates"]) == set(EFFECT_NAMES)

@@ -1,0 +1,274 @@
+"""The effect library: off at theta = 0, exact derivatives, the physics of each term."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from experiments.diagnose import (
+    BASE_NAMES,
+    parse_effect_specs,
+    simulate_with_effects,
+)
+from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.simulate import SimulationSettings, simulate
+from solvers.diagnosis_fit import fit
+from solvers.diagnosis_problem import ExtendedProblem
+from symbolic.effects import EFFECT_NAMES, effect_library, make_effect
+from symbolic.effects_base import surface_frame, surface_rule
+from symbolic.effects_load import basis_values
+from symbolic.effects_measurement import cayley_rotation
+from symbolic.effects_stiffening import stiffening_force
+from symbolic.effects_stiffness import PreTension, VolumetricCoupling
+
+DESIGN_NAMES = {
+    "nonlinear_stiffening",
+    "heterogeneity",
+    "rigid_motion",
+    "force_direction",
+    "contact_offset",
+    "contact_patch",
+    "bending",
+    "base_compliance",
+    "pre_tension",
+    "measurement_scale",
+    "volumetric_coupling",
+}
+
+
+@pytest.fixture(scope="module")
+def setting():
+    """A simulated dataset, its base problem, the fitted base model and the library."""
+    dataset = simulate_with_effects({}, seed=3)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    return problem, fit(problem), effect_library()
+
+
+def _point(problem: ExtendedProblem, base_p: np.ndarray, factor: float) -> np.ndarray:
+    """p with x from the base fit and theta = factor * scale (alternating signs)."""
+    theta = problem.scale[len(base_p) :] * factor
+    theta = theta * np.where(np.arange(theta.size) % 2, -1.0, 1.0)
+    p = np.concatenate([base_p, theta])
+    return np.clip(p, problem.lower, problem.upper)
+
+
+def test_library_names_are_those_of_the_design():
+    assert set(EFFECT_NAMES) == DESIGN_NAMES
+    for name in EFFECT_NAMES:
+        effect = make_effect(name)
+        assert effect.name == name
+        sizes = {len(effect.parameter_names), len(effect.units), len(effect.scales)}
+        assert sizes == {len(effect.lower)} == {len(effect.upper)}
+        assert all(lo <= 0 <= hi for lo, hi in zip(effect.lower, effect.upper))
+        assert effect.default_magnitude > 0
+    with pytest.raises(ValueError, match="unknown effect"):
+        make_effect("gravity")
+
+
+def test_base_problem_matches_the_project_residual(setting):
+    """With no effect, the composed residual is InverseProblem's at the same state."""
+    problem, base_fit, _ = setting
+    for position, case in enumerate(problem.cases):
+        expected = problem.base.case_residual(case, base_fit.states[position])
+        rows = slice(
+            sum(3 * c.n_observations for c in problem.cases[:position]),
+            sum(3 * c.n_observations for c in problem.cases[: position + 1]),
+        )
+        np.testing.assert_allclose(base_fit.residual[rows], expected, atol=1e-14)
+
+
+@pytest.mark.parametrize("name", EFFECT_NAMES)
+def test_theta_zero_reproduces_the_base_model_exactly(setting, name):
+    """g and r at theta = 0 equal the base model's for any state, to rounding."""
+    problem, base_fit, library = setting
+    extended = problem.with_effects([library[name]])
+    p = np.concatenate([base_fit.p, np.zeros(len(extended.labels) - base_fit.p.size)])
+    rng = np.random.default_rng(0)
+    for position in range(len(problem.positions)):
+        n_base = problem.functions(position).n_state
+        n_state = extended.functions(position).n_state
+        state = rng.normal(0.0, 0.05, n_base)
+        padded = np.concatenate([state, np.zeros(n_state - n_base)])
+        g_base = problem.numeric(position, "equilibrium")(state, base_fit.p)[0].ravel()
+        g = extended.numeric(position, "equilibrium")(padded, p)[0].ravel()
+        np.testing.assert_allclose(g[:n_base], g_base, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(g[n_base:], 0.0 * g[n_base:])
+        r_base = problem.numeric(position, "residual")(state, base_fit.p)[0].ravel()
+        r = extended.numeric(position, "residual")(padded, p)[0].ravel()
+        np.testing.assert_allclose(r, r_base, rtol=0, atol=1e-14)  # c + (p - c) rounds
+    r_solved, _, _ = extended.evaluate(p)
+    np.testing.assert_allclose(r_solved, base_fit.residual, rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("name", EFFECT_NAMES)
+def test_derivatives_match_finite_differences(setting, name):
+    """The reduced Jacobian d r / d p (through the equilibrium) against central differences."""
+    problem, base_fit, library = setting
+    extended = problem.with_effects([library[name]])
+    n_x = base_fit.p.size
+    for point in (_point(extended, base_fit.p, 0.0), _point(extended, base_fit.p, 0.7)):
+        r, jacobian, _ = extended.evaluate(point)
+        for j in range(point.size):
+            step = extended.scale[j] * 1e-5 if j >= n_x else point[j] * 1e-6
+            if point[j] - step < extended.lower[j]:  # one-sided at a lower bound of 0
+                plus = extended.evaluate(point + step * np.eye(point.size)[j])[0]
+                twice = extended.evaluate(point + 2 * step * np.eye(point.size)[j])[0]
+                numeric = (4 * plus - 3 * r - twice) / (2 * step)
+            else:
+                plus = extended.evaluate(point + step * np.eye(point.size)[j])[0]
+                minus = extended.evaluate(point - step * np.eye(point.size)[j])[0]
+                numeric = (plus - minus) / (2 * step)
+            scale = max(np.abs(jacobian[:, j]).max(), 1e-12)
+            assert np.abs(numeric - jacobian[:, j]).max() < 1e-5 * scale, (name, j)
+
+
+def test_stiffening_closed_form_jacobian_matches_finite_differences(setting):
+    """The custom dF/dDelta, dF/dc, dF/dk of nonlinear_stiffening, against central differences."""
+    import casadi as ca
+
+    problem, _, _ = setting
+    model = problem.model
+    force = stiffening_force(model)
+    rng = np.random.default_rng(1)
+    delta = rng.normal(0.0, 0.2, (model.n_free, 3))
+    c = np.r_[2.6, 0.18, 1.7, np.zeros(len(model.terms) - 3)]
+    jacobian = force.jacobian()(delta, c, 80.0, 5.0, force(delta, c, 80.0, 5.0))
+    d_delta = np.array(jacobian[0])
+    columns = rng.choice(3 * model.n_free, 12, replace=False)
+    for column in columns:
+        step = np.zeros(3 * model.n_free)
+        step[column] = 1e-6
+        shift = step.reshape(3, -1).T
+        numeric = (
+            np.array(force(delta + shift, c, 80.0, 5.0))
+            - np.array(force(delta - shift, c, 80.0, 5.0))
+        ).T.ravel() / 2e-6
+        np.testing.assert_allclose(d_delta[:, column], numeric, atol=1e-6 * np.abs(numeric).max())
+    numeric_k = (
+        np.array(force(delta, c, 80.0 + 1e-4, 5.0)) - np.array(force(delta, c, 80.0 - 1e-4, 5.0))
+    ).T.ravel() / 2e-4
+    np.testing.assert_allclose(np.array(jacobian[2]).ravel(), numeric_k, rtol=1e-6, atol=1e-12)
+    assert float(ca.norm_inf(force(delta, c, 0.0, 5.0))) == 0.0
+
+
+def test_load_effects_keep_the_total_force(setting):
+    """sum_a F_B[a] = f for any contact offset and patch (partition of unity, eq. 20)."""
+    problem, base_fit, library = setting
+    names = ["force_direction", "contact_offset", "contact_patch"]
+    extended = problem.with_effects([library[n] for n in names])
+    p = np.concatenate([base_fit.p, [0.2, -0.1, 1.5, -1.0, 4.0]])
+    case = extended.extended.cases[0]
+    state = np.zeros(extended.functions(0).n_state)
+    g = extended.numeric(0, "equilibrium")(state, p)[0].reshape(3, -1).T
+    # g = -F_B(theta) at zero displacement; the inner layer is fixed and carries no load
+    _, _, e1, e2, _ = _frame(problem, case)
+    expected = case.force_vector + np.linalg.norm(case.force_vector) * (0.2 * e1 - 0.1 * e2)
+    np.testing.assert_allclose(-g.sum(axis=0), expected, atol=1e-12)
+
+
+def _frame(problem, case):
+    return surface_frame(problem.model, case.contact_uv)
+
+
+def test_symbolic_basis_matches_the_numeric_one():
+    import casadi as ca
+
+    from symbolic.basis import BSplineBasis
+
+    basis = BSplineBasis(3, 9)
+    t = ca.MX.sym("t")
+    function = ca.Function("N", [t], [basis_values(basis, 0.1 + t, 0), basis_values(basis, t, 2)])
+    values, second = (np.array(v).ravel() for v in function(0.27))
+    np.testing.assert_allclose(values, basis.evaluate_dense([0.37])[0], atol=1e-15)
+    np.testing.assert_allclose(second, basis.evaluate_dense([0.27], 2)[0], atol=1e-12)
+
+
+def test_cayley_rotation_is_a_rotation():
+    omega = np.array([0.3, -0.2, 0.5])
+    rotation = np.array(cayley_rotation(omega))
+    np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-14)
+    assert np.linalg.det(rotation) == pytest.approx(1.0)
+    small = np.array(cayley_rotation(1e-6 * omega))
+    skew = np.array([[0, -0.5, -0.2], [0.5, 0, -0.3], [0.2, 0.3, 0]]) * 1e-6
+    np.testing.assert_allclose(small - np.eye(3), skew, atol=1e-12)
+
+
+def test_volumetric_matrix_sees_only_volume_change(setting):
+    """K_lambda: symmetric PSD, zero on rigid motions, 9 eps^2 V on a dilation u = eps x."""
+    problem, _, _ = setting
+    model = problem.model
+    matrix = VolumetricCoupling().matrix(model)
+    points = model.rest
+    np.testing.assert_allclose((matrix - matrix.T).toarray(), 0.0, atol=1e-12)
+    center = points.mean(axis=0)
+    for mode in (
+        np.tile([1.0, 0.0, 0.0], (len(points), 1)),
+        np.cross([0.2, -0.3, 1.0], points - center),
+    ):
+        vector = mode.T.ravel()
+        assert abs(vector @ matrix @ vector) < 1e-9 * np.abs(matrix).max() * len(points)
+    dilation = (1e-3 * (points - center)).T.ravel()
+    _, area, _, _ = surface_rule(model, 1.0, 6)
+    radius, thickness = 80.0, 5.0  # the phantom: a spherical layer, so V = A/R^2 (R^3 - r^3)/3
+    volume = area.sum() / radius**2 * (radius**3 - (radius - thickness) ** 3) / 3
+    assert dilation @ matrix @ dilation == pytest.approx(9e-6 * volume, rel=2e-3)
+
+
+def test_pre_tension_matrix_is_the_skin_dirichlet_energy(setting):
+    """K_sigma: zero on translations; u = eps y costs eps^2 integral |grad_s y|^2 = (1 - n_y^2)."""
+    problem, _, _ = setting
+    model = problem.model
+    matrix = PreTension().matrix(model).toarray()
+    ones = np.ones(len(model.rest))
+    assert abs(ones @ matrix @ ones) < 1e-10
+    shear = 1e-3 * model.rest[:, 1]
+    params, area, _, _ = surface_rule(model, 1.0, 6)
+    normals = model.volume.outer_normal(params[:, :2])
+    expected = 1e-6 * np.sum(area * (1.0 - normals[:, 1] ** 2))
+    assert shear @ matrix @ shear == pytest.approx(expected, rel=1e-3)
+
+
+def test_base_compliance_frees_the_inner_layer(setting):
+    """c > 0 moves the inner layer under the probe; c = 0 keeps it at rest exactly."""
+    problem, base_fit, library = setting
+    extended = problem.with_effects([library["base_compliance"]])
+    n_base = problem.functions(0).n_state
+    for compliance, moved in ((0.0, False), (50.0, True)):
+        state, _ = extended.solve_state(0, np.concatenate([base_fit.p, [compliance]]))
+        inner = state[n_base:]
+        assert (np.abs(inner).max() > 1e-3) == moved
+
+
+def test_parse_effect_specs():
+    assert parse_effect_specs(["rigid_motion=0.05", "bending"]) == {
+        "rigid_motion": 0.05,
+        "bending": make_effect("bending").default_magnitude,
+    }
+    assert parse_effect_specs([]) == {}
+    for bad, match in (
+        (["gravity"], "unknown effect"),
+        (["bending=abc"], "must be a number"),
+        (["bending", "bending=1"], "twice"),
+        (["bending=nan"], "finite"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            parse_effect_specs(bad)
+
+
+def test_simulation_without_effects_is_simulate():
+    """The same random stream and measurement as experiments.simulate."""
+    ours = simulate_with_effects({}, seed=5)
+    theirs = simulate(measurement=SimulationSettings(seed=5))
+    for key in ("outer_rest", "inner_rest", "forces", "contacts"):
+        np.testing.assert_array_equal(getattr(ours, key), getattr(theirs, key))
+    np.testing.assert_allclose(ours.outer_loaded, theirs.outer_loaded, atol=1e-12)
+
+
+def test_simulated_effects_are_not_declared():
+    plain = simulate_with_effects({}, seed=2)
+    hidden = simulate_with_effects({"contact_patch": 6.0, "force_direction": 0.3}, seed=2)
+    for key in ("forces", "contacts", "probe_radius", "outer_rest", "inner_rest"):
+        np.testing.assert_array_equal(getattr(plain, key), getattr(hidden, key))
+    assert np.nanmax(np.abs(plain.outer_loaded - hidden.outer_loaded)) > 0.05
+    assert set(hidden.extra) == set()
