@@ -246,6 +246,7 @@ def plot_residuals(diagnosis, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     from experiments.atomic import atomic_savefig
+    from experiments.plots import residual_panel
 
     first, last = diagnosis.steps[0].fit, diagnosis.steps[-1].fit
     cases = first.problem.cases
@@ -257,23 +258,7 @@ def plot_residuals(diagnosis, path: Path) -> None:
     titles = ("base model", " + ".join(diagnosis.selected) or "base model (nothing added)")
     for column, (errors, title) in enumerate(zip(maps, titles)):
         for row, (case, error) in enumerate(zip(cases, errors)):
-            ax = axes[row, column]
-            image = ax.scatter(
-                case.rest_points[:, 0],
-                case.rest_points[:, 1],
-                c=error * 1e3,
-                s=60,
-                cmap="magma_r",
-                vmin=0,
-                vmax=top,
-            )
-            rms = np.sqrt(np.mean(error**2)) * 1e3
-            ax.set(
-                xlabel="x [mm]",
-                ylabel="y [mm]",
-                aspect="equal",
-                title=f"{title}\n{case.label}: RMS {rms:.1f} um, max {error.max() * 1e3:.0f} um",
-            )
+            image = residual_panel(axes[row, column], case, error, top, title, size=60)
     fig.colorbar(image, ax=axes.ravel().tolist(), label="marker residual [um]")
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)

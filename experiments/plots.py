@@ -60,6 +60,28 @@ def plot_deformation(volume: VolumeSpline, deformed: np.ndarray, path, title: st
     plt.close(fig)
 
 
+def residual_panel(ax, case, error: np.ndarray, top: float, title: str = "", size: int = 70):
+    """One map of marker residuals [um] on the rest skin; returns the scatter for a colorbar."""
+    image = ax.scatter(
+        case.rest_points[:, 0],
+        case.rest_points[:, 1],
+        c=error * 1e3,
+        s=size,
+        cmap="magma_r",
+        vmin=0,
+        vmax=top,
+    )
+    rms = np.sqrt(np.mean(error**2)) * 1e3
+    heading = f"{title}\n" if title else ""
+    ax.set(
+        xlabel="x [mm]",
+        ylabel="y [mm]",
+        aspect="equal",
+        title=f"{heading}{case.label}: RMS {rms:.1f} um, max {error.max() * 1e3:.0f} um",
+    )
+    return image
+
+
 def plot_residual_maps(problem, states, path, title: str = "") -> None:
     """Marker residuals |S B - Y| on the rest skin, one panel per load case.
 
@@ -77,22 +99,7 @@ def plot_residual_maps(problem, states, path, title: str = "") -> None:
     fig, axes = plt.subplots(1, count, figsize=(4.6 * count, 4.0), squeeze=False)
     top = max(float(e.max()) for e in errors) * 1e3 or 1.0
     for ax, case, error in zip(axes[0], problem.cases, errors):
-        image = ax.scatter(
-            case.rest_points[:, 0],
-            case.rest_points[:, 1],
-            c=error * 1e3,
-            s=70,
-            cmap="magma_r",
-            vmin=0,
-            vmax=top,
-        )
-        rms = np.sqrt(np.mean(error**2)) * 1e3
-        ax.set(
-            xlabel="x [mm]",
-            ylabel="y [mm]",
-            aspect="equal",
-            title=f"{case.label}: RMS {rms:.1f} um",
-        )
+        image = residual_panel(ax, case, error, top)
     fig.colorbar(image, ax=axes[0].tolist(), label="marker residual [um]")
     if title:
         fig.suptitle(title)
