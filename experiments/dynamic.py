@@ -11,7 +11,7 @@ gamma = 0.1 N s/mm, near critical damping of the lowest mode (gamma_c = 2 mu ome
 0.101; docs/transient.md). With the paper's gamma = 15 the transient is a 10 s creep
 (zeta_1 = 149) in which inertia acts only for mu/gamma = 33 us and moves the markers by
 ~1e-5 mm: the relative standard error of mu is then above 200 (0.02 mm noise, 40
-frames, any window from 10 ms to 1 s; docs/dynamic.md). Near critical damping the
+frames, any window from 10 ms to 10 s; docs/dynamic.md). Near critical damping the
 lowest modes ring within 40 ms and mu, gamma and alpha all come out within a few %.
 
 Run ``python -m experiments.dynamic --out DIR``.

@@ -351,27 +351,27 @@ class DynamicProblem:
         return np.vstack(parts).T
 
     def case_residual(self, case: TrajectoryCase, frames: np.ndarray) -> np.ndarray:
-        """W (S u(t_j) + S B0 - Y_j) for one case; ``frames`` (T, 3 n_free) at the frames [mm]."""
-        parts = []
-        for j in range(self.frames.size):
-            seen = case.seen[j]
-            delta = frames[j].reshape(3, -1).T
-            r = case.weights[seen, None] * (
-                case.rows[seen] @ delta + case.rest_points[seen] - case.observed[j, seen]
-            )
-            parts.append(r.T.reshape(-1))
-        return np.concatenate(parts)
+        """W (S u(t_j) + S B0 - Y_j) for one case; ``frames`` (T, 3 n_free) at the frames [mm].
+
+        Ordered by frame, then x, y, z, then the seen markers.
+        """
+        moved = self._observe(case, frames.reshape(len(frames), 3, -1, 1))[..., 0]
+        offset = (case.rest_points[None] - case.observed).transpose(0, 2, 1)
+        residual = case.weights[None, None, :] * (moved + np.nan_to_num(offset))
+        return residual[self._seen(case)]
 
     def case_sensitivity(self, case: TrajectoryCase, sensitivity: np.ndarray) -> np.ndarray:
         """d(residual)/dx from du(t_j)/dx, (T, 3 n_free, p) -> (n_res_k, p)."""
-        parts = []
-        for j in range(self.frames.size):
-            seen = case.seen[j]
-            block = sp.diags(case.weights[seen]) @ case.rows[seen]
-            for c in range(3):
-                rows = slice(c * self.model.n_free, (c + 1) * self.model.n_free)
-                parts.append(block @ sensitivity[j, rows])
-        return np.vstack(parts)
+        blocks = sensitivity.reshape(len(sensitivity), 3, self.model.n_free, -1)
+        return (case.weights[None, None, :, None] * self._observe(case, blocks))[self._seen(case)]
+
+    def _observe(self, case: TrajectoryCase, blocks: np.ndarray) -> np.ndarray:
+        """S applied to (T, 3, n_free, q) blocks -> (T, 3, m, q)."""
+        return np.matmul(case.rows.toarray(), blocks)
+
+    def _seen(self, case: TrajectoryCase) -> np.ndarray:
+        """(T, 3, m) mask of the seen markers, for every component."""
+        return np.broadcast_to(case.seen[:, None, :], (case.seen.shape[0], 3, case.seen.shape[1]))
 
     def rest_noise_map(self) -> sp.csr_matrix | None:
         """P: rest-marker coordinate noise into every residual (covariance sigma^2 (I + P P^T)).
