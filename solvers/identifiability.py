@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.nested import NestedSolver
-from solvers.problem import DYNAMIC_ONLY, InverseProblem
+from solvers.problem import DYNAMIC_ONLY, InverseProblem, ParameterSpace
 from symbolic.model import PARAMETERS
 
 INFLUENCE_TOLERANCE = 1e-9
@@ -108,77 +108,116 @@ def analyse(
         True when the data are static (surfaces before and after), so that a
         non-influential mu or gamma is labelled "not identifiable from static data".
     """
-    space = problem.space
     x = np.asarray(x, dtype=float)
     nested = NestedSolver(problem)
+    space = problem.space
     residual, jac_z = nested.evaluate(space.to_internal(x))
     sensitivity = jac_z / space.natural_derivative(space.to_internal(x))[None, :]
-    scaled = _scaled(problem, x, sensitivity)
+    return report_from_sensitivity(
+        space, x, residual, sensitivity, sigma, problem.noise_mm, problem.rest_noise_map(), static
+    )
+
+
+def report_from_sensitivity(
+    space: ParameterSpace,
+    x: np.ndarray,
+    residual: np.ndarray,
+    sensitivity: np.ndarray,
+    sigma: float | None = None,
+    noise_mm: float | None = None,
+    rest_map=None,
+    static: bool = False,
+) -> IdentifiabilityReport:
+    """The identifiability report from a residual and its sensitivity dr/dx.
+
+    Parameters
+    ----------
+    space : ParameterSpace
+        Names, bounds and scaling of the parameters.
+    x : numpy.ndarray
+        The estimate (natural units).
+    residual : numpy.ndarray
+        r at x, (m,) [mm].
+    sensitivity : numpy.ndarray
+        dr/dx, (m, p) [mm per unit of x].
+    sigma, noise_mm : float, optional
+        Noise standard deviation [mm] given, or the dataset's; else estimated.
+    rest_map : scipy.sparse matrix, optional
+        P of the shared rest-marker noise (sandwich covariance).
+    static : bool
+        True for static data: a non-influential mu or gamma is then "not
+        identifiable from static data".
+    """
+    scale = np.where(space.log_scaled, np.abs(x), space.linear_scale)
+    scaled = sensitivity * scale[None, :]
     norms = np.linalg.norm(scaled, axis=0)
     influential = norms > INFLUENCE_TOLERANCE * max(norms.max(), 1e-300)
     singular = np.linalg.svd(scaled, compute_uv=False)
     rank = int(np.sum(singular > 1e-10 * max(singular.max(), 1e-300)))
-    z = space.to_internal(x)
-    lower, upper = space.internal_bounds()
-    span = np.where(np.isfinite(upper - lower), upper - lower, 1.0)
-    at_bound = (np.abs(z - lower) < BOUND_TOLERANCE * span) | (
-        np.abs(upper - z) < BOUND_TOLERANCE * span
-    )
+    at_bound = _at_bound(space, x)
     estimable = influential & ~at_bound
     m, p = residual.size, int(estimable.sum())
     dof = max(m - p, 1)
-    if sigma is None and problem.noise_mm is not None:
-        sigma, source = float(problem.noise_mm), "given"
-    elif sigma is None:
-        sigma, source = float(np.sqrt(residual @ residual / dof)), "estimated"
-    else:
+    if sigma is not None:
         source = "given"
+    elif noise_mm is not None:
+        sigma, source = float(noise_mm), "given"
+    else:
+        sigma, source = float(np.sqrt(residual @ residual / dof)), "estimated"
     std = np.full(len(x), np.nan)
     correlation = np.full((len(x), len(x)), np.nan)
     collinear = np.zeros(len(x), dtype=bool)
     if p:
-        sub = sensitivity[:, estimable]
         sub_singular = np.linalg.svd(scaled[:, estimable], compute_uv=False)
         if sub_singular.min() > 1e-10 * sub_singular.max():
-            covariance = sigma**2 * _covariance(sub, problem.rest_noise_map())
-            std[estimable] = np.sqrt(np.diag(covariance))
-            d = np.sqrt(np.diag(covariance))
-            idx = np.flatnonzero(estimable)
-            if np.all(d > 0):
-                correlation[np.ix_(idx, idx)] = covariance / np.outer(d, d)
+            covariance = sigma**2 * sandwich_covariance(sensitivity[:, estimable], rest_map)
+            deviation = np.sqrt(np.diag(covariance))
+            std[estimable] = deviation
+            index = np.flatnonzero(estimable)
+            if np.all(deviation > 0):
+                correlation[np.ix_(index, index)] = covariance / np.outer(deviation, deviation)
         else:
             collinear[estimable] = True
-    reports = []
-    for i, name in enumerate(space.names):
-        note = ""
-        if not influential[i]:
-            note = (
-                "not identifiable from static data"
-                if static and name in DYNAMIC_ONLY
-                else "no influence on the data"
-            )
-        elif at_bound[i]:
-            note = "at bound"
-        elif collinear[i]:
-            note = "not identifiable: collinear with other parameters"
-        reports.append(
-            ParameterReport(
-                name=name,
-                value=float(x[i]),
-                unit=PARAMETERS[name].unit,
-                std=None if np.isnan(std[i]) else float(std[i]),
-                identifiable=bool(estimable[i] and not collinear[i]),
-                at_bound=bool(at_bound[i]),
-                note=note,
-            )
+    reports = [
+        ParameterReport(
+            name=name,
+            value=float(x[i]),
+            unit=PARAMETERS[name].unit,
+            std=None if np.isnan(std[i]) else float(std[i]),
+            identifiable=bool(estimable[i] and not collinear[i]),
+            at_bound=bool(at_bound[i]),
+            note=_note(name, influential[i], at_bound[i], collinear[i], static),
         )
+        for i, name in enumerate(space.names)
+    ]
     return IdentifiabilityReport(
         reports, sensitivity, singular, rank, float(sigma), source, dof, correlation
     )
 
 
-def _covariance(sensitivity: np.ndarray, rest_map) -> np.ndarray:
-    """(S^T S)^-1, or the sandwich (S^T S)^-1 S^T (I + P P^T) S (S^T S)^-1 with rest noise."""
+def _at_bound(space: ParameterSpace, x: np.ndarray) -> np.ndarray:
+    z = space.to_internal(x)
+    lower, upper = space.internal_bounds()
+    span = np.where(np.isfinite(upper - lower), upper - lower, 1.0)
+    return (np.abs(z - lower) < BOUND_TOLERANCE * span) | (
+        np.abs(upper - z) < BOUND_TOLERANCE * span
+    )
+
+
+def _note(name: str, influential: bool, at_bound: bool, collinear: bool, static: bool) -> str:
+    if not influential:
+        if static and name in DYNAMIC_ONLY:
+            return "not identifiable from static data"
+        return "no influence on the data"
+    if at_bound:
+        return "at bound"
+    if collinear:
+        return "not identifiable: collinear with other parameters"
+    return ""
+
+
+def sandwich_covariance(sensitivity: np.ndarray, rest_map=None) -> np.ndarray:
+    """(S^T S)^-1, or (S^T S)^-1 S^T (I + P P^T) S (S^T S)^-1 with shared rest noise."""
     inverse = np.linalg.inv(sensitivity.T @ sensitivity)
     if rest_map is None:
         return inverse
