@@ -15,10 +15,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from solvers.dynamic import DynamicProblem
 from solvers.dynamic_scheme import TrapezoidalScheme
+from solvers.nested import least_squares_fit
 from solvers.result import InverseResult
 
 
@@ -79,29 +79,17 @@ class DynamicNestedSolver:
 
     def solve(self, start: np.ndarray | None = None) -> InverseResult:
         """Run least_squares from ``start`` (natural units; default the space's start)."""
-        space = self.problem.space
-        z0 = space.to_internal(space.start if start is None else start)
-        lower, upper = space.internal_bounds()
         self.forward_solves = 0
-        begin = time.perf_counter()
-        kwargs = {} if self.method == "lm" else {"bounds": (lower, upper)}
-        try:
-            fit = least_squares(
-                lambda z: self.evaluate(z)[0],
-                np.clip(z0, lower, upper),
-                jac=lambda z: self.evaluate(z)[1],
-                method=self.method,
-                ftol=self.tolerance,
-                xtol=self.tolerance,
-                gtol=self.tolerance,
-                max_nfev=self.max_evaluations,
-                x_scale=1.0,
-                **kwargs,
-            )
-            z, success, status, nfev = fit.x, fit.status > 0, fit.message, fit.nfev
-        except Exception as error:  # noqa: BLE001  a failed integration ends this start
-            z, success, status, nfev = z0, False, f"failed: {error}", 0
-        elapsed = time.perf_counter() - begin
+        z, success, status, nfev, elapsed = least_squares_fit(
+            self.evaluate,
+            self.problem.space,
+            start,
+            None,
+            self.method,
+            self.tolerance,
+            self.max_evaluations,
+        )
+        space = self.problem.space
         r, _ = self.evaluate(z)
         frames = self.problem.grid.frame_nodes
         return InverseResult(

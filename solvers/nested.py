@@ -100,39 +100,63 @@ class NestedSolver:
 
     def solve(self, start: np.ndarray | None = None) -> InverseResult:
         """Run least_squares from ``start`` (natural units; default: the space's start)."""
-        space = self.problem.space
-        z_full = space.to_internal(space.start if start is None else start)
-        active = self.problem.active
-        lower, upper = (b[active] for b in space.internal_bounds())
-        z0 = z_full[active]
-
-        def full(z_active: np.ndarray) -> np.ndarray:
-            z = z_full.copy()
-            z[active] = z_active  # inactive parameters (mu, gamma) stay at their start
-            return z
-
         self.forward_solves = 0
         self._states = [None] * len(self.problem.cases)
-        begin = time.perf_counter()
-        kwargs = {} if self.method == "lm" else {"bounds": (lower, upper)}
-        try:
-            fit = least_squares(
-                lambda z: self.evaluate(full(z))[0],
-                np.clip(z0, lower, upper),
-                jac=lambda z: self.evaluate(full(z))[1][:, active],
-                method=self.method,
-                ftol=self.tolerance,
-                xtol=self.tolerance,
-                gtol=self.tolerance,
-                max_nfev=self.max_evaluations,
-                x_scale=1.0,
-                **kwargs,
-            )
-            z, success, status, nfev = full(fit.x), fit.status > 0, fit.message, fit.nfev
-        except Exception as error:  # noqa: BLE001  a failed forward solve ends this start
-            z, success, status, nfev = z_full, False, f"failed: {error}", 0
-        elapsed = time.perf_counter() - begin
+        z, success, status, nfev, elapsed = least_squares_fit(
+            self.evaluate,
+            self.problem.space,
+            start,
+            self.problem.active,
+            self.method,
+            self.tolerance,
+            self.max_evaluations,
+        )
         return _result(self, z, self.evaluate(z)[0], success, status, nfev, elapsed)
+
+
+def least_squares_fit(
+    evaluate, space, start, active=None, method="trf", tolerance=1e-12, max_evaluations=200
+):
+    """The outer loop shared by the exact nested solvers.
+
+    ``evaluate(z) -> (r, dr/dz)`` over every internal coordinate; parameters not in
+    ``active`` (mu and gamma at steady state) stay at their start values. A failed
+    forward solve ends the start with ``success = False``.
+
+    Returns
+    -------
+    z, success, status, evaluations, elapsed
+        Internal coordinates at the end, the verdict, scipy's message, residual
+        evaluations and wall time [s].
+    """
+    z_full = space.to_internal(space.start if start is None else start)
+    active = np.ones(len(z_full), dtype=bool) if active is None else np.asarray(active)
+    lower, upper = (b[active] for b in space.internal_bounds())
+
+    def full(z_active: np.ndarray) -> np.ndarray:
+        z = z_full.copy()
+        z[active] = z_active
+        return z
+
+    begin = time.perf_counter()
+    kwargs = {} if method == "lm" else {"bounds": (lower, upper)}
+    try:
+        fit = least_squares(
+            lambda z: evaluate(full(z))[0],
+            np.clip(z_full[active], lower, upper),
+            jac=lambda z: evaluate(full(z))[1][:, active],
+            method=method,
+            ftol=tolerance,
+            xtol=tolerance,
+            gtol=tolerance,
+            max_nfev=max_evaluations,
+            x_scale=1.0,
+            **kwargs,
+        )
+        outcome = full(fit.x), fit.status > 0, fit.message, fit.nfev
+    except Exception as error:  # noqa: BLE001  a failed forward solve ends this start
+        outcome = z_full, False, f"failed: {error}", 0
+    return (*outcome, time.perf_counter() - begin)
 
 
 class PaperNestedSolver:
