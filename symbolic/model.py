@@ -145,6 +145,7 @@ class TissueModel:
             raise ValueError("every control point is fixed; relax the boundary conditions")
         self._setup_constraints()
         self._edges: EdgeSet | None = None
+        self._term_cache: dict[tuple[str, str], object] = {}
 
     # ----------------------------------------------------------------- numbers
     @property
@@ -233,13 +234,11 @@ class TissueModel:
                 delta, self._term_coefficients(values), values["k0"], self.stiffening
             )
         force = 0
-        for term, matrix in self.terms.items():
+        for term in self.terms:
             coefficient = values[term_parameter(term)]
             if isinstance(coefficient, float) and coefficient == 0.0:
                 continue
-            force = force + coefficient * ca.mtimes(
-                to_casadi_sparse(self.free_block(matrix)), delta
-            )
+            force = force + coefficient * ca.mtimes(self.free_term(term, "dm"), delta)
         return force
 
     def symbolic_values(self, names: tuple[str, ...]) -> tuple[ca.MX, dict]:
@@ -307,6 +306,42 @@ class TissueModel:
             {"custom_jacobian": jacobian, "jac_penalty": 0, "never_inline": True},
         )
 
+    def linear_terms(self, names: tuple[str, ...]) -> tuple[ca.MX, ca.MX, list[str]]:
+        """The linear model as A(x) = sum_t c_t(x) (I3 (x) K_t) on the free points (eq. 11-18).
+
+        Returns
+        -------
+        x : casadi.MX
+            The estimated parameters (symbols, natural units).
+        coefficients : casadi.MX
+            c_t(x), one per term whose coefficient is not a fixed zero.
+        terms : list of str
+            Those terms; ``free_term(t)`` gives I3 (x) K_t on the free points.
+        """
+        x, values = self.symbolic_values(names)
+        # terms whose coefficient is a fixed zero (beta = 0 by default) contribute nothing
+        terms = [
+            t
+            for t in self.terms
+            if term_parameter(t) in names or self.parameters[term_parameter(t)] != 0.0
+        ]
+        coefficients = ca.vertcat(*[values[term_parameter(t)] for t in terms])
+        return x, coefficients, terms
+
+    def free_term(self, term: str, form: str = "kron"):
+        """K_t restricted to the free control points, built once per model and form.
+
+        ``form`` is "kron" for I3 (x) K_t as scipy CSC (3 n_free, 3 n_free),
+        "kron_dm" for the same as a CasADi DM, "dm" for K_t alone as a DM.
+        """
+        key = (term, form)
+        if key not in self._term_cache:
+            block = self.free_block(self.terms[term])
+            if form.startswith("kron"):
+                block = sp.kron(sp.identity(3), block).tocsc()
+            self._term_cache[key] = block if form == "kron" else to_casadi_sparse(block)
+        return self._term_cache[key]
+
     def _linear_jacobian(self, names: tuple[str, ...]) -> ca.Function:
         """Closed-form Jacobian of the linear g with respect to s, x, F_B and d.
 
@@ -314,16 +349,10 @@ class TissueModel:
         assembled from the nonzeros of the unit terms; dg/dx = sum_t vec(K_t Delta)
         dc_t/dx; dg/dF_B = [-I; 0]; dg/dd = [0; -I3 (x) Q].
         """
-        x, values = self.symbolic_values(names)
+        x, coefficients, terms = self.linear_terms(names)
+        blocks = [self.free_term(t) for t in terms]
         n, rows = 3 * self.n_free, self._constraint_rows
         m_rows, m_cols = 3 * rows.shape[0], 3 * rows.shape[1]
-        # terms whose coefficient is a fixed zero (beta = 0 by default) contribute nothing
-        terms = [
-            t
-            for t in self.terms
-            if term_parameter(t) in names or self.parameters[term_parameter(t)] != 0.0
-        ]
-        blocks = [sp.kron(sp.identity(3), self.free_block(self.terms[t])).tocsc() for t in terms]
         pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
         pattern.sort_indices()
         r, c = pattern.nonzero()
@@ -331,7 +360,6 @@ class TissueModel:
         r, c = r[order], c[order]
         unit = sp.csc_matrix(np.column_stack([np.asarray(b[r, c]).ravel() for b in blocks]))
         sparsity = ca.Sparsity(n, n, pattern.indptr.tolist(), pattern.indices.tolist())
-        coefficients = ca.vertcat(*[values[term_parameter(t)] for t in terms])
         stiffness = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
         state = ca.MX.sym("s", n + m_rows)
         force = ca.MX.sym("F_B", self.n_free, 3)
@@ -339,7 +367,7 @@ class TissueModel:
         nominal = ca.MX.sym("out_g", n + m_rows)
         coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
         d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
-        columns = ca.horzcat(*[ca.mtimes(to_casadi_sparse(b), state[:n]) for b in blocks])
+        columns = ca.horzcat(*[ca.mtimes(self.free_term(t, "kron_dm"), state[:n]) for t in terms])
         d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
         d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
         reduce = to_casadi_sparse(sp.kron(sp.identity(3), sp.csr_matrix(rows)))

@@ -1,5 +1,6 @@
 """Inverse solution (MODEL.md section 3): agreement, recovery, coverage, robustness."""
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -150,6 +151,34 @@ def test_ipopt_defaults_and_user_options_reach_ipopt(noisy):
     result = solver.solve()
     assert result.iterations == 1 and result.status == "Maximum_Iterations_Exceeded"
     assert IpoptSettings().nlpsol_options()["ipopt.mu_strategy"] == "monotone"  # not mutated
+
+
+@pytest.mark.parametrize("case", ["linear", "prescribed", "k0"])
+def test_structured_lagrangian_hessian_equals_automatic_differentiation(noisy, case):
+    """solvers.lagrangian's closed-form d2L/dv2 is CasADi's AD Hessian of the same NLP."""
+    problem = {
+        "linear": lambda: noisy,
+        "prescribed": lambda: pad_problem(with_force=True),
+        "k0": lambda: InverseProblem(
+            noisy.model, noisy.cases, ParameterSpace.create(ALPHAS + ("k0",)), 0.02
+        ),
+    }[case]()
+    solver = SimultaneousSolver(problem)
+    nlp = solver.nlp
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nlp["g"].numel())
+    lagrangian = lam_f * nlp["f"] + ca.dot(lam_g, nlp["g"])
+    automatic = ca.Function("h", [nlp["x"], lam_f, lam_g], [ca.hessian(lagrangian, nlp["x"])[0]])
+    rng = np.random.default_rng(5)
+    v = rng.normal(0.0, 0.3, nlp["x"].numel())
+    v[: len(problem.names)] = problem.space.to_internal(problem.space.start) + rng.normal(
+        0.0, 0.2, len(problem.names)
+    )
+    multipliers = rng.normal(0.0, 1.0, nlp["g"].numel())
+    expected = automatic(v, 0.7, multipliers).full()
+    upper = solver.hessian(v, [], 0.7, multipliers).full()
+    structured = upper + np.triu(upper, 1).T
+    assert np.abs(expected).max() > 0
+    np.testing.assert_allclose(structured, expected, atol=1e-10 * np.abs(expected).max())
 
 
 def test_bad_parameter_spaces_are_rejected():

@@ -1,0 +1,110 @@
+"""The Hessian of the simultaneous NLP's Lagrangian, assembled from its known structure.
+
+The simultaneous NLP (``solvers.simultaneous``) has variables v = [z; s_1; ...; s_K]
+and Lagrangian
+
+    L = lam_f f(s) + sum_k lam_k^T g(s_k, x(z)) / c_k,
+    f = 1/2 sum_k |J_k s_k + r_k|^2 / scale.
+
+The objective is quadratic with a constant sparse Hessian Q_k = J_k^T J_k / scale.
+For the linear model g = A(x) Delta + C^T lam - F (eq. 22), A(x) = sum_t c_t(x) B_t
+with constant B_t, so
+
+    d2L / ds_k2     = lam_f Q_k                          (g is linear in s)
+    d2L / dz dDelta_k = (dc/dz)^T [B_t mu_k]_t,             mu_k = lam_k[:n] / c_k
+    d2L / dz2       = sum_k sum_t (mu_k^T B_t Delta_k) d2c_t / dz2.
+
+CasADi's automatic Hessian finds the same matrix by graph colouring, at several
+times the cost per evaluation, because it must push seeds through the products
+with B_t and J_k. For the nonlinear model (k0) the constraint part is left to
+automatic differentiation and only the objective part is closed form.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import scipy.sparse as sp
+
+from solvers.problem import InverseProblem
+from symbolic.stiffening import to_casadi_sparse
+
+
+def objective_hessians(problem: InverseProblem, scale: float) -> list[sp.csc_matrix]:
+    """Q_k = J_k^T J_k / scale for every load case, (n_state, n_state)."""
+    hessians = []
+    for case in problem.cases:
+        jac = problem.case_residual_jacobian(case)
+        hessians.append(sp.csc_matrix(jac.T @ jac) / scale)
+    return hessians
+
+
+def lagrangian_hessian(
+    problem: InverseProblem,
+    z: ca.MX,
+    states: list[ca.MX],
+    constraints: ca.MX,
+    objective_scale: float,
+    force_scales: list[float],
+) -> ca.Function:
+    """The Function IPOPT calls for the upper triangle of d2L/dv2.
+
+    Parameters
+    ----------
+    problem : InverseProblem
+        The problem (its model, load cases and parameter space).
+    z, states : casadi.MX
+        The NLP's symbols: internal parameters z and the state s_k of every case;
+        v = [z; s_1; ...; s_K].
+    constraints : casadi.MX
+        The NLP constraints in terms of v (used only for the nonlinear model,
+        where their Hessian comes from AD).
+    objective_scale : float
+        ``scale`` in f above.
+    force_scales : list of float
+        c_k, the force magnitudes dividing each case's equilibrium rows [N].
+
+    Returns
+    -------
+    casadi.Function
+        (x, p, lam_f, lam_g) -> triu(d2L/dv2), nlpsol's ``hess_lag`` signature.
+    """
+    variables = ca.vertcat(z, *states)
+    lam_f = ca.MX.sym("lam_f")
+    lam_g = ca.MX.sym("lam_g", constraints.numel())
+    quadratic = ca.diagcat(
+        ca.MX(z.numel(), z.numel()),
+        *[to_casadi_sparse(q) for q in objective_hessians(problem, objective_scale)],
+    )
+    if problem.model.is_linear_fixed and "k0" not in problem.space.names:
+        constraint_part = _linear_constraint_hessian(problem, z, states, lam_g, force_scales)
+    else:
+        constraint_part = ca.hessian(ca.dot(lam_g, constraints), variables)[0]
+    return ca.Function(
+        "nlp_hess_l",
+        [variables, ca.MX.sym("p", 0), lam_f, lam_g],
+        [ca.triu(lam_f * quadratic + constraint_part)],
+        ["x", "p", "lam_f", "lam_g"],
+        ["triu_hess_gamma_x_x"],
+    )
+
+
+def _linear_constraint_hessian(problem, z, states, lam_g, force_scales) -> ca.MX:
+    """d2(sum_k lam_k^T g_k / c_k)/dv2 for g linear in s and in c(x) (module docstring)."""
+    model, space = problem.model, problem.space
+    n_z, n_state, n = z.numel(), problem.n_state, 3 * model.n_free
+    x, coefficients, terms = model.linear_terms(space.names)
+    c_of_z = ca.Function("c", [x], [coefficients])(space.to_natural(z))
+    dc_dz = ca.jacobian(c_of_z, z)
+    unit = [model.free_term(t, "kron_dm") for t in terms]
+    weight = ca.MX.sym("w", len(unit))
+    curvature = ca.Function("d2c", [z, weight], [ca.hessian(ca.dot(weight, c_of_z), z)[0]])
+    cross, weights = [], 0
+    for k, (state, scale) in enumerate(zip(states, force_scales)):
+        mu = lam_g[k * n_state : k * n_state + n] / scale
+        directions = ca.horzcat(*[ca.mtimes(b, mu) for b in unit])  # B_t is symmetric
+        cross.append(ca.horzcat(ca.mtimes(directions, dc_dz).T, ca.MX(n_z, n_state - n)))
+        weights = weights + ca.mtimes(directions.T, state[:n])
+    size = n_z + len(states) * n_state
+    top = ca.horzcat(curvature(z, weights), *cross)
+    lower = ca.horzcat(ca.vertcat(*[c.T for c in cross]), ca.MX(size - n_z, size - n_z))
+    return ca.vertcat(top, lower)
