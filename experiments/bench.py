@@ -2,14 +2,23 @@
 
 Run ``python -m experiments.bench`` (or ``make bench``). Times are wall-clock
 on a shared machine; compare the ratios printed, not the absolute numbers.
+
+Every measurement runs in a fresh process, so that its peak resident memory
+(``ru_maxrss``) is its own and no cache of an earlier measurement helps it.
+The model (geometry fit, numeric M, D, K) is made before the clock starts;
+"build" is the CasADi problem and the solver, "solve" the solver's call.
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
+import resource
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from experiments.synthetic import TRUE_PARAMETERS, PhantomSettings, probe_loads, segmented_surfaces
@@ -31,6 +40,7 @@ class ForwardTiming:
     build: float
     solve: float
     newton_iterations: int
+    peak_mb: float = float("nan")
 
 
 def volume_for_grid(grid: tuple[int, int, int]) -> VolumeSpline:
@@ -67,12 +77,13 @@ def print_forward(timings: list[ForwardTiming]) -> None:
     """Table of forward timings plus the fitted scaling exponent of build time."""
     print(
         f"{'grid':>10} {'n':>6} {'dofs':>6} {'fit s':>7} {'build s':>8} {'solve s':>8} {'its':>4}"
+        f" {'peak MB':>8}"
     )
     for t in timings:
         grid = "x".join(map(str, t.grid))
         print(
             f"{grid:>10} {t.control_points:>6} {t.free_dofs:>6} {t.fit:7.3f} "
-            f"{t.build:8.3f} {t.solve:8.3f} {t.newton_iterations:>4}"
+            f"{t.build:8.3f} {t.solve:8.3f} {t.newton_iterations:>4} {t.peak_mb:8.0f}"
         )
     sizes = np.array([t.control_points for t in timings], dtype=float)
     builds = np.array([t.build for t in timings])
@@ -96,7 +107,7 @@ def inverse_problem(grid: tuple[int, int, int]):
 
 
 def time_inverse(grid: tuple[int, int, int], methods=("simultaneous", "nested")) -> dict:
-    """Build and solve times [s] of the inverse methods on one grid, side by side."""
+    """Build and solve times [s] of the inverse methods on one grid, in this process."""
     from solvers.nested import NestedSolver, PaperNestedSolver
     from solvers.problem import InverseProblem
     from solvers.simultaneous import SimultaneousSolver
@@ -128,8 +139,52 @@ def time_inverse(grid: tuple[int, int, int], methods=("simultaneous", "nested"))
             "iterations": result.iterations,
             "forward_solves": result.forward_solves,
             "x": result.x,
+            "dofs": 3 * problem.model.n_free,
         }
     return rows
+
+
+def _peak_mb() -> float:
+    """Peak resident memory of this process [MB] (ru_maxrss is in kB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _load_libraries() -> None:
+    """Load IPOPT and MUMPS once (a one-off cost per process, not part of any method)."""
+    x = ca.MX.sym("x")
+    solver = ca.nlpsol(
+        "warm",
+        "ipopt",
+        {"x": x, "f": (x - 1) ** 2},
+        {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"},
+    )
+    solver(x0=0.0)
+
+
+def _forward_job(grid, k0) -> ForwardTiming:
+    _load_libraries()
+    timing = time_forward(grid, k0)
+    timing.peak_mb = _peak_mb()
+    return timing
+
+
+def _inverse_job(grid, method) -> dict:
+    _load_libraries()
+    row = time_inverse(grid, (method,))[method]
+    row["peak_mb"] = _peak_mb()
+    return row
+
+
+def isolated(function, *args):
+    """Run ``function(*args)`` in a fresh process (own memory peak, cold caches)."""
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
+        return pool.submit(function, *args).result()
+
+
+def scaling_exponent(dofs, times) -> float:
+    """Slope of log(time) against log(dofs): time ~ dofs^exponent."""
+    return float(np.polyfit(np.log(np.asarray(dofs, float)), np.log(np.asarray(times)), 1)[0])
 
 
 def print_inverse(grid, rows: dict) -> None:
@@ -139,7 +194,7 @@ def print_inverse(grid, rows: dict) -> None:
         print(
             f"{label:>10} {name:>13} build {row['build']:7.3f} s  solve {row['solve']:8.3f} s  "
             f"total {row['total']:8.3f} s  its {row['iterations']:>3}  "
-            f"forward solves {row['forward_solves']:>4}"
+            f"forward solves {row['forward_solves']:>4}  peak {row.get('peak_mb', np.nan):6.0f} MB"
         )
     base = rows["simultaneous"]["total"]
     for name, row in rows.items():
@@ -150,22 +205,77 @@ def print_inverse(grid, rows: dict) -> None:
             )
 
 
+def print_scaling(results: dict) -> None:
+    """Fitted exponent of total inverse time against free degrees of freedom, per method."""
+    for method in ("simultaneous", "nested"):
+        points = [(rows[method]["dofs"], rows[method]["total"]) for rows in results.values()]
+        if len(points) >= 2:
+            dofs, times = zip(*points)
+            print(
+                f"{method:>13}: total time ~ dofs^{scaling_exponent(dofs, times):.2f} "
+                f"over {min(dofs)}-{max(dofs)} free dofs"
+            )
+
+
+def print_targets(forward: list[ForwardTiming], results: dict) -> None:
+    """Each target of the issues next to the measured value, met or not."""
+
+    def line(text, value, target, met):
+        print(f"  [{'met' if met else 'NOT met'}] {text}: {value} (target {target})")
+
+    print("\nTargets")
+    if len(forward) >= 2:
+        exponent = scaling_exponent([t.control_points for t in forward], [t.build for t in forward])
+        line(
+            "symbolic build time exponent",
+            f"{exponent:.2f}",
+            "<= 1, linear (+0.05 for timing noise)",
+            exponent <= 1.05,
+        )
+    small = results.get((9, 9, 2), {})
+    if "simultaneous" in small:
+        solve = small["simultaneous"]["solve"]
+        line("9x9x2 simultaneous solve", f"{1e3 * solve:.0f} ms", "< 50 ms", solve < 0.05)
+    if "paper" in small:
+        ratio = small["paper"]["total"] / small["simultaneous"]["total"]
+        line(
+            "9x9x2 paper-faithful / simultaneous (build incl.)",
+            f"{ratio:.0f}x",
+            ">= 50x",
+            ratio >= 50,
+        )
+    large = results.get((33, 33, 4), {})
+    if "simultaneous" in large:
+        total = large["simultaneous"]["total"]
+        line("33x33x4 simultaneous, build included", f"{total:.1f} s", "< 20 s", total < 20)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the benchmark tables."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--k0", type=float, default=0.0, help="stiffening for the forward runs")
     parser.add_argument("--skip-paper", action="store_true", help="omit the slow paper method")
     parser.add_argument("--grids", default="9x9x2,17x17x3,33x33x4", help="inverse grids")
+    parser.add_argument("--methods", default="simultaneous,nested", help="inverse methods")
     args = parser.parse_args(argv)
-    print("Forward model (build = TissueModel + residual and Jacobian Functions)")
-    print_forward([time_forward(grid, args.k0) for grid in GRIDS])
-    print("\nInverse, two load cases, alpha_u, alpha_v, alpha_w, from the paper's start")
+    print("Forward model (build = TissueModel + residual and Jacobian Functions)", flush=True)
+    forward = [isolated(_forward_job, grid, args.k0) for grid in GRIDS]
+    print_forward(forward)
+    print(
+        "\nInverse, two load cases, alpha_u, alpha_v, alpha_w, from the paper's start", flush=True
+    )
+    results = {}
     for text in args.grids.split(","):
         grid = tuple(int(v) for v in text.split("x"))
-        methods = ("simultaneous", "nested")
+        methods = tuple(args.methods.split(","))
         if grid == (9, 9, 2) and not args.skip_paper:
             methods += ("paper",)
-        print_inverse(grid, time_inverse(grid, methods))
+        results[grid] = {m: isolated(_inverse_job, grid, m) for m in methods}
+        print_inverse(grid, results[grid])
+    if len(results) >= 2:
+        print("\nScaling")
+        print_scaling(results)
+    print_targets(forward, results)
     return 0
 
 
