@@ -27,6 +27,10 @@ from symbolic.model import BoundaryConditions, TissueModel
 from symbolic.volume import VolumeSpline
 
 GRIDS = ((9, 9, 2), (17, 17, 3), (33, 33, 4))
+REPEATS = 5
+"""Repeated solves per method (median reported), besides the first, timed one; only
+where a solve takes under 5 s (the paper-faithful method and the 33 x 33 x 4 grid are
+timed once)."""
 
 
 @dataclass
@@ -132,10 +136,15 @@ def time_inverse(grid: tuple[int, int, int], methods=("simultaneous", "nested"))
         solver = classes[name](problem)
         built = time.perf_counter()
         result = solver.solve()
+        total = time.perf_counter() - start
+        # repeated solves of the built solver: the steady cost, without first-call set-up
+        count = REPEATS if name != "paper" and result.solve_time_s < 5.0 else 0
+        repeats = [solver.solve().solve_time_s for _ in range(count)]
         rows[name] = {
             "build": built - start,
             "solve": result.solve_time_s,
-            "total": time.perf_counter() - start,
+            "solve_repeat": float(np.median(repeats)) if repeats else float("nan"),
+            "total": total,
             "iterations": result.iterations,
             "forward_solves": result.forward_solves,
             "x": result.x,
@@ -192,7 +201,8 @@ def print_inverse(grid, rows: dict) -> None:
     label = "x".join(map(str, grid))
     for name, row in rows.items():
         print(
-            f"{label:>10} {name:>13} build {row['build']:7.3f} s  solve {row['solve']:8.3f} s  "
+            f"{label:>10} {name:>13} build {row['build']:7.3f} s  solve {row['solve']:8.3f} s "
+            f"(repeated {row.get('solve_repeat', np.nan):7.3f} s)  "
             f"total {row['total']:8.3f} s  its {row['iterations']:>3}  "
             f"forward solves {row['forward_solves']:>4}  peak {row.get('peak_mb', np.nan):6.0f} MB"
         )
@@ -234,8 +244,16 @@ def print_targets(forward: list[ForwardTiming], results: dict) -> None:
         )
     small = results.get((9, 9, 2), {})
     if "simultaneous" in small:
-        solve = small["simultaneous"]["solve"]
-        line("9x9x2 simultaneous solve", f"{1e3 * solve:.0f} ms", "< 50 ms", solve < 0.05)
+        first, repeated = small["simultaneous"]["solve"], small["simultaneous"]["solve_repeat"]
+        line(
+            "9x9x2 simultaneous solve, first call", f"{1e3 * first:.0f} ms", "< 50 ms", first < 0.05
+        )
+        line(
+            f"9x9x2 simultaneous solve, median of {REPEATS} repeats",
+            f"{1e3 * repeated:.0f} ms",
+            "< 50 ms",
+            repeated < 0.05,
+        )
     if "paper" in small:
         ratio = small["paper"]["total"] / small["simultaneous"]["total"]
         line(
