@@ -29,6 +29,7 @@ from experiments.realskin_cases import FrameData, force_weight, frame_data, load
 from experiments.realskin_figures import case_figures, stage_summary
 from experiments.realskin_model import (
     ANISOTROPY,
+    POISSON,
     REGION_RATIO,
     Pads,
     SkinParameterSpace,
@@ -37,6 +38,16 @@ from experiments.realskin_model import (
     slab_volume,
 )
 from experiments.realskin_report import report
+from experiments.realskin_scan import (
+    SCAN,
+    CellGrid,
+    CellTerms,
+    ScanResult,
+    overlap,
+    rect_indicator,
+    scan,
+    with_region,
+)
 from experiments.realskin_stages import LABELS, NULL, ONE_SIDED, StageFit, fit_stage, score_test
 from experiments.skindata import Rect, SkinCase, dic_noise_mm, load_case
 from symbolic.model import BoundaryConditions
@@ -73,7 +84,10 @@ class RealSkinSettings:
     force_only : int
         Extra force-only frames beyond the DIC (healthy skin: 3.8 to 8.4 mm of travel).
     smoothing_mm : float
-        Width of the keloid indicator's transition [mm].
+        Width of the keloid indicator's transition [mm] (``outline_region`` only).
+    outline_region : bool
+        Put the second material inside the keloid outline of ``geometry.geo`` (the old,
+        predefined region; off: the region is found by the scan, ``realskin_scan``).
     significance : float
         An effect is added only if its score test has p below this...
     min_gain : float
@@ -90,11 +104,12 @@ class RealSkinSettings:
     dic_frames: int = 6
     force_only: int = 4
     smoothing_mm: float = 1.0
+    outline_region: bool = False
     significance: float = 1e-3
     min_gain: float = 0.05
-    max_effects: int = 2
-    candidates: tuple[str, ...] = ("k0", REGION_RATIO)
-    diagnostics: tuple[str, ...] = (ANISOTROPY,)
+    max_effects: int = 4
+    candidates: tuple[str, ...] = ("k0", POISSON, ANISOTROPY, SCAN)
+    diagnostics: tuple[str, ...] = ()
     bounds: dict = field(
         default_factory=lambda: {
             "alpha_u": (1e-5, 1e3),
@@ -102,6 +117,7 @@ class RealSkinSettings:
             "k0": (0.0, 100.0),
             REGION_RATIO: (0.1, 100.0),
             ANISOTROPY: (1e-3, 1e3),
+            POISSON: (0.0, 20.0),
         }
     )
 
@@ -137,6 +153,8 @@ class Setup:
     noise_mm: float
     base_names: tuple[str, ...]
     start: dict
+    grid: CellGrid | None = None
+    cells: CellTerms | None = None
 
 
 def build(name: str, settings: RealSkinSettings, pads: tuple[Rect, Rect] | None = None) -> Setup:
@@ -148,7 +166,7 @@ def build(name: str, settings: RealSkinSettings, pads: tuple[Rect, Rect] | None 
     if settings.boundary not in ("inner", "lateral"):
         raise ValueError(f"boundary must be 'inner' or 'lateral', got {settings.boundary!r}")
     region = None
-    if geometry.keloid is not None and REGION_RATIO in settings.candidates:
+    if settings.outline_region and geometry.keloid is not None:
         region = region_indicator(geometry.region, geometry.keloid, settings.smoothing_mm)
     # start: T = 0.02 N/mm; inner: foundation decay length 10 mm; lateral: layers coupled
     tension = 0.02
@@ -170,7 +188,10 @@ def build(name: str, settings: RealSkinSettings, pads: tuple[Rect, Rect] | None 
     names = ("alpha_u", "alpha_w") if inner else ("alpha_u",)
     start = {"alpha_u": alpha_u, "alpha_w": alpha_w}
     cases = load_cases(model, pad_set, data, weight)
-    return Setup(case, model, pad_set, rects, data, cases, weight, dic_noise_mm(case), names, start)
+    grid = CellGrid.of(model, geometry.region)
+    return Setup(
+        case, model, pad_set, rects, data, cases, weight, dic_noise_mm(case), names, start, grid
+    )
 
 
 # ---------------------------------------------------------------------------- the loop
@@ -179,19 +200,37 @@ def _space(names, start, settings: RealSkinSettings) -> SkinParameterSpace:
 
 
 def _score_all(setup: Setup, fit: StageFit, names, settings) -> dict:
-    return {
-        name: score_test(
-            setup.model,
-            setup.cases,
-            fit.names,
-            fit.x,
-            name,
-            NULL[name],
-            settings.bounds,
-            ONE_SIDED[name],
-        )
-        for name in names
-    }
+    """Score test of every candidate at the fit; the scan's entry is a ``ScanResult``."""
+    out = {}
+    for name in names:
+        if name == SCAN:
+            if setup.cells is None:
+                setup.cells = CellTerms.build(setup.model, setup.grid)
+            out[name] = scan(
+                setup.model,
+                setup.cases,
+                fit.names,
+                fit.x,
+                settings.bounds,
+                setup.grid,
+                setup.cells,
+            )
+        else:
+            out[name] = score_test(
+                setup.model,
+                setup.cases,
+                fit.names,
+                fit.x,
+                name,
+                NULL[name],
+                settings.bounds,
+                ONE_SIDED[name],
+            )
+    return out
+
+
+def _score(entry):
+    return entry.score if isinstance(entry, ScanResult) else entry
 
 
 def close_the_loop(setup: Setup, settings: RealSkinSettings, log=print) -> dict:
@@ -211,13 +250,17 @@ def close_the_loop(setup: Setup, settings: RealSkinSettings, log=print) -> dict:
     available = [
         c for c in settings.candidates if c != REGION_RATIO or setup.model.region is not None
     ]
+    found = None
     while available and len(stages) <= settings.max_effects:
-        scores = _score_all(setup, stage, available, settings)
+        entries = _score_all(setup, stage, available, settings)
+        scores = {k: _score(v) for k, v in entries.items()}
         best = max(scores.values(), key=lambda s: s.statistic)
         worth = best.p_value < settings.significance and (
             best.predicted_decrease >= settings.min_gain * stage.cost
         )
         rounds.append({"scores": scores, "chosen": best.name if worth else None})
+        if SCAN in entries:
+            rounds[-1]["scan"] = entries[SCAN]
         log(
             "  scores: "
             + ", ".join(
@@ -229,15 +272,22 @@ def close_the_loop(setup: Setup, settings: RealSkinSettings, log=print) -> dict:
         )
         if not worth:
             break
-        names = stage.names + (best.name,)
-        start = {**stage.as_dict(), best.name: NULL[best.name]}
+        parameter = REGION_RATIO if best.name == SCAN else best.name
+        if best.name == SCAN:
+            found = entries[SCAN]
+            setup.model = with_region(setup.model, rect_indicator(setup.grid.region, found.rect))
+            log(f"  found region: {found.rect} (direction {found.score.direction:+.0f})")
+        names = stage.names + (parameter,)
+        start = {**stage.as_dict(), parameter: NULL[parameter]}
         stage = fit_stage(
             setup.model, setup.cases, _space(names, start, settings), f"+ {LABELS[best.name]}", log
         )
         stages.append(stage)
         available.remove(best.name)
-    diagnostics = _score_all(setup, stage, settings.diagnostics, settings)
-    return {"stages": stages, "rounds": rounds, "diagnostics": diagnostics}
+    diagnostics = {
+        k: _score(v) for k, v in _score_all(setup, stage, settings.diagnostics, settings).items()
+    }
+    return {"stages": stages, "rounds": rounds, "diagnostics": diagnostics, "found": found}
 
 
 def likelihood_ratio(before: StageFit, after: StageFit) -> float:
@@ -256,8 +306,10 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
         f"{len(setup.data.reference_mm)} DIC points, force weight "
         f"{setup.weight:.1f} mm/N, DIC noise {setup.noise_mm:.4f} mm"
     )
+    base_model = setup.model
     loop = close_the_loop(setup, settings, log)
     stages = loop["stages"]
+    found = loop["found"]
     summary = {
         "dic_noise_mm": setup.noise_mm,
         "force_weight_mm_per_N": setup.weight,
@@ -265,15 +317,22 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
         "pads_mm": [asdict(r) for r in setup.pad_rects],
         "stages": [stage_summary(setup, s) for s in stages],
         "rounds": [
-            {"chosen": r["chosen"], "scores": {k: asdict(v) for k, v in r["scores"].items()}}
+            {
+                "chosen": r["chosen"],
+                "scores": {k: asdict(v) for k, v in r["scores"].items()},
+                "scan_rect_mm": asdict(r["scan"].rect) if "scan" in r else None,
+                "scan_candidates": r["scan"].n_candidates if "scan" in r else None,
+            }
             for r in loop["rounds"]
         ],
         "diagnostics": {k: asdict(v) for k, v in loop["diagnostics"].items()},
         "likelihood_ratio": [likelihood_ratio(a, b) for a, b in zip(stages, stages[1:])],
         "authors": AUTHORS[name],
     }
-    summary["variants"] = _variants(name, settings, stages, log)
-    summary["figures"] = [p.name for p in case_figures(out, name, setup, stages)]
+    summary["heterogeneity"] = _heterogeneity(setup, found, stages)
+    summary["variants"] = _variants(name, settings, stages, found, log)
+    summary["figures"] = [p.name for p in case_figures(out, name, setup, stages, found)]
+    setup.model = base_model
     summary["seconds"] = time.perf_counter() - begin
     first, last = stages[0], stages[-1]
     log(
@@ -284,13 +343,36 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
     return summary
 
 
-def _variants(name: str, settings: RealSkinSettings, stages: list[StageFit], log) -> dict:
-    """The other boundary condition (linear and final effect set) and, where they differ
-    from the pad files' (healthy skin: 32 mm gap), the .geo pads' linear fit."""
+def _heterogeneity(setup: Setup, found: ScanResult | None, stages: list[StageFit]) -> dict | None:
+    """The scanned region, its fitted ratio and, where there is one, its overlap with
+    the keloid outline of ``geometry.geo`` (which the scan never saw)."""
+    if found is None:
+        return None
+    ratio = stages[-1].as_dict().get(REGION_RATIO)
+    out = {
+        "rect_mm": asdict(found.rect),
+        "cells": list(found.box),
+        "candidates": found.n_candidates,
+        "score": asdict(found.score),
+        "ratio": ratio,
+        "cell_statistic": found.cell_statistic.tolist(),
+    }
+    keloid = setup.case.geometry.keloid
+    if keloid is not None:
+        out["overlap"] = overlap(found.rect, keloid, setup.case.geometry.region)
+    return out
+
+
+def _variants(name: str, settings: RealSkinSettings, stages: list[StageFit], found, log) -> dict:
+    """The other boundary condition (linear and final effect set, the found region kept)
+    and, where they differ from the pad files' (healthy skin: 32 mm gap), the .geo pads'
+    linear fit."""
     out = {}
     other = "lateral" if settings.boundary == "inner" else "inner"
     variant = RealSkinSettings(**{**asdict(settings), "boundary": other})
     setup = build(name, variant)
+    if found is not None:
+        setup.model = with_region(setup.model, rect_indicator(setup.grid.region, found.rect))
     added = [n for n in stages[-1].names if n in NULL]
     linear = fit_stage(
         setup.model,

@@ -7,8 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from experiments.realskin_model import REGION_RATIO
-from experiments.realskin_plots import plot_force_curves, plot_residual_maps, plot_stiffness_map
+from experiments.realskin_model import POISSON, REGION_RATIO
+from experiments.realskin_plots import (
+    plot_force_curves,
+    plot_residual_maps,
+    plot_scan_map,
+    plot_stiffness_map,
+)
 from experiments.realskin_stages import LABELS, StageFit, force_curve
 
 if TYPE_CHECKING:
@@ -21,7 +26,7 @@ def physical(setup: Setup, fit: StageFit) -> dict:
     T = alpha_u L_x / L_y (isotropic in the plane); k_f = alpha_w / (L_x L_y): the
     in-plane force per unit area and displacement of the layer under the skin.
     """
-    model = setup.model
+    model = fit.problem.model if fit.problem is not None else setup.model
     values = model.values(fit.as_dict())
     tension_x, tension_y = model.membrane_tension(values)
     extent = np.ptp(model.rest, axis=0)
@@ -33,6 +38,9 @@ def physical(setup: Setup, fit: StageFit) -> dict:
         if model.boundary.fix_inner
         else None,
     }
+    if POISSON in fit.names:
+        out["poisson_c"] = values[POISSON]
+        out["poisson_nu"] = values[POISSON] / (1.0 + values[POISSON])
     if REGION_RATIO in fit.names:
         out["region_ratio"] = values[REGION_RATIO]
         out["theta"] = values[REGION_RATIO] - 1.0
@@ -68,7 +76,7 @@ def _curves(setup: Setup, stages: list[StageFit]) -> tuple[np.ndarray, dict]:
     drift = np.interp(travels, frame_travel, case.pad_displacement_mm[:, 1])
     curves = {}
     for fit in (stages[0], stages[-1]) if len(stages) > 1 else stages[:1]:
-        force = force_curve(setup.model, setup.pads, fit, travels, drift)
+        force = force_curve(fit.problem.model, setup.pads, fit, travels, drift)
         name = (
             "linear"
             if fit is stages[0]
@@ -78,7 +86,9 @@ def _curves(setup: Setup, stages: list[StageFit]) -> tuple[np.ndarray, dict]:
     return travels, curves
 
 
-def case_figures(out: Path, name: str, setup: Setup, stages: list[StageFit]) -> list[Path]:
+def case_figures(
+    out: Path, name: str, setup: Setup, stages: list[StageFit], found=None
+) -> list[Path]:
     """Force curves, residual maps and (with a second material) the stiffness map."""
     case, data = setup.case, setup.data
     paths = []
@@ -123,7 +133,7 @@ def case_figures(out: Path, name: str, setup: Setup, stages: list[StageFit]) -> 
                 np.ones(grid[0].size),
             ]
         )
-        chi = setup.model.region(params).reshape(grid[0].shape)
+        chi = final.problem.model.region(params).reshape(grid[0].shape)
         values = physical(setup, final)
         tension = values["tension_N_per_mm"] * (1.0 + values["theta"] * chi)
         paths.append(
@@ -137,6 +147,20 @@ def case_figures(out: Path, name: str, setup: Setup, stages: list[StageFit]) -> 
                 setup.pad_rects,
                 case.geometry.keloid,
                 data.reference_mm,
+            )
+        )
+    if found is not None:
+        paths.append(
+            plot_scan_map(
+                out / f"scan_{name}.png",
+                f"{name}: scan for a stiffer inclusion (chosen T = {found.score.statistic:.3g})",
+                case.geometry.region,
+                setup.grid.x_edges,
+                setup.grid.y_edges,
+                found.cell_statistic,
+                found.rect,
+                setup.pad_rects,
+                case.geometry.keloid,
             )
         )
     return paths

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 from experiments.skindata import Rect, points_in_polygon
 from solvers.problem import LOG_PARAMETERS, ParameterSpace
 from symbolic.basis import FIRST_DERIVATIVES
-from symbolic.energy import Field, weighted_gram
+from symbolic.energy import Field, quadrature, weighted_gram
 from symbolic.loads import PrescribedDisplacement
 from symbolic.model import PARAMETERS, TissueModel, check_parameters, term_parameter
 from symbolic.stiffening import to_casadi_sparse
@@ -39,10 +39,17 @@ REGION_RATIO = "region_ratio"
 """Name of the stiffness ratio 1 + theta of the second material (inside / outside) [1]."""
 ANISOTROPY = "anisotropy"
 """Name of the in-plane anisotropy a = T_y / T_x of an isotropic-by-default model [1]."""
+POISSON = "poisson"
+"""Name of the in-plane volumetric coupling c = C / T [1] (lateral contraction, Poisson)."""
 EXTRA_PARAMETERS = {
     REGION_RATIO: "1 + theta: stiffness inside the region / outside [1]",
     ANISOTROPY: "T_y / T_x, membrane tension across / along the pull [1]",
+    POISSON: "C / T: areal (div u)^2 stiffness over the membrane tension [1]",
 }
+LOG_EXTRA = frozenset({REGION_RATIO, ANISOTROPY})
+"""Extra parameters estimated in log space (the others, with null value 0, linearly)."""
+COUPLING = "div"
+"""Name of the volumetric coupling term integral (div_xy u)^2 (a 3n x 3n matrix)."""
 """Parameters of ``SkinSlabModel`` beyond ``symbolic.model.PARAMETERS``."""
 REGION_SUFFIX = "@region"
 ALPHA_TERMS = tuple(f"alpha_{d}" for d in FIRST_DERIVATIVES)
@@ -164,6 +171,25 @@ def region_indicator(region: Rect, polygon: np.ndarray, smoothing_mm: float = 1.
     return chi
 
 
+def coupling_matrix(
+    basis, lengths: tuple[float, float], weight: Field | None = None, extra_points: int = 0
+) -> sp.csr_matrix:
+    """integral chi D^T D over [0, 1]^3 with D vec(Delta) = du_x/dx + du_y/dy, (3n, 3n).
+
+    D = [J_u / L_x, J_v / L_y, 0] (the map (u, v) -> (x, y) is linear); chi = 1 by
+    default, else a field such as the region's indicator.
+    """
+    points, weights = quadrature(basis, extra_points)
+    if weight is not None:
+        weights = weights * np.asarray(weight(points), dtype=float).reshape(-1)
+    d_x = basis.collocation(points, (1, 0, 0)) / lengths[0]
+    d_y = basis.collocation(points, (0, 1, 0)) / lengths[1]
+    n = d_x.shape[1]
+    d = sp.hstack([d_x, d_y, sp.csr_matrix((len(points), n))]).tocsr()
+    gram = (d.T @ sp.diags(weights) @ d).tocsr()
+    return (0.5 * (gram + gram.T)).tocsr()
+
+
 # ------------------------------------------------------------------------------ the model
 @dataclass
 class SkinSlabModel(TissueModel):
@@ -184,12 +210,20 @@ class SkinSlabModel(TissueModel):
         Its stiffness ratio 1 + theta [1] when not estimated.
     region_extra_points : int
         Extra Gauss points per span for the region terms (chi is not polynomial).
+    poisson : float
+        c = C / T [1] when not estimated (0: the paper's energy, no lateral coupling).
 
     Notes
     -----
     K = sum_t c_t K_t over the usual unit terms plus, for alpha_u, alpha_v, alpha_w, the
     region terms K_t^chi = integral chi J_t^T J_t with coefficient c_t (ratio - 1).
-    ``anisotropy`` and ``region_ratio`` can be estimated like the model's own parameters.
+
+    The volumetric (Poisson) coupling adds the energy C/2 integral (du_x/dx + du_y/dy)^2
+    over the slab, C = c T_x [N/mm] (times the ratio inside the region). Unlike eq. (18)
+    it couples the x and y components: a membrane with it contracts across a uniaxial
+    stretch with nu = c / (1 + c). Its 3n x 3n matrices (``couplings``) are linear (k0
+    does not stiffen them). ``anisotropy``, ``region_ratio`` and ``poisson`` can be
+    estimated like the model's own parameters.
     """
 
     isotropic: bool = False
@@ -197,18 +231,28 @@ class SkinSlabModel(TissueModel):
     region: Field | None = None
     region_ratio: float = 1.0
     region_extra_points: int = 2
+    poisson: float = 0.0
     _fast: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
         extent = np.ptp(self.rest, axis=0)
         self.aspect = float(extent[0] / extent[1])
+        self.lengths = (float(extent[0]), float(extent[1]))
+        self.couplings = {COUPLING: coupling_matrix(self.volume.basis, self.lengths)}
         if self.region is not None:
             for name in ALPHA_TERMS:
                 derivative = FIRST_DERIVATIVES[name[-1]]
                 self.terms[name + REGION_SUFFIX] = weighted_gram(
                     self.volume.basis, derivative, self.region, self.region_extra_points, name
                 )
+            self.couplings[COUPLING + REGION_SUFFIX] = coupling_matrix(
+                self.volume.basis, self.lengths, self.region, self.region_extra_points
+            )
+        index = np.concatenate([self.free + k * self.rest.shape[0] for k in range(3)])
+        self._coupling_free = {
+            name: sp.csr_matrix(m)[index][:, index].tocsr() for name, m in self.couplings.items()
+        }
 
     # ------------------------------------------------------------ coefficients
     def values(self, overrides: dict[str, float] | None = None) -> dict[str, float]:
@@ -218,7 +262,34 @@ class SkinSlabModel(TissueModel):
         return {**check_parameters({**self.parameters, **overrides}), **extra}
 
     def _extra(self) -> list[tuple[str, float]]:
-        return [(ANISOTROPY, self.anisotropy), (REGION_RATIO, self.region_ratio)]
+        return [
+            (ANISOTROPY, self.anisotropy),
+            (REGION_RATIO, self.region_ratio),
+            (POISSON, self.poisson),
+        ]
+
+    def coupling_coefficients(self, values: dict) -> list:
+        """Coefficient of every coupling matrix (``couplings`` order): C L_x L_y, with
+        C = c T_x, times (ratio - 1) for the region's."""
+        base = values[POISSON] * self.coefficient("alpha_u", values) * self.aspect
+        base = base * self.lengths[0] * self.lengths[1]
+        return [
+            base * (values[REGION_RATIO] - 1.0) if name.endswith(REGION_SUFFIX) else base
+            for name in self.couplings
+        ]
+
+    def coupling_force(self, delta: ca.MX, values: dict):
+        """The coupling's force on the free points (n_free, 3), or 0 when c is a fixed 0."""
+        force = 0
+        flat = ca.vec(delta)
+        matrices = self._coupling_free.values()
+        for c, matrix in zip(self.coupling_coefficients(values), matrices):
+            if isinstance(c, float) and c == 0.0:
+                continue
+            force = force + c * ca.reshape(
+                ca.mtimes(to_casadi_sparse(matrix), flat), self.n_free, 3
+            )
+        return force
 
     def coefficient(self, term: str, values: dict):
         """c_t of one base term (a number or a CasADi expression)."""
@@ -267,11 +338,12 @@ class SkinSlabModel(TissueModel):
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
         """K(B; x)(B - B0) on the free points (region terms included)."""
         coefficients = self.coefficient_list(values)
+        coupling = self.coupling_force(delta, values)
         if "k0" in symbolic or not self.is_linear_fixed:
-            return self.edges().elastic_force(
+            return coupling + self.edges().elastic_force(
                 delta, ca.vertcat(*coefficients), values["k0"], self.stiffening
             )
-        force = 0
+        force = coupling
         for coefficient, matrix in zip(coefficients, self.terms.values()):
             if isinstance(coefficient, float) and coefficient == 0.0:
                 continue
@@ -340,13 +412,14 @@ class SkinSlabModel(TissueModel):
         force = ca.MX.sym("F_B", self.n_free, 3)
         prescribed = ca.MX.sym("d", rows.shape[1], 3)
         nominal = ca.MX.sym("out_g", n + m_rows)
+        coupling = ca.vertcat(*self.coupling_coefficients(values))
         if self.is_linear(names):
             sparsity, mapping = self._pattern("linear")
-            weights = ca.vertcat(*self.coefficient_list(values), ca.DM.ones(1))
+            weights = ca.vertcat(*self.coefficient_list(values), coupling, ca.DM.ones(1))
         else:
             sparsity, mapping = self._pattern("edges")
             delta = ca.reshape(state[:n], self.n_free, 3)
-            weights = ca.vertcat(self._edge_weights(delta, values), ca.DM.ones(1))
+            weights = ca.vertcat(self._edge_weights(delta, values), coupling, ca.DM.ones(1))
         d_s = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(mapping), weights))
         d_x = ca.jacobian(self._residual(names)(state, x, force, prescribed), x)
         d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
@@ -391,10 +464,10 @@ class SkinSlabModel(TissueModel):
         return ca.vertcat(*blocks)
 
     def _pattern(self, kind: str) -> tuple[ca.Sparsity, sp.csr_matrix]:
-        """Sparsity of dg/ds and the map P with nonzeros(dg/ds) = P [weights; 1].
+        """Sparsity of dg/ds and the map P with nonzeros(dg/ds) = P [weights; c; 1].
 
         ``kind`` "linear": weights are the term coefficients c_t; "edges": the nine edge
-        diagonals w_ij of ``_edge_weights``.
+        diagonals w_ij of ``_edge_weights``; c the coupling coefficients.
         """
         if kind in self._fast:
             return self._fast[kind]
@@ -408,6 +481,10 @@ class SkinSlabModel(TissueModel):
         else:
             entries = self._edge_entries()
             n_sources = 9 * self.edges().incidence.shape[0]
+        for matrix in self._coupling_free.values():
+            block = matrix.tocoo()
+            entries.append((block.row, block.col, np.full(block.nnz, n_sources), block.data))
+            n_sources += 1
         coupling = sp.kron(sp.identity(3), self._constraint_free).tocoo()
         n = 3 * n_free
         constant = np.full(coupling.nnz, n_sources)
@@ -467,4 +544,4 @@ class SkinParameterSpace(ParameterSpace):
 
     @property
     def log_scaled(self) -> np.ndarray:
-        return np.array([n in LOG_PARAMETERS or n in EXTRA_PARAMETERS for n in self.names])
+        return np.array([n in LOG_PARAMETERS or n in LOG_EXTRA for n in self.names])

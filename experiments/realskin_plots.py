@@ -133,3 +133,39 @@ def plot_stiffness_map(
     atomic_savefig(fig, path, dpi=DPI)
     plt.close(fig)
     return path
+
+
+def plot_scan_map(
+    path: Path,
+    title: str,
+    region: Rect,
+    x_edges: np.ndarray,
+    y_edges: np.ndarray,
+    statistic: np.ndarray,
+    found: Rect,
+    pads: tuple[Rect, Rect],
+    outline: np.ndarray | None,
+) -> Path:
+    """Signed score statistic of every single cell (+: stiffer wanted), the rectangle the
+    scan chose, the pads and (for comparison only) the keloid outline."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.0))
+    limit = float(np.abs(statistic).max()) or 1.0
+    image = ax.pcolormesh(
+        x_edges, y_edges, statistic.T, cmap="RdBu_r", vmin=-limit, vmax=limit, shading="flat"
+    )
+    fig.colorbar(image, ax=ax, label="signed score T of one cell (+: stiffer)")
+    _rect(ax, found, color="k", lw=2.0, label="found region")
+    for pad in pads:
+        _rect(ax, pad, color="0.3")
+    _outline(ax, outline)
+    ax.set_xlim(region.x0, region.x1)
+    ax.set_ylim(region.y0, region.y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.legend(loc="upper right", fontsize=7)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=DPI)
+    plt.close(fig)
+    return path

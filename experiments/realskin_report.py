@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import math
 
-UNITS = {"alpha_u": "N/mm", "alpha_w": "N/mm", "k0": "1", "region_ratio": "1", "anisotropy": "1"}
+UNITS = {
+    "alpha_u": "N/mm",
+    "alpha_w": "N/mm",
+    "k0": "1",
+    "region_ratio": "1",
+    "anisotropy": "1",
+    "poisson": "1",
+}
 
 
 def _number(value, digits: int = 3) -> str:
@@ -95,6 +102,32 @@ def authors_table(summary: dict, cases) -> list[str]:
     return lines
 
 
+def heterogeneity_table(summary: dict, cases) -> list[str]:
+    """The region the scan chose, its ratio and its overlap with the keloid outline."""
+    lines = [
+        "| case | found region x [mm] | y [mm] | ratio | rectangles | inside outline | "
+        "IoU | centroid inside | chance |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name in cases:
+        found = summary[name].get("heterogeneity")
+        if not found:
+            lines.append(f"| {name} | not added | | | | | | | |")
+            continue
+        r, o = found["rect_mm"], found.get("overlap")
+        cells = (
+            f"{o['inside_fraction']:.2f} | {o['iou']:.2f} | {o['centroid_inside']} | "
+            f"{o['chance']:.2f}"
+            if o
+            else "- | - | - | -"
+        )
+        lines.append(
+            f"| {name} | {r['x0']:.1f}-{r['x1']:.1f} | {r['y0']:.1f}-{r['y1']:.1f} | "
+            f"{_number(found['ratio'])} | {found['candidates']} | {cells} |"
+        )
+    return lines
+
+
 def report(summary: dict) -> str:
     """The whole ``parameters.md``."""
     cases = [c for c in ("healthy", "keloid") if c in summary]
@@ -114,6 +147,10 @@ def report(summary: dict) -> str:
         "## Score tests",
         "",
         *scores_table(summary, cases),
+        "",
+        "## The heterogeneity found by the scan (outline used only for the overlap)",
+        "",
+        *heterogeneity_table(summary, cases),
         "",
         "## Against the original authors (2D neo-Hookean)",
         "",

@@ -18,6 +18,7 @@ from scipy import stats
 
 from experiments.realskin_model import (
     ANISOTROPY,
+    POISSON,
     REGION_RATIO,
     SkinParameterSpace,
     SkinSlabModel,
@@ -30,11 +31,17 @@ from experiments.realskin_solve import (
 )
 from solvers.problem import LoadCase
 
-NULL = {"k0": 0.0, REGION_RATIO: 1.0, ANISOTROPY: 1.0}
+NULL = {"k0": 0.0, REGION_RATIO: 1.0, ANISOTROPY: 1.0, POISSON: 0.0, "region_scan": 1.0}
 """Null value of every candidate parameter: the model without the effect."""
-ONE_SIDED = {"k0": True, REGION_RATIO: False, ANISOTROPY: False}
-"""Candidates that may only grow from their null value (k0 >= 0)."""
-LABELS = {"k0": "stiffening k0", REGION_RATIO: "second material", ANISOTROPY: "anisotropy"}
+ONE_SIDED = {"k0": True, REGION_RATIO: False, ANISOTROPY: False, POISSON: True}
+"""Candidates that may only grow from their null value (k0 >= 0, c >= 0)."""
+LABELS = {
+    "k0": "stiffening k0",
+    REGION_RATIO: "second material",
+    ANISOTROPY: "anisotropy",
+    POISSON: "Poisson coupling",
+    "region_scan": "second material (scanned region)",
+}
 """How reports name the effects."""
 
 

@@ -14,6 +14,7 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.realskin_model import (
+    POISSON,
     REGION_RATIO,
     Pads,
     SkinSlabModel,
@@ -52,7 +53,9 @@ def small_model(boundary: BoundaryConditions, **options) -> tuple[SkinSlabModel,
 @pytest.mark.parametrize(
     "boundary", [BoundaryConditions(True, False), BoundaryConditions(False, True)]
 )
-@pytest.mark.parametrize("names", [("alpha_u",), ("alpha_u", "k0", REGION_RATIO)])
+@pytest.mark.parametrize(
+    "names", [("alpha_u",), ("alpha_u", "k0", REGION_RATIO), ("alpha_u", "k0", POISSON)]
+)
 def test_closed_form_jacobian_equals_automatic_differentiation(boundary, names):
     model, pads = small_model(boundary, stiffening=exponential_stiffening)
     residual = model._residual(names)
@@ -60,7 +63,7 @@ def test_closed_form_jacobian_equals_automatic_differentiation(boundary, names):
     automatic = ca.Function("ad", [s, x, force, d], [ca.jacobian(residual(s, x, force, d), s)])
     rng = np.random.default_rng(1)
     state = rng.normal(scale=0.5, size=residual.size1_in(0))
-    values = np.array([0.012, 0.4, 3.0])[: len(names)]
+    values = np.array([0.012, 0.4, 3.0 if REGION_RATIO in names else 0.5])[: len(names)]
     args = (state, values, np.zeros((model.n_free, 3)), pads.displacement([-2.0, 0.1]))
     closed, d_x = model.jacobian_function(names)(*args)
     assert np.allclose(closed.full(), automatic(*args).full(), atol=1e-12)
@@ -146,23 +149,14 @@ def test_healthy_stiffening_cuts_the_force_error(healthy_fits):
     assert stiff.x[-1] > 10 * stiff.std[-1]  # k0 > 0 by far more than its standard error
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="measured: the displacement RMS gets 1.3 % worse (0.1099 -> 0.1113 mm) when k0 "
-    "is added; the residual is dominated by the missing lateral (Poisson) contraction",
-)
-def test_healthy_stiffening_does_not_worsen_the_displacement_error(healthy_fits):
-    _, linear, stiff = healthy_fits
-    assert stiff.rms_displacement_mm <= linear.rms_displacement_mm
-
-
 def test_keloid_is_stiffer_than_its_surroundings(shared_data):
-    """Keloid, membrane model (lateral ring fixed): the second material inside the
-    outline is stiffer (ratio > 1), and adding it is significant (likelihood ratio)."""
+    """Keloid, membrane model (lateral ring fixed), the material placed by hand inside
+    the outline (``outline_region``, not the study's default): it is stiffer (ratio > 1),
+    and adding it is significant (likelihood ratio)."""
     from experiments.realskin import RealSkinSettings, _space, build, likelihood_ratio
     from experiments.realskin_stages import fit_stage
 
-    settings = RealSkinSettings(boundary="lateral")
+    settings = RealSkinSettings(boundary="lateral", outline_region=True)
     setup = build("keloid", settings)
     linear = fit_stage(
         setup.model,
@@ -196,19 +190,162 @@ def test_standard_errors_scale_with_the_residual(shared_data):
     assert np.all(std > 0) and np.all(std < 0.1 * fit.x)
 
 
-@pytest.mark.slow
-def test_full_study_closes_the_loop_on_both_cases(shared_data, tmp_path):
+def _case(model, pads, names, x):
+    """One synthetic load case and the problem of a model at x (no data needed)."""
+    points = np.array([[45.0, 18.0], [55.0, 22.0], [40.0, 25.0], [60.0, 15.0]])
+    rows = model.volume.collocation(model.volume.outer_params(surface_uv(REGION, points)))
+    case = LoadCase(
+        force=np.zeros((model.n_free, 3)),
+        rows=rows[:, model.free].tocsr(),
+        offset=np.array([[0.1, -0.2, 0.0], [0.3, 0.0, 0.0], [0.2, 0.1, 0.0], [0.0, 0.1, 0.0]]),
+        weights=np.ones(4),
+        prescribed=pads.displacement([-1.0, 0.1]),
+        rest_points=rows @ model.rest,
+        force_rows=sp.csr_matrix(model.point_force_rows(pads.moving_index)[:1]),
+        force_target=np.array([-0.05]),
+        force_weight=10.0,
+    )
+    bounds = {
+        "alpha_u": (1e-5, 1e3),
+        "k0": (0.0, 100.0),
+        POISSON: (0.0, 20.0),
+        REGION_RATIO: (0.1, 100.0),
+    }
+    from experiments.realskin_model import SkinParameterSpace
+
+    space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
+    return case, space, bounds
+
+
+def test_scan_cell_columns_equal_the_models_own_sensitivity():
+    """The scan's column of one cell equals d(residual)/d(log ratio) of a model whose
+    second material is that cell (stiffened springs and Poisson coupling included)."""
+    from experiments.realskin_model import SkinParameterSpace
+    from experiments.realskin_scan import (
+        CellGrid,
+        CellTerms,
+        cell_columns,
+        rect_indicator,
+        with_region,
+    )
+    from experiments.realskin_solve import PlanarNestedSolver
+
+    pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
+    model = SkinSlabModel(
+        slab_volume(REGION, 2.0, (9, 5)),
+        {"alpha_u": 0.01, "alpha_w": 0.05},
+        BoundaryConditions(True, False),
+        stiffening=exponential_stiffening,
+        prescribed=pads.prescribed,
+        isotropic=True,
+    )
+    names, x = ("alpha_u", "k0", POISSON), np.array([0.01, 0.5, 0.4])
+    case, space, bounds = _case(model, pads, names, x)
+    problem = PlanarProblem(model, [case], space)
+    solver = PlanarNestedSolver(problem)
+    solver.evaluate(space.to_internal(x))
+    grid = CellGrid.of(model, REGION)
+    columns = cell_columns(
+        model, problem, x, [m.state for m in solver.memory], CellTerms.build(model, grid)
+    )
+    for cell in (2 * grid.shape[1] + 1, 3 * grid.shape[1] + 2):
+        i, j = divmod(cell, grid.shape[1])
+        single = with_region(model, rect_indicator(REGION, grid.rect((i, i + 1, j, j + 1))))
+        names2 = names + (REGION_RATIO,)
+        space2 = SkinParameterSpace.build(
+            names2, {**dict(zip(names, x)), REGION_RATIO: 1.0}, bounds
+        )
+        solver2 = PlanarNestedSolver(PlanarProblem(single, [case], space2))
+        _, jacobian = solver2.evaluate(space2.to_internal(space2.start))
+        assert np.abs(columns[:, cell]).max() > 1e-6
+        assert np.allclose(jacobian[:, -1], columns[:, cell], rtol=1e-8, atol=1e-12)
+
+
+def test_poisson_coupling_contracts_the_skin_across_the_pull():
+    """With c > 0 a stretch along x pulls the skin beside the pads in towards the axis."""
+    pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
+    lateral = []
+    for c in (0.0, 1.0):
+        model = SkinSlabModel(
+            slab_volume(REGION, 2.0, (21, 11)),
+            {"alpha_u": 0.01, "alpha_w": 1e-4},
+            BoundaryConditions(True, False),
+            prescribed=pads.prescribed,
+            isotropic=True,
+            poisson=c,
+        )
+        from experiments.realskin_solve import ForwardSolver
+
+        result = ForwardSolver(model, ("alpha_u",)).solve(
+            np.zeros((model.n_free, 3)), np.array([0.01]), pads.displacement([-2.0, 0.0])
+        )
+        delta = result.state[: 3 * model.n_free].reshape(3, -1).T
+        points = np.array([[50.0, 24.0], [50.0, 16.0]])  # above and below the pull axis
+        rows = model.volume.collocation(model.volume.outer_params(surface_uv(REGION, points)))
+        uy = (rows[:, model.free] @ delta)[:, 1]
+        lateral.append(uy[0] - uy[1])  # < 0: the two points approach each other
+    assert abs(lateral[0]) < 1e-9  # no coupling: x and y are independent (symmetric load)
+    assert lateral[1] < -1e-3
+
+
+def test_overlap_of_a_rectangle_with_a_polygon():
+    from experiments.realskin_scan import overlap
+
+    inside = overlap(Rect(40.0, 18.0, 50.0, 22.0), STRIP, REGION)
+    assert inside["inside_fraction"] == pytest.approx(1.0)
+    assert inside["centroid_inside"]
+    half = overlap(Rect(20.0, 16.0, 40.0, 24.0), STRIP, REGION)
+    assert half["inside_fraction"] == pytest.approx(0.5, abs=0.01)
+    assert half["iou"] == pytest.approx(80.0 / 400.0, abs=0.01)
+    assert half["chance"] == pytest.approx(320.0 / 5000.0, abs=0.001)
+
+
+# ------------------------------------------------------------------------ the full study
+@pytest.fixture(scope="module")
+def study(shared_data, tmp_path_factory):
     from experiments import realskin
 
-    summary = realskin.run(tmp_path, log=lambda *_: None)
+    out = tmp_path_factory.mktemp("realskin")
+    return realskin.run(out, log=lambda *_: None), out
+
+
+@pytest.mark.slow
+def test_full_study_closes_the_loop_on_both_cases(study):
+    summary, out = study
     healthy, keloid = summary["healthy"], summary["keloid"]
     first, last = healthy["stages"][0], healthy["stages"][-1]
     assert "k0" in last["estimates"]
     assert first["rms_force_N"] / last["rms_force_N"] >= 2.0
     assert keloid["rounds"][0]["chosen"] is not None
     final = keloid["stages"][-1]
-    assert final["estimates"][REGION_RATIO]["value"] > 10.0
-    assert keloid["likelihood_ratio"][-1] > 100.0
     assert keloid["stages"][0]["rms_force_N"] / final["rms_force_N"] > 5.0
-    assert (tmp_path / "force_healthy.png").exists() and (tmp_path / "parameters.md").exists()
+    assert (out / "force_healthy.png").exists() and (out / "parameters.md").exists()
     assert summary["seconds"] < 600
+
+
+@pytest.mark.slow
+def test_healthy_effects_do_not_worsen_the_displacement_error(study):
+    """Issue #7 (a): after the loop's effects the force error is cut >= 2x and the RMS
+    displacement error is not worse than the linear model's."""
+    healthy = study[0]["healthy"]
+    first, last = healthy["stages"][0], healthy["stages"][-1]
+    assert first["rms_force_N"] / last["rms_force_N"] >= 2.0
+    assert last["rms_displacement_mm"] <= first["rms_displacement_mm"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured: the scan's stiff region (x 11.1-38.9, y 7.5-32.5 mm, ratio 23) has "
+    "0.23 of its area inside the keloid outline (chance 0.11, IoU 0.15), but its centroid "
+    "(25, 20) lies in the moving pad's notch, outside the outline (docs/realskin.md Limits)",
+)
+def test_keloid_scan_finds_a_stiff_region_on_the_outline(study):
+    """Issue #7 (b), threshold stated in docs/realskin.md: the found region is stiffer,
+    its centroid lies inside the outline and at least twice the chance fraction
+    (outline area / slab area) of its area lies inside."""
+    found = study[0]["keloid"]["heterogeneity"]
+    assert found is not None and found["ratio"] > 1.0
+    overlap = found["overlap"]
+    assert overlap["centroid_inside"]
+    assert overlap["inside_fraction"] >= 2.0 * overlap["chance"]
