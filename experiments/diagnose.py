@@ -4,12 +4,15 @@
   and writes ``diagnosis.json``, ``report.md`` and residual maps before/after.
 - ``simulate_with_effects({"rigid_motion": 0.05}, ...)`` makes a dataset from the
   forehead phantom with effects the dataset does not declare (``dvs simulate
-  --effect NAME[=VALUE]``; ``parse_effect_specs`` reads those options).
+  --effect NAME[=VALUE]``; ``parse_effect_specs`` reads those options), either
+  with the paper's two central loads or with the diagnosis design
+  (``contacts=DIAGNOSIS_CONTACTS, tilt_deg=DIAGNOSIS_TILT_DEG``: five contacts,
+  each pressed along the normal and with a tilted probe).
 - ``benchmark()`` measures the cost of the score tests in forward solves;
   ``study(seeds)`` runs every effect alone over several seeds (docs/diagnosis.md).
 
 Run as ``python -m experiments.diagnose FILE.npz --out DIR`` (or ``--benchmark``,
-``--study 1,2,3,4``).
+``--study 1,2,3,4 [--design paper] [--effects a,b]``).
 """
 
 from __future__ import annotations
@@ -33,7 +36,8 @@ from experiments.synthetic import (
 from solvers.diagnosis_report import report
 from solvers.problem import InverseProblem, ParameterSpace, observation_case
 from symbolic.effects import EFFECT_NAMES, make_effect
-from symbolic.loads import ProbeForce
+from symbolic.effects_base import surface_frame
+from symbolic.loads import PointForce, ProbeForce
 
 BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
 """The base model's estimated parameters (static data cannot see mu and gamma)."""
@@ -87,12 +91,44 @@ def _truth_states(truth, loads, uv, effects: dict[str, float]):
     return [rest + r[3 * m * k : 3 * m * (k + 1)].reshape(3, m).T for k in range(len(loads))]
 
 
+DIAGNOSIS_CONTACTS = ((0.5, 0.5), (0.3, 0.3), (0.7, 0.3), (0.3, 0.7), (0.7, 0.7))
+"""Contact points (u, v) of the diagnosis design: the centre and four points 8 mm
+along u and v off it on the 40 mm forehead patch (docs/diagnosis.md)."""
+
+DIAGNOSIS_TILT_DEG = 20.0
+"""Tilt of the second (0.25 N) load at every contact of the diagnosis design [deg]:
+held by skin friction (coefficient 0.36 needed; skin on steel or plastic 0.2-0.8)."""
+
+
+def design_loads(truth, phantom: PhantomSettings, contacts, tilt_deg: float = 0.0) -> list:
+    """Point loads at every contact, one per phantom force (contact-major order).
+
+    The first force presses along the inward normal; the others are tilted by
+    ``tilt_deg`` from it, leaning away from the patch centre (along V_u at the
+    centre itself), so that the loads also shear the skin.
+    """
+    loads = []
+    for uv in contacts:
+        uv = np.asarray(uv, dtype=float)
+        du, dv, e1, e2, normal = surface_frame(truth, uv)
+        away = (uv[0] - 0.5) * du + (uv[1] - 0.5) * dv
+        away = away - (away @ normal) * normal
+        lean = away / np.linalg.norm(away) if np.linalg.norm(away) > 1e-9 else e1
+        angle = np.radians(tilt_deg)
+        for k, f in enumerate(phantom.forces):
+            direction = -normal if k == 0 else -np.cos(angle) * normal + np.sin(angle) * lean
+            loads.append(PointForce(f * direction, uv=uv))
+    return loads
+
+
 def simulate_with_effects(
     effects: dict[str, float] | None = None,
     noise_mm: float = 0.02,
     seed: int = 0,
     missing_fraction: float = 0.03,
     phantom: PhantomSettings | None = None,
+    contacts=None,
+    tilt_deg: float = 0.0,
 ) -> Dataset:
     """A dataset from the phantom with undeclared effects (``dvs simulate --effect``).
 
@@ -115,6 +151,11 @@ def simulate_with_effects(
         Random seed.
     missing_fraction : float
         Fraction of loaded markers lost at random.
+    contacts : sequence of (u, v), optional
+        Probe contact points on the skin; every one is pressed along its inward
+        normal with each of the phantom's forces (contact-major order). Default:
+        the phantom's single central contact (``probe_loads``);
+        ``DIAGNOSIS_CONTACTS`` is the richer design of the diagnosis tests.
     """
     effects = dict(effects or {})
     unknown = set(effects) - set(EFFECT_NAMES)
@@ -126,7 +167,11 @@ def simulate_with_effects(
     )
     truth = forehead_model(phantom, TRUE_PARAMETERS)
     uv = marker_uv(phantom)
-    declared = probe_loads(truth, phantom)
+    declared = (
+        probe_loads(truth, phantom)
+        if contacts is None
+        else design_loads(truth, phantom, contacts, tilt_deg)
+    )
     loads = declared
     if effects.get("contact_patch", 0.0) > 0:
         radius = float(effects["contact_patch"])
@@ -278,6 +323,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-effects", type=int, default=3, help="most effects added")
     parser.add_argument("--benchmark", action="store_true", help="time the score tests")
     parser.add_argument("--study", default="", help="seeds, e.g. 1,2,3,4: every effect alone")
+    parser.add_argument(
+        "--design",
+        choices=("diagnosis", "paper"),
+        default="diagnosis",
+        help="experiment of --study: five contacts with a tilted load (default) or the paper's",
+    )
+    parser.add_argument("--effects", default="", help="--study only these effects (comma list)")
     args = parser.parse_args(argv)
     from solvers.diagnosis import DiagnosisSettings
 
@@ -286,7 +338,8 @@ def main(argv: list[str] | None = None) -> int:
             benchmark()
             return 0
         if args.study:
-            study(tuple(int(s) for s in args.study.split(",")))
+            names = tuple(n for n in args.effects.split(",") if n) or None
+            study(tuple(int(s) for s in args.study.split(",")), design=args.design, names=names)
             return 0
         if args.dataset is None or args.out is None:
             raise ValueError("give a dataset and --out DIR (or --benchmark, --study SEEDS)")
@@ -299,18 +352,24 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def study(seeds=(1, 2, 3, 4), log=print) -> list[dict]:
+def study(seeds=(1, 2, 3, 4), log=print, design: str = "diagnosis", names=None) -> list[dict]:
     """Every effect alone at its realistic magnitude, plus none, over several seeds.
 
-    Prints one line per run: selected effects, RMS before/after against the
-    noise level (expected RMS of a pure-noise residual) and CPU time.
+    ``design``: "diagnosis" (``DIAGNOSIS_CONTACTS``, tilted second load) or
+    "paper" (two loads at the centre). ``names``: the effects studied (default
+    none and every effect; "none" is the negative control). Prints one line per
+    run: selected effects, RMS before/after against the noise level (expected
+    RMS of a pure-noise residual) and CPU time.
     """
+    options = {"contacts": DIAGNOSIS_CONTACTS, "tilt_deg": DIAGNOSIS_TILT_DEG}
+    options = options if design == "diagnosis" else {}
+    chosen = (None,) + EFFECT_NAMES if names is None else names
     rows = []
-    for name in (None,) + EFFECT_NAMES:
+    for name in (None if n in (None, "none") else n for n in chosen):
         for seed in seeds:
             effects = {} if name is None else {name: make_effect(name).default_magnitude}
             begin = time.process_time()
-            diagnosis = diagnose_dataset(simulate_with_effects(effects, seed=seed))
+            diagnosis = diagnose_dataset(simulate_with_effects(effects, seed=seed, **options))
             document = diagnosis.document()
             row = {
                 "effect": name,

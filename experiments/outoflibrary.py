@@ -64,6 +64,14 @@ class SlabSettings:
         Probe forces along the inward normal at the centre [N].
     spread : float
         Standard deviation of the Gaussian traction of the probe [mm].
+    contacts : tuple of (u, v), optional
+        Contact points as fractions of the patch (x = (u - 1/2) width, y likewise);
+        every one is loaded with each force (contact-major order). Default: the
+        centre only (the paper's experiment).
+    tilt_deg : float
+        Forces after the first at a contact lean this far from the normal, away
+        from the patch centre (along x at the centre), as
+        ``experiments.diagnose.design_loads`` does for the phantom.
     """
 
     width: float = 40.0
@@ -77,6 +85,8 @@ class SlabSettings:
     skin_layers: int = 1
     forces: tuple[float, ...] = (0.17, 0.25)
     spread: float = 0.5
+    contacts: tuple[tuple[float, float], ...] | None = None
+    tilt_deg: float = 0.0
 
     def __post_init__(self) -> None:
         nx, ny, nz = self.elements
@@ -180,8 +190,29 @@ def stiffness(nodes: np.ndarray, elements: np.ndarray, young, poisson: float):
     return sp.csr_matrix((k_e.ravel(), (rows, cols)), shape=(size, size))
 
 
+def slab_loads(settings: SlabSettings) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(contact point [mm], force vector [N]) of every load case."""
+    radius, center = settings.curvature_radius, np.array([0.0, 0.0, -settings.curvature_radius])
+    loads = []
+    for u, v in settings.contacts or ((0.5, 0.5),):
+        x, y = (u - 0.5) * settings.width, (v - 0.5) * settings.width
+        contact = np.array([x, y, np.sqrt(radius**2 - x**2 - y**2) - radius])
+        normal = (contact - center) / radius
+        away = np.array([x, y, 0.0]) if abs(x) + abs(y) > 1e-9 else np.array([1.0, 0.0, 0.0])
+        away -= (away @ normal) * normal
+        away /= np.linalg.norm(away)
+        angle = np.radians(settings.tilt_deg)
+        for k, size in enumerate(settings.forces):
+            direction = -normal if k == 0 else -np.cos(angle) * normal + np.sin(angle) * away
+            loads.append((contact, size * direction))
+    return loads
+
+
 def solve_slab(settings: SlabSettings) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
-    """Rest nodes (nx+1, ny+1, nz+1, 3), displacements per force, and the contact [mm]."""
+    """Rest nodes (nx+1, ny+1, nz+1, 3), displacements per load case, and the contacts [mm].
+
+    The contacts are (K, 3), one row per load case (``slab_loads``).
+    """
     nodes = slab_nodes(settings)
     nx, ny, nz = settings.elements
     layers = np.broadcast_to(np.arange(nz), (nx, ny, nz)).ravel()
@@ -192,21 +223,19 @@ def solve_slab(settings: SlabSettings) -> tuple[np.ndarray, list[np.ndarray], np
     free = np.flatnonzero(np.repeat(~fixed.reshape(-1), 3))
     factor = spla.splu(matrix[free][:, free].tocsc())
     skin = nodes[:, :, -1].reshape(-1, 3)
-    contact = nodes[nx // 2, ny // 2, -1]
-    normal = contact - np.array([0.0, 0.0, -settings.curvature_radius])
-    normal /= np.linalg.norm(normal)
-    weights = np.exp(-np.sum((skin - contact) ** 2, axis=1) / (2 * settings.spread**2))
-    weights /= weights.sum()
     skin_index = np.arange(nodes[..., 0].size).reshape(nodes.shape[:3])[:, :, -1].ravel()
-    results = []
-    for size in settings.forces:
+    results, contacts = [], []
+    for contact, force in slab_loads(settings):
+        weights = np.exp(-np.sum((skin - contact) ** 2, axis=1) / (2 * settings.spread**2))
+        weights /= weights.sum()
         load = np.zeros(nodes.size)
         for k in range(3):
-            load[3 * skin_index + k] = -size * normal[k] * weights
+            load[3 * skin_index + k] = force[k] * weights
         displacement = np.zeros(nodes.size)
         displacement[free] = factor.solve(load[free])
         results.append(displacement.reshape(nodes.shape))
-    return nodes, results, contact
+        contacts.append(contact)
+    return nodes, results, np.array(contacts)
 
 
 def simulate_slab(
@@ -219,7 +248,7 @@ def simulate_slab(
     from experiments.diagnose import measured_dataset
 
     settings = settings or SlabSettings()
-    nodes, displacements, contact = solve_slab(settings)
+    nodes, displacements, contacts = solve_slab(settings)
     step = settings.elements[0] // (settings.markers - 1)
     pick = (
         slice(None, None, step),
@@ -228,9 +257,7 @@ def simulate_slab(
     rest = nodes[pick][:, :, -1].reshape(-1, 3)
     inner = nodes[pick][:, :, 0].reshape(-1, 3)
     positions = [rest + d[pick][:, :, -1].reshape(-1, 3) for d in displacements]
-    normal = contact - np.array([0.0, 0.0, -settings.curvature_radius])
-    normal /= np.linalg.norm(normal)
-    forces = np.array([-f * normal for f in settings.forces])
+    forces = np.array([force for _, force in slab_loads(settings)])
     measurement = SimulationSettings(
         noise_mm=noise_mm, seed=seed, missing_fraction=missing_fraction
     )
@@ -239,7 +266,7 @@ def simulate_slab(
         inner,
         positions,
         forces,
-        np.tile(contact, (len(forces), 1)),
+        contacts,
         measurement,
         (settings.markers, settings.markers),
     )

@@ -1,11 +1,14 @@
 """The overfitting guard: does an added effect predict a left-out load case better?
 
-For every load case h in turn, both the previous model and the model with the
-new effect are fitted to the other cases, and then predict case h with their
-shared parameters fixed. Per-capture nuisance parameters of case h (rigid
-motion, measurement scale) cannot be predicted; they are fitted to case h
-alone, and since each such parameter lowers a pure-noise chi^2 by 1 on
-average, their number is charged:
+The folds are the contact points when the cases press on two or more of them
+(all forces at one contact are left out together: the model must predict the
+response at a point it has not seen), else the single load cases. For every
+fold h in turn, both the previous model and the model with the new effect are
+fitted to the other cases, and then predict fold h with their shared
+parameters fixed. Per-capture nuisance parameters of fold h (rigid motion,
+measurement scale) cannot be predicted; they are fitted to fold h alone, and
+since each such parameter lowers a pure-noise chi^2 by 1 on average, their
+number is charged:
 
     improvement = sum_h (chi^2_before,h - chi^2_after,h) - (n_after - n_before),
 
@@ -27,7 +30,7 @@ from solvers.diagnosis_fit import EffectFit, fit
 class PredictionCheck:
     """Left-out prediction of every load case, before and after adding an effect."""
 
-    held_out: list[int]
+    held_out: list[list[int]]
     chi2_before: list[float]
     chi2_after: list[float]
     nuisance_before: int
@@ -77,17 +80,31 @@ def _mapped(source_labels, source_p, target) -> tuple[np.ndarray, np.ndarray]:
     return start, free
 
 
-def predict_left_out(model_fit: EffectFit, held: int, sigma: float) -> tuple[float, int]:
-    """chi^2 of the prediction of base case ``held`` after fitting the other cases.
+def folds(problem) -> list[list[int]]:
+    """Positions left out together: those sharing a contact point, or single cases."""
+    groups: dict = {}
+    for position in problem.positions:
+        uv = getattr(problem.loads[problem.indices[position]], "uv", None)
+        key = position if uv is None else tuple(np.round(np.asarray(uv, dtype=float), 6))
+        groups.setdefault(key, []).append(position)
+    if len(groups) >= 2:
+        return list(groups.values())
+    return [[position] for position in problem.positions]
 
-    Returns the chi^2 and the number of nuisance parameters fitted to the held case.
+
+def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, int]:
+    """chi^2 of the prediction of base cases ``held`` after fitting the other cases.
+
+    ``held`` is one position or a list of them. Returns the chi^2 and the number
+    of nuisance parameters fitted to the held cases.
     """
+    held = [held] if np.isscalar(held) else list(held)
     problem = model_fit.problem
-    train = [k for k in problem.positions if k != held]
+    train = [k for k in problem.positions if k not in held]
     train_problem = problem.with_effects(problem.effects, positions=train)
     start, _ = _mapped(problem.labels, model_fit.p, train_problem)
     trained = fit(train_problem, start)
-    test_problem = problem.with_effects(problem.effects, positions=[held])
+    test_problem = problem.with_effects(problem.effects, positions=held)
     start, free = _mapped(train_problem.labels, trained.p, test_problem)
     if free.any():
         predicted = fit(test_problem, start, free)
@@ -101,17 +118,17 @@ def predict_left_out(model_fit: EffectFit, held: int, sigma: float) -> tuple[flo
 def prediction_check(
     previous: EffectFit, new: EffectFit, sigma: float, cache: dict | None = None
 ) -> PredictionCheck:
-    """Leave-one-case-out comparison of ``previous`` and ``new`` (see module docstring)."""
+    """Leave-one-fold-out comparison of ``previous`` and ``new`` (see module docstring)."""
     cache = {} if cache is None else cache
     held_out, before, after = [], [], []
     n_before = n_after = 0
-    for held in new.problem.positions:
-        key = (tuple(e.name for e in previous.problem.effects), held)
+    for held in folds(new.problem):
+        key = (tuple(e.name for e in previous.problem.effects), tuple(held))
         if key not in cache:
             cache[key] = predict_left_out(previous, held, sigma)
         chi2_before, nuisance = cache[key]
         chi2_after, nuisance_after = predict_left_out(new, held, sigma)
-        held_out.append(int(new.problem.indices[held]))
+        held_out.append([int(new.problem.indices[k]) for k in held])
         before.append(chi2_before)
         after.append(chi2_after)
         n_before += nuisance

@@ -6,8 +6,9 @@ vanish at theta = 0 (``nonlinear_stiffening`` lives in ``effects_stiffening``).
 - ``heterogeneity``: every alpha_i multiplied by the bilinear field
   1 + h_u (2u - 1) + h_v (2v - 1) + h_uv (2u - 1)(2v - 1).
 - ``bending``: the rigidity terms beta sum_{i<=j} J_ij^T J_ij of eq. (18).
-- ``pre_tension``: sigma0 integral_skin g^ab J_a^T J_b dA, the geometric stiffness
-  of an in-plane pre-stress sigma0 [N/mm] of the skin, in the physical metric.
+- ``pre_tension``: sigma0 integral_skin g^ab (n . J_a)^T (n . J_b) dA, the geometric
+  stiffness of an in-plane pre-stress sigma0 [N/mm] of the skin against rotation
+  of its surface (normal displacement), in the physical metric.
 - ``volumetric_coupling``: lambda integral (div u)^2 dV over the physical volume
   (Poisson effect): the only effect that couples the x, y, z components.
 """
@@ -23,7 +24,6 @@ from symbolic.effects_base import (
     CaseSymbols,
     Effect,
     apply_stacked,
-    free_matrix,
     stacked_free_block,
     surface_rule,
 )
@@ -121,10 +121,23 @@ class Bending(Effect):
 class PreTension(Effect):
     """sigma0 [N/mm]: in-plane pre-stress of the skin, a geometric stiffness.
 
-    K_sigma = integral_{w=1} sum_ab g^ab J_a^T J_b dA, with the metric g_ab = V_a . V_b
-    of the rest skin (a, b in {u, v}), so that 1/2 Delta^T K_sigma Delta =
-    1/2 integral |grad_s u|^2 dA in physical units. Realistic magnitude
-    0.05 N/mm (in vivo skin tension, 10-50 kPa times 1-2 mm).
+    An isotropic membrane pre-stress sigma0 adds 1/2 sigma0 integral_skin g^ab
+    u_,a . u_,b dA to the energy (a, b in {u, v}; g_ab = V_a . V_b of the rest
+    skin). Split u_,a into its tangential part and its normal part (n . u_,a):
+
+    - the tangential part stiffens in-plane stretching by sigma0, next to the
+      skin's in-plane material stiffness E t (0.1-1 MPa times 1-2 mm, i.e.
+      100-2000 N/mm): a change below 1e-3, dropped;
+    - the normal part is the rotation of the skin's surface element,
+      delta n = -g^ab (n . u_,a) V_b, whose only stiffness in a membrane is the
+      pre-stress: a first-order effect (a drum's T laplacian w).
+
+    So K_sigma = integral_{w=1} g^ab (n . J_a)^T (n . J_b) dA: it acts on the
+    normal component of the displacement through its in-plane gradients and
+    couples x, y, z (3n x 3n, stacked). The base model's alpha terms act on
+    every component alike, so pre-tension is told apart by loads with an
+    in-plane component (a tilted probe). Realistic magnitude 0.05 N/mm (in vivo
+    skin tension, 10-50 kPa times 1-2 mm).
     """
 
     name = "pre_tension"
@@ -135,10 +148,10 @@ class PreTension(Effect):
     upper = (10.0,)
     default_magnitude = 0.05
     magnitude_unit = "N/mm"
-    equation = "sigma0 integral_skin g^ab d_a u . d_b u dA"
+    equation = "sigma0 integral_skin g^ab (n . d_a u)(n . d_b u) dA"
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
-        """K_sigma on all control points, (n, n) [1]."""
+        """K_sigma on all control points, (3n, 3n) in stacked order [1]."""
 
         def build():
             params, area, du, dv = surface_rule(model, 1.0, model.volume.basis.degrees[0] + 2)
@@ -150,18 +163,27 @@ class PreTension(Effect):
                 -2,
             )
             inverse = np.linalg.inv(metric)
-            ju = model.volume.collocation(params, (1, 0, 0))
-            jv = model.volume.collocation(params, (0, 1, 0))
-            parts = [(ju, ju, inverse[:, 0, 0]), (ju, jv, inverse[:, 0, 1])]
-            parts += [(jv, ju, inverse[:, 1, 0]), (jv, jv, inverse[:, 1, 1])]
-            total = sum(a.T @ sp.diags(area * g) @ b for a, b, g in parts)
+            normal = model.volume.outer_normal(params[:, :2])
+            rows = []
+            for derivative in ((1, 0, 0), (0, 1, 0)):
+                j = sp.csr_matrix(model.volume.collocation(params, derivative))
+                rows.append(sp.hstack([sp.diags(normal[:, i]) @ j for i in range(3)]).tocsr())
+            total = sum(
+                rows[a].T @ sp.diags(area * inverse[:, a, b]) @ rows[b]
+                for a in range(2)
+                for b in range(2)
+            )
             return sp.csr_matrix(0.5 * (total + total.T))
 
         return self.cached(model, "K_sigma", build)
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
-        matrix = self.cached(model, "K_sigma_free", lambda: free_matrix(model, self.matrix(model)))
-        return theta[0] * ca.mtimes(matrix, symbols.delta)
+        block = self.cached(
+            model,
+            "K_sigma_free",
+            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
+        )
+        return theta[0] * apply_stacked(block, symbols.delta)
 
 
 class VolumetricCoupling(Effect):

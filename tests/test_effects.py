@@ -215,18 +215,27 @@ def test_volumetric_matrix_sees_only_volume_change(setting):
     assert dilation @ matrix @ dilation == pytest.approx(9e-6 * volume, rel=2e-3)
 
 
-def test_pre_tension_matrix_is_the_skin_dirichlet_energy(setting):
-    """K_sigma: zero on translations; u = eps y costs eps^2 integral |grad_s y|^2 = (1 - n_y^2)."""
+def test_pre_tension_matrix_is_the_skin_rotation_energy(setting):
+    """K_sigma (stacked x, y, z): zero on translations; u = eps y e_z costs
+    eps^2 integral n_z^2 |grad_s y|^2 = n_z^2 (1 - n_y^2), u = eps y e_y only
+    n_y^2 (1 - n_y^2): it stiffens the normal displacement, not in-plane stretch."""
     problem, _, _ = setting
     model = problem.model
     matrix = PreTension().matrix(model).toarray()
-    ones = np.ones(len(model.rest))
-    assert abs(ones @ matrix @ ones) < 1e-10
-    shear = 1e-3 * model.rest[:, 1]
+    n = len(model.rest)
+    assert matrix.shape == (3 * n, 3 * n)
+    for k in range(3):
+        translation = np.zeros(3 * n)
+        translation[k * n : (k + 1) * n] = 1.0
+        assert abs(translation @ matrix @ translation) < 1e-10
     params, area, _, _ = surface_rule(model, 1.0, 6)
     normals = model.volume.outer_normal(params[:, :2])
-    expected = 1e-6 * np.sum(area * (1.0 - normals[:, 1] ** 2))
-    assert shear @ matrix @ shear == pytest.approx(expected, rel=1e-3)
+    gradient = 1.0 - normals[:, 1] ** 2
+    for k in (1, 2):
+        field = np.zeros(3 * n)
+        field[k * n : (k + 1) * n] = 1e-3 * model.rest[:, 1]
+        expected = 1e-6 * np.sum(area * normals[:, k] ** 2 * gradient)
+        assert field @ matrix @ field == pytest.approx(expected, rel=1e-3)
 
 
 def test_base_compliance_frees_the_inner_layer(setting):
