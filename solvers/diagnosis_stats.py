@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from solvers.diagnosis_fit import EffectFit
 from symbolic.effects_base import Effect
@@ -93,6 +93,26 @@ def residual_test(fit: EffectFit, sigma: float) -> ResidualTest:
     return ResidualTest(float(statistic), int(dof), float(stats.chi2.sf(statistic, dof)))
 
 
+def log_chi2_sf(statistic: float, dof: int) -> float:
+    """log P(chi^2_dof > statistic), finite even where the p-value underflows.
+
+    scipy's ``chi2.logsf`` returns -inf once the p-value drops below about
+    1e-308 (statistics of a few thousand), which would make the strongest
+    candidates tie. There the leading terms of the asymptotic series of the
+    upper incomplete gamma function are used, with s = dof/2, x = statistic/2:
+    log Q(s, x) = (s - 1) log x - x - log Gamma(s) + log(1 + (s - 1)/x + ...).
+    """
+    value = float(stats.chi2.logsf(statistic, dof))
+    return value if np.isfinite(value) else log_chi2_sf_series(statistic, dof)
+
+
+def log_chi2_sf_series(statistic: float, dof: int) -> float:
+    """The asymptotic series of ``log_chi2_sf`` (relative error O((dof/statistic)^3))."""
+    s, x = 0.5 * dof, 0.5 * statistic
+    series = 1.0 + (s - 1.0) / x + (s - 1.0) * (s - 2.0) / x**2
+    return float((s - 1.0) * np.log(x) - x - special.gammaln(s) + np.log(series))
+
+
 def bic(fit: EffectFit, sigma: float) -> float:
     """Bayesian information criterion with known sigma: chi^2 + k log m."""
     return fit.cost / sigma**2 + int(fit.estimated().sum()) * np.log(fit.whitened.size)
@@ -152,7 +172,7 @@ def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
         statistic = float(coefficients @ coefficients) / sigma**2
         step = -(vt[:rank].T @ (coefficients / singular[:rank])) * scale
         dof = rank
-        log_p = float(stats.chi2.logsf(statistic, dof))
+        log_p = log_chi2_sf(statistic, dof)
         lower = np.asarray(candidate.lower, dtype=float)
         if len(scale) == 1 and lower[0] == 0.0:
             if step[0] <= 0.0:

@@ -41,7 +41,7 @@ from solvers.diagnosis import SCHEMA, DiagnosisSettings
 from solvers.diagnosis_fit import fit
 from solvers.diagnosis_guard import folds
 from solvers.diagnosis_problem import ExtendedProblem, noise_map
-from solvers.diagnosis_stats import score_test
+from solvers.diagnosis_stats import log_chi2_sf, log_chi2_sf_series, score_test
 from symbolic.effects import EFFECT_NAMES, make_effect
 
 SEED = 1
@@ -271,3 +271,16 @@ def test_benchmark_prints_the_cost_of_the_score_tests(capsys):
     printed = capsys.readouterr().out
     assert "forward solve" in printed
     assert set(result["candidates"]) == set(EFFECT_NAMES)
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 6, 12])
+def test_log_p_value_stays_finite_and_ordered_beyond_underflow(dof):
+    """Where scipy's log sf is finite the series agrees with it; beyond, the strongest
+    candidates keep distinct, ordered log p-values instead of tying at -inf."""
+    from scipy import stats
+
+    for statistic in (300.0, 800.0, 1300.0):
+        exact = stats.chi2.logsf(statistic, dof)
+        assert log_chi2_sf_series(statistic, dof) == pytest.approx(exact, rel=1e-6)
+    values = [log_chi2_sf(t, dof) for t in (2000.0, 3000.0, 5000.0)]
+    assert np.all(np.isfinite(values)) and values[0] > values[1] > values[2]
