@@ -152,8 +152,14 @@ def atomic_save_npz(path: PathLike, **arrays: Any) -> Path:
     return atomic_write(path, lambda handle: np.savez(handle, **arrays))
 
 
+VECTOR_TWIN = "pdf"
+"""Every PNG figure is also written as a vector twin with this suffix (None: off)."""
+
+
 def atomic_savefig(fig: Any, path: PathLike, **kwargs: Any) -> Path:
     """Save a matplotlib figure atomically; the format comes from the suffix of ``path``.
+
+    A PNG also gets a PDF twin beside it (``VECTOR_TWIN``), for papers.
 
     Parameters
     ----------
@@ -169,4 +175,9 @@ def atomic_savefig(fig: Any, path: PathLike, **kwargs: Any) -> Path:
     file_format = kwargs.pop("format", None) or target.suffix.lstrip(".").lower()
     if not file_format:
         raise ValueError(f"{target}: no file suffix to take the figure format from; add e.g. .png")
-    return atomic_write(target, lambda handle: fig.savefig(handle, format=file_format, **kwargs))
+    written = atomic_write(target, lambda handle: fig.savefig(handle, format=file_format, **kwargs))
+    if file_format == "png" and VECTOR_TWIN:
+        twin = target.with_suffix("." + VECTOR_TWIN)
+        vector = {k: v for k, v in kwargs.items() if k != "dpi"}
+        atomic_write(twin, lambda handle: fig.savefig(handle, format=VECTOR_TWIN, **vector))
+    return written

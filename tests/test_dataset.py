@@ -174,7 +174,8 @@ def test_atomic_savefig_takes_format_from_suffix(tmp_path):
     atomic.atomic_savefig(figure, tmp_path / "plot.svg")
     assert (tmp_path / "plot.png").read_bytes().startswith(b"\x89PNG")
     assert b"<svg" in (tmp_path / "plot.svg").read_bytes()
-    assert sorted(os.listdir(tmp_path)) == ["plot.png", "plot.svg"]
+    assert (tmp_path / "plot.pdf").read_bytes().startswith(b"%PDF")  # the PNG's vector twin
+    assert sorted(os.listdir(tmp_path)) == ["plot.pdf", "plot.png", "plot.svg"]
 
 
 # ------------------------------------------------------------------ malformed corpus
