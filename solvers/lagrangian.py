@@ -95,13 +95,15 @@ def _linear_constraint_hessian(problem, z, states, lam_g, force_scales) -> ca.MX
     x, coefficients, terms = model.linear_terms(space.names)
     c_of_z = ca.Function("c", [x], [coefficients])(space.to_natural(z))
     dc_dz = ca.jacobian(c_of_z, z)
-    unit = [model.free_term(t, "kron_dm") for t in terms]
+    unit = [model.free_term(t, "dm") for t in terms]  # K_t; I3 (x) K_t acts on vec columns
     weight = ca.MX.sym("w", len(unit))
     curvature = ca.Function("d2c", [z, weight], [ca.hessian(ca.dot(weight, c_of_z), z)[0]])
     cross, weights = [], 0
     for k, (state, scale) in enumerate(zip(states, force_scales)):
         mu = lam_g[k * n_state : k * n_state + n] / scale
-        directions = ca.horzcat(*[ca.mtimes(b, mu) for b in unit])  # B_t is symmetric
+        mu_matrix = ca.reshape(mu, model.n_free, 3)
+        # (I3 (x) K_t) mu for every term (K_t is symmetric)
+        directions = ca.horzcat(*[ca.vec(ca.mtimes(k, mu_matrix)) for k in unit])
         cross.append(ca.horzcat(ca.mtimes(directions, dc_dz).T, ca.MX(n_z, n_state - n)))
         weights = weights + ca.mtimes(directions.T, state[:n])
     size = n_z + len(states) * n_state

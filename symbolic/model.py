@@ -331,13 +331,14 @@ class TissueModel:
     def free_term(self, term: str, form: str = "kron"):
         """K_t restricted to the free control points, built once per model and form.
 
-        ``form`` is "kron" for I3 (x) K_t as scipy CSC (3 n_free, 3 n_free),
-        "kron_dm" for the same as a CasADi DM, "dm" for K_t alone as a DM.
+        ``form`` is "kron" for I3 (x) K_t as scipy CSC (3 n_free, 3 n_free), "dm"
+        for K_t alone as a CasADi DM (n_free, n_free); apply the latter to the
+        (n_free, 3) displacement matrix, which is I3 (x) K_t on its vec.
         """
         key = (term, form)
         if key not in self._term_cache:
             block = self.free_block(self.terms[term])
-            if form.startswith("kron"):
+            if form == "kron":
                 block = sp.kron(sp.identity(3), block).tocsc()
             self._term_cache[key] = block if form == "kron" else to_casadi_sparse(block)
         return self._term_cache[key]
@@ -367,7 +368,8 @@ class TissueModel:
         nominal = ca.MX.sym("out_g", n + m_rows)
         coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
         d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
-        columns = ca.horzcat(*[ca.mtimes(self.free_term(t, "kron_dm"), state[:n]) for t in terms])
+        delta = ca.reshape(state[:n], self.n_free, 3)
+        columns = ca.horzcat(*[ca.vec(ca.mtimes(self.free_term(t, "dm"), delta)) for t in terms])
         d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
         d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
         reduce = to_casadi_sparse(sp.kron(sp.identity(3), sp.csr_matrix(rows)))
