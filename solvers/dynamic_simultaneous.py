@@ -236,7 +236,12 @@ class DynamicSimultaneousSolver:
         begin = time.perf_counter()
         self.problem, self.parameter_step = problem, float(parameter_step)
         self.settings = settings or IpoptSettings()
-        self.options = {**DYNAMIC_DEFAULTS, **self.settings.nlpsol_options()}
+        # the static solver's defaults, then this NLP's own, then the user's
+        self.options = {
+            **self.settings.nlpsol_options(),
+            **DYNAMIC_DEFAULTS,
+            **self.settings.options,
+        }
         self.scheme = TrapezoidalScheme(problem.model, problem.names, problem.grid)
         self.loads = [case.loads(problem.grid.nodes) for case in problem.cases]
         self.blocks = state_blocks(problem)
