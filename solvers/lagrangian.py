@@ -1,4 +1,4 @@
-"""The Hessian of the simultaneous NLP's Lagrangian, assembled from its known structure.
+"""Derivatives of the simultaneous NLP assembled from its structure: Hessian and Jacobian.
 
 The simultaneous NLP (``solvers.simultaneous``) has variables v = [z; s_1; ...; s_K]
 and Lagrangian
@@ -18,6 +18,10 @@ CasADi's automatic Hessian finds the same matrix by graph colouring, at several
 times the cost per evaluation, because it must push seeds through the products
 with B_t and J_k. For the nonlinear model (k0) the constraint part is left to
 automatic differentiation and only the objective part is closed form.
+
+The constraint Jacobian of the linear model is, per case,
+dg_k/ds_k = [[A(x), C^T], [C, 0]] / c_k (the same A(x) for every case, built once)
+and dg_k/dz = [sum_t (B_t Delta_k) dc_t/dz; 0] / c_k.
 """
 
 from __future__ import annotations
@@ -110,3 +114,40 @@ def _linear_constraint_hessian(problem, z, states, lam_g, force_scales) -> ca.MX
     top = ca.horzcat(curvature(z, weights), *cross)
     lower = ca.horzcat(ca.vertcat(*[c.T for c in cross]), ca.MX(size - n_z, size - n_z))
     return ca.vertcat(top, lower)
+
+
+def constraint_jacobian(
+    problem: InverseProblem, z: ca.MX, states: list[ca.MX], constraints: ca.MX
+) -> ca.Function | None:
+    """(x, p) -> (g, dg/dv) for the linear model, with A(x) shared by the cases.
+
+    Returns None for the nonlinear model (k0), where CasADi's own Jacobian is used.
+    """
+    model, space = problem.model, problem.space
+    if not model.is_linear_fixed or "k0" in space.names:
+        return None
+    x, coefficients, terms = model.linear_terms(space.names)
+    natural = space.to_natural(z)
+    c_of_z = ca.Function("c", [x], [coefficients])(natural)
+    dc_dz = ca.jacobian(c_of_z, z)
+    # [[A(x), C^T], [C, 0]]: the state block of g, the same for every case
+    zero = ca.MX(problem.n_state, 1)
+    state_block = problem.g.jacobian()(zero, natural, 0, 0, zero)[0]
+    n, n_state = 3 * model.n_free, problem.n_state
+    unit = [model.free_term(t, "dm") for t in terms]
+    rows = []
+    for k, (case, state) in enumerate(zip(problem.cases, states)):
+        delta = ca.reshape(state[:n], model.n_free, 3)
+        columns = ca.horzcat(*[ca.vec(ca.mtimes(u, delta)) for u in unit])
+        d_z = ca.vertcat(ca.mtimes(columns, dc_dz), ca.MX(n_state - n, z.numel()))
+        blocks = [d_z] + [
+            state_block if j == k else ca.MX(n_state, n_state) for j in range(len(states))
+        ]
+        rows.append(ca.horzcat(*blocks) / case.force_scale())
+    return ca.Function(
+        "nlp_jac_g",
+        [ca.vertcat(z, *states), ca.MX.sym("p", 0)],
+        [constraints, ca.vertcat(*rows)],
+        ["x", "p"],
+        ["g", "jac_g_x"],
+    )

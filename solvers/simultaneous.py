@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from solvers.equilibrium import EquilibriumSolver
-from solvers.lagrangian import lagrangian_hessian
+from solvers.lagrangian import constraint_jacobian, lagrangian_hessian
 from solvers.problem import InverseProblem
 from solvers.result import InverseResult
 from symbolic.stiffening import to_casadi_sparse
@@ -131,8 +131,11 @@ class SimultaneousSolver:
             options["hess_lag"] = lagrangian_hessian(
                 problem, z, states, constraints, self.objective_scale, scales
             )
+            jacobian = constraint_jacobian(problem, z, states, constraints)
+            if jacobian is not None and "jac_g" not in options:
+                options["jac_g"] = jacobian
         self.nlp = {"x": ca.vertcat(z, *states), "f": objective, "g": constraints}
-        self.hessian = options.get("hess_lag")
+        self.hessian, self.jacobian = options.get("hess_lag"), options.get("jac_g")
         self.solver = ca.nlpsol("inverse", "ipopt", self.nlp, options)
         self.warm = EquilibriumSolver(problem.model, space.names, residual=problem.g)
         self.build_time = time.perf_counter() - start

@@ -154,8 +154,8 @@ def test_ipopt_defaults_and_user_options_reach_ipopt(noisy):
 
 
 @pytest.mark.parametrize("case", ["linear", "prescribed", "k0"])
-def test_structured_lagrangian_hessian_equals_automatic_differentiation(noisy, case):
-    """solvers.lagrangian's closed-form d2L/dv2 is CasADi's AD Hessian of the same NLP."""
+def test_structured_derivatives_equal_automatic_differentiation(noisy, case):
+    """solvers.lagrangian's closed-form d2L/dv2 and dg/dv are CasADi's AD derivatives."""
     problem = {
         "linear": lambda: noisy,
         "prescribed": lambda: pad_problem(with_force=True),
@@ -179,6 +179,14 @@ def test_structured_lagrangian_hessian_equals_automatic_differentiation(noisy, c
     structured = upper + np.triu(upper, 1).T
     assert np.abs(expected).max() > 0
     np.testing.assert_allclose(structured, expected, atol=1e-10 * np.abs(expected).max())
+    if solver.jacobian is not None:  # the linear model's closed-form constraint Jacobian
+        jacobian = ca.Function("j", [nlp["x"]], [ca.jacobian(nlp["g"], nlp["x"])])
+        reference = jacobian(v).sparse()
+        assert abs(solver.jacobian(v, [])[1].sparse() - reference).max() < 1e-12 * abs(
+            reference
+        ).max()
+    else:
+        assert case == "k0"
 
 
 def test_bad_parameter_spaces_are_rejected():
