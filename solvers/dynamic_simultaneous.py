@@ -45,8 +45,11 @@ from solvers.result import InverseResult
 from solvers.simultaneous import IpoptSettings
 from symbolic.stiffening import to_casadi_sparse
 
-DYNAMIC_DEFAULTS = {"ipopt.mumps_pivot_order": 2}
+DYNAMIC_DEFAULTS = {"ipopt.mumps_pivot_order": 2, "ipopt.constr_mult_init_max": 1000.0}
 """IPOPT options added for this NLP (the user's ``IpoptSettings.options`` override them).
+
+The equality multipliers keep IPOPT's least-squares start (its default bound 1000;
+the static solver starts them at zero, which was measured only on the static NLP).
 
 **choice**: MUMPS with the AMF ordering. MUMPS' automatic choice made the
 factorisations of this time-banded KKT matrix up to 20x slower. Solve times from the
