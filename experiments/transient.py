@@ -35,7 +35,8 @@ from solvers.modal import (  # noqa: E402
     optimal_damping,
     probe_observation,
 )
-from solvers.timestepping import run_to_steady_state, transient_solver  # noqa: E402
+from solvers.steadystate import run_to_steady_state  # noqa: E402
+from solvers.timestepping import transient_solver  # noqa: E402
 
 PAPER_GAMMA = 15.0
 """The paper's damping for its runs to steady state [N s/mm]."""

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import casadi as ca
@@ -38,7 +38,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.optimize import brentq
 
-from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
+from solvers.equilibrium import casadi_to_scipy
 from solvers.modal import SETTLING_BAND, probe_observation
 from solvers.timeloads import Load, _as_load, ramp_load, step_load  # noqa: F401  (re-exported)
 from symbolic.model import TissueModel
@@ -524,86 +524,3 @@ def transient_solver(model: TissueModel, names=(), method="newmark") -> Transien
     while len(_SOLVERS) > 8:
         _SOLVERS.popitem(last=False)
     return _SOLVERS[key]
-
-
-def run_to_steady_state(
-    model: TissueModel,
-    force_free,
-    x=None,
-    names=(),
-    overrides=None,
-    dt=None,
-    method="generalized_alpha",
-    tol=1e-10,
-    t_max=1e3,
-    start=None,
-    settings=None,
-) -> TransientResult:
-    """Integrate eq. (22) from rest until it is steady: the paper-faithful forward solve.
-
-    Parameters
-    ----------
-    model : TissueModel
-        The model (without prescribed displacements).
-    force_free : numpy.ndarray, Load or callable
-        F_B on the free points, (n_free, 3) [N]; an array is a step load at t = 0.
-    x, names :
-        Symbolic stiffness parameters and their values, as for ``EquilibriumSolver``.
-    overrides : dict, optional
-        mu and gamma for M and D, e.g. the paper's ``{"mu": 1e-4, "gamma": 15.0}``.
-    dt : float, optional
-        Fixed step [s]; default adaptive (rtol 1e-4 of the displacement per step).
-    method : str or Scheme
-        ``newmark``, ``generalized_alpha`` or ``backward_euler``.
-    tol : float
-        Steady when |f(u) - F| <= tol |F| and sqrt(v^T M v / u^T f(u)) <= tol.
-    t_max : float
-        Give up (``steady`` False) after this time [s].
-    start : numpy.ndarray, optional
-        Initial displacement s, at rest.
-    """
-    settings = settings or StepSettings()
-    settings = settings if dt is None else replace(settings, dt=float(dt))
-    solver = transient_solver(model, names, method)
-    return solver.integrate(force_free, t_max, x, overrides, settings, start, steady_tol=tol)
-
-
-def compare_with_equilibrium(
-    model: TissueModel,
-    force_free: np.ndarray,
-    x=None,
-    names=(),
-    overrides=None,
-    method="generalized_alpha",
-    tol=1e-10,
-    **kwargs,
-) -> dict:
-    """The transient's end state against the static equilibrium (EquilibriumSolver).
-
-    Arguments are those of ``run_to_steady_state`` (extra keywords go there too).
-
-    Returns
-    -------
-    dict
-        ``relative_distance_to_equilibrium`` |B_end - B_eq| / |B_eq - B0|,
-        ``settling_time_s`` (all free points), ``probe_settling_time_s``,
-        ``steady_time_s``, ``steady``, ``steps``, and the ``result`` and
-        ``equilibrium`` objects themselves.
-    """
-    result = run_to_steady_state(
-        model, force_free, x, names, overrides, method=method, tol=tol, **kwargs
-    )
-    equilibrium = EquilibriumSolver(model, names).solve(force_free, x)
-    distance = np.linalg.norm(result.positions - equilibrium.positions)
-    return {
-        "relative_distance_to_equilibrium": float(
-            distance / np.linalg.norm(equilibrium.positions - model.rest)
-        ),
-        "settling_time_s": result.settling_time,
-        "probe_settling_time_s": result.probe_settling_time,
-        "steady_time_s": result.steady_time,
-        "steady": result.steady,
-        "steps": result.steps,
-        "result": result,
-        "equilibrium": equilibrium,
-    }

@@ -7,14 +7,9 @@ import pytest
 
 from experiments.synthetic import TRUE_PARAMETERS, forehead_model, probe_loads
 from solvers.modal import StepResponse, modal_basis, optimal_damping, probe_observation
+from solvers.steadystate import compare_with_equilibrium, run_to_steady_state
 from solvers.sundials import integrate_casadi
-from solvers.timestepping import (
-    StepSettings,
-    compare_with_equilibrium,
-    ramp_load,
-    run_to_steady_state,
-    transient_solver,
-)
+from solvers.timestepping import StepSettings, ramp_load, transient_solver
 
 PAPER_RATIO_MIN = 100.0
 """gamma = 15 is heavily overdamped: it settles more than 100 times slower than gamma*."""
