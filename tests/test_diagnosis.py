@@ -51,8 +51,6 @@ FAST = ("rigid_motion", "measurement_scale", "force_direction")
 NOT_SELECTED = {
     "base_compliance": "a compliant foundation under the fat is in series with it and is "
     "absorbed by alpha_w at every contact (score p > 0.1 at 5 and at 67 mm^3/N)",
-    "measurement_scale": "with ten captures rigid_motion (6 per capture) is selected first "
-    "(seed 1); the paper's design finds measurement_scale first",
 }
 NOT_TWICE = (
     "at a realistic magnitude the effect leaves far less than sqrt(3) x noise after the "
