@@ -239,7 +239,7 @@ def test_out_of_library_data_is_not_confidently_misattributed(seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_out_of_library_gaussian_probe_with_the_diagnosis_design(seed):
     """FE slab pressed by a 2 mm Gaussian probe at the diagnosis design's ten loads:
     contact_patch and volumetric_coupling are genuinely present (partial
