@@ -339,7 +339,7 @@ class SkinSlabModel(TissueModel):
         """K(B; x)(B - B0) on the free points (region terms included)."""
         coefficients = self.coefficient_list(values)
         coupling = self.coupling_force(delta, values)
-        if "k0" in symbolic or not self.is_linear_fixed:
+        if not self.is_linear(symbolic):
             return coupling + self.edges().elastic_force(
                 delta, ca.vertcat(*coefficients), values["k0"], self.stiffening
             )
@@ -352,10 +352,6 @@ class SkinSlabModel(TissueModel):
         return force
 
     # --------------------------------------------------------------- residual
-    def is_linear(self, names: tuple[str, ...]) -> bool:
-        """True when K does not depend on B for these estimated parameters."""
-        return "k0" not in names and self.is_linear_fixed
-
     def _residual(self, names: tuple[str, ...]) -> ca.Function:
         """g(s, x, F_B, d) = [vec(K(B; x) Delta - F_B + C^T lam); vec(C Delta - Q d)]."""
         x, values = self.symbolic_values(names)

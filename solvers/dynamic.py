@@ -292,7 +292,7 @@ class DynamicProblem:
     @property
     def linear(self) -> bool:
         """True when f(u; x) is linear in u (k0 = 0 and not estimated)."""
-        return self.model.is_linear_fixed and "k0" not in self.names
+        return self.model.is_linear(self.names)
 
     @property
     def time_scale(self) -> float:

@@ -79,7 +79,7 @@ class TrapezoidalScheme:
         self.newton_tol, self.max_newton = newton_tol, max_newton
         self.unit_mass, self.unit_damping = unit_matrices(model)
         self.term_parameter = {term: term_parameter(term) for term in model.terms}
-        self.linear = model.is_linear_fixed and "k0" not in self.names
+        self.linear = model.is_linear(self.names)
         self._blocks: dict | None = None
         if not self.linear:
             g = model.state_residual(self.names)

@@ -149,7 +149,7 @@ class EquilibriumSolver:
         )
         self._jacobian = SparseEvaluator(self.jacobian)
         self.n_state = g.size1_in(0)
-        self.linear = "k0" not in self.names and model.is_linear_fixed
+        self.linear = model.is_linear(self.names)
         self._cache: tuple | None = None
 
     def _x(self, x) -> np.ndarray:

@@ -79,7 +79,7 @@ def lagrangian_hessian(
         ca.MX(z.numel(), z.numel()),
         *[to_casadi_sparse(q) for q in objective_hessians(problem, objective_scale)],
     )
-    if problem.model.is_linear_fixed and "k0" not in problem.space.names:
+    if problem.model.is_linear(problem.names):
         constraint_part = _linear_constraint_hessian(problem, z, states, lam_g, force_scales)
     else:
         constraint_part = ca.hessian(ca.dot(lam_g, constraints), variables)[0]
@@ -92,22 +92,24 @@ def lagrangian_hessian(
     )
 
 
+def _coefficients(problem: InverseProblem, z: ca.MX) -> tuple[ca.MX, ca.MX, list[str]]:
+    """c(x(z)), dc/dz and the terms of the linear model (``TissueModel.linear_terms``)."""
+    x, coefficients, terms = problem.model.linear_terms(problem.names)
+    c_of_z = ca.Function("c", [x], [coefficients])(problem.space.to_natural(z))
+    return c_of_z, ca.jacobian(c_of_z, z), terms
+
+
 def _linear_constraint_hessian(problem, z, states, lam_g, force_scales) -> ca.MX:
     """d2(sum_k lam_k^T g_k / c_k)/dv2 for g linear in s and in c(x) (module docstring)."""
-    model, space = problem.model, problem.space
+    model = problem.model
     n_z, n_state, n = z.numel(), problem.n_state, 3 * model.n_free
-    x, coefficients, terms = model.linear_terms(space.names)
-    c_of_z = ca.Function("c", [x], [coefficients])(space.to_natural(z))
-    dc_dz = ca.jacobian(c_of_z, z)
-    unit = [model.free_term(t, "dm") for t in terms]  # K_t; I3 (x) K_t acts on vec columns
-    weight = ca.MX.sym("w", len(unit))
+    c_of_z, dc_dz, terms = _coefficients(problem, z)
+    weight = ca.MX.sym("w", len(terms))
     curvature = ca.Function("d2c", [z, weight], [ca.hessian(ca.dot(weight, c_of_z), z)[0]])
     cross, weights = [], 0
     for k, (state, scale) in enumerate(zip(states, force_scales)):
         mu = lam_g[k * n_state : k * n_state + n] / scale
-        mu_matrix = ca.reshape(mu, model.n_free, 3)
-        # (I3 (x) K_t) mu for every term (K_t is symmetric)
-        directions = ca.horzcat(*[ca.vec(ca.mtimes(k, mu_matrix)) for k in unit])
+        directions = model.term_columns(terms, mu)  # (I3 (x) K_t) mu, K_t symmetric
         cross.append(ca.horzcat(ca.mtimes(directions, dc_dz).T, ca.MX(n_z, n_state - n)))
         weights = weights + ca.mtimes(directions.T, state[:n])
     size = n_z + len(states) * n_state
@@ -123,22 +125,18 @@ def constraint_jacobian(
 
     Returns None for the nonlinear model (k0), where CasADi's own Jacobian is used.
     """
-    model, space = problem.model, problem.space
-    if not model.is_linear_fixed or "k0" in space.names:
+    model = problem.model
+    if not model.is_linear(problem.names):
         return None
-    x, coefficients, terms = model.linear_terms(space.names)
-    natural = space.to_natural(z)
-    c_of_z = ca.Function("c", [x], [coefficients])(natural)
-    dc_dz = ca.jacobian(c_of_z, z)
+    _, dc_dz, terms = _coefficients(problem, z)
     # [[A(x), C^T], [C, 0]]: the state block of g, the same for every case
     zero = ca.MX(problem.n_state, 1)
+    natural = problem.space.to_natural(z)
     state_block = problem.g.jacobian()(zero, natural, 0, 0, zero)[0]
     n, n_state = 3 * model.n_free, problem.n_state
-    unit = [model.free_term(t, "dm") for t in terms]
     rows = []
     for k, (case, state) in enumerate(zip(problem.cases, states)):
-        delta = ca.reshape(state[:n], model.n_free, 3)
-        columns = ca.horzcat(*[ca.vec(ca.mtimes(u, delta)) for u in unit])
+        columns = model.term_columns(terms, state[:n])
         d_z = ca.vertcat(ca.mtimes(columns, dc_dz), ca.MX(n_state - n, z.numel()))
         blocks = [d_z] + [
             state_block if j == k else ca.MX(n_state, n_state) for j in range(len(states))

@@ -217,6 +217,10 @@ class TissueModel:
         """True when K does not depend on B for the fixed parameter values."""
         return self.parameters["k0"] == 0.0
 
+    def is_linear(self, names: tuple[str, ...] = ()) -> bool:
+        """True when K does not depend on B with ``names`` estimated (k0 fixed at 0)."""
+        return "k0" not in names and self.is_linear_fixed
+
     def edges(self) -> EdgeSet:
         """The coupled pairs of control points used by the nonlinear K(B) (built once)."""
         if self._edges is None:
@@ -229,7 +233,7 @@ class TissueModel:
 
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
         """K(B; x)(B - B0) on the free points as an expression in delta and x."""
-        if "k0" in symbolic or not self.is_linear_fixed:
+        if not self.is_linear(symbolic):
             return self.edges().elastic_force(
                 delta, self._term_coefficients(values), values["k0"], self.stiffening
             )
@@ -294,7 +298,7 @@ class TissueModel:
         (see ``_linear_jacobian``), which is ~7x cheaper than AD colouring.
         """
         function = self._state_residual(tuple(names))
-        if "k0" in names or not self.is_linear_fixed:
+        if not self.is_linear(names):
             return function
         jacobian = self._linear_jacobian(tuple(names))
         return ca.Function(
@@ -327,6 +331,15 @@ class TissueModel:
         ]
         coefficients = ca.vertcat(*[values[term_parameter(t)] for t in terms])
         return x, coefficients, terms
+
+    def term_columns(self, terms: list[str], vector: ca.MX) -> ca.MX:
+        """[(I3 (x) K_t) v]_t for a vector v on the free points, (3 n_free, n_terms).
+
+        K_t acts on the (n_free, 3) matrix of v's x, y and z parts, which is
+        I3 (x) K_t on vec; each column is dg/dc_t of the linear model at Delta = v.
+        """
+        matrix = ca.reshape(vector, self.n_free, 3)
+        return ca.horzcat(*[ca.vec(ca.mtimes(self.free_term(t, "dm"), matrix)) for t in terms])
 
     def free_term(self, term: str, form: str = "kron"):
         """K_t restricted to the free control points, built once per model and form.
@@ -368,8 +381,7 @@ class TissueModel:
         nominal = ca.MX.sym("out_g", n + m_rows)
         coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
         d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
-        delta = ca.reshape(state[:n], self.n_free, 3)
-        columns = ca.horzcat(*[ca.vec(ca.mtimes(self.free_term(t, "dm"), delta)) for t in terms])
+        columns = self.term_columns(terms, state[:n])
         d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
         d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
         reduce = to_casadi_sparse(sp.kron(sp.identity(3), sp.csr_matrix(rows)))
