@@ -402,12 +402,9 @@ class SkinSlabModel(TissueModel):
         nonzeros are a fixed sparse map of [weights; 1]. dg/dx by forward AD (few columns).
         """
         x, values = self.symbolic_values(names)
-        rows = self._constraint_rows
-        n, m_rows, m_cols = 3 * self.n_free, 3 * rows.shape[0], 3 * rows.shape[1]
-        state = ca.MX.sym("s", n + m_rows)
-        force = ca.MX.sym("F_B", self.n_free, 3)
-        prescribed = ca.MX.sym("d", rows.shape[1], 3)
-        nominal = ca.MX.sym("out_g", n + m_rows)
+        symbols = self._state_symbols()
+        state, force, prescribed, _ = symbols
+        n = 3 * self.n_free
         coupling = ca.vertcat(*self.coupling_coefficients(values))
         if self.is_linear(names):
             sparsity, mapping = self._pattern("linear")
@@ -418,16 +415,7 @@ class SkinSlabModel(TissueModel):
             weights = ca.vertcat(self._edge_weights(delta, values), coupling, ca.DM.ones(1))
         d_s = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(mapping), weights))
         d_x = ca.jacobian(self._residual(names)(state, x, force, prescribed), x)
-        d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
-        reduce = to_casadi_sparse(sp.kron(sp.identity(3), sp.csr_matrix(rows)))
-        d_prescribed = ca.vertcat(ca.MX(n, m_cols), -reduce)
-        return ca.Function(
-            "jac_g",
-            [state, x, force, prescribed, nominal],
-            [d_s, d_x, d_force, d_prescribed],
-            ["s", "x", "F_B", "d", "out_g"],
-            ["jac_g_s", "jac_g_x", "jac_g_F_B", "jac_g_d"],
-        )
+        return self._jacobian_function(symbols, x, d_s, d_x)
 
     def _edge_weights(self, delta: ca.MX, values: dict) -> ca.MX:
         """The nine diagonals w_ij of d(tension)/d(relative displacement), stacked.

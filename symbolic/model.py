@@ -365,8 +365,7 @@ class TissueModel:
         """
         x, coefficients, terms = self.linear_terms(names)
         blocks = [self.free_term(t) for t in terms]
-        n, rows = 3 * self.n_free, self._constraint_rows
-        m_rows, m_cols = 3 * rows.shape[0], 3 * rows.shape[1]
+        n, m_rows = 3 * self.n_free, 3 * self._constraint_rows.shape[0]
         pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
         pattern.sort_indices()
         r, c = pattern.nonzero()
@@ -375,14 +374,30 @@ class TissueModel:
         unit = sp.csc_matrix(np.column_stack([np.asarray(b[r, c]).ravel() for b in blocks]))
         sparsity = ca.Sparsity(n, n, pattern.indptr.tolist(), pattern.indices.tolist())
         stiffness = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
-        state = ca.MX.sym("s", n + m_rows)
-        force = ca.MX.sym("F_B", self.n_free, 3)
-        prescribed = ca.MX.sym("d", rows.shape[1], 3)
-        nominal = ca.MX.sym("out_g", n + m_rows)
+        symbols = self._state_symbols()
         coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
         d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
-        columns = self.term_columns(terms, state[:n])
+        columns = self.term_columns(terms, symbols[0][:n])
         d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
+        return self._jacobian_function(symbols, x, d_s, d_x)
+
+    def _state_symbols(self) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
+        """The symbols s, F_B, d and out_g of a custom Jacobian of ``state_residual``."""
+        rows = self._constraint_rows
+        n_state = 3 * (self.n_free + rows.shape[0])
+        return (
+            ca.MX.sym("s", n_state),
+            ca.MX.sym("F_B", self.n_free, 3),
+            ca.MX.sym("d", rows.shape[1], 3),
+            ca.MX.sym("out_g", n_state),
+        )
+
+    def _jacobian_function(self, symbols, x: ca.MX, d_s: ca.MX, d_x: ca.MX) -> ca.Function:
+        """The custom Jacobian Function from dg/ds and dg/dx; dg/dF_B = [-I; 0] and
+        dg/dd = [0; -I3 (x) Q] are the same for every model."""
+        state, force, prescribed, nominal = symbols
+        rows = self._constraint_rows
+        n, m_rows, m_cols = 3 * self.n_free, 3 * rows.shape[0], 3 * rows.shape[1]
         d_force = ca.vertcat(-ca.MX.eye(n), ca.MX(m_rows, n))
         reduce = to_casadi_sparse(sp.kron(sp.identity(3), sp.csr_matrix(rows)))
         d_prescribed = ca.vertcat(ca.MX(n, m_cols), -reduce)
