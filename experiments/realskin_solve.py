@@ -16,17 +16,16 @@ Standard errors, score tests and the stages of the loop are in ``realskin_stages
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.optimize import least_squares
 
 from experiments.realskin_model import SkinSlabModel
 from solvers.equilibrium import EquilibriumError
+from solvers.nested import least_squares_fit
 from solvers.problem import InverseProblem, LoadCase
 
 NEWTON_TOLERANCE = 1e-10
@@ -324,27 +323,20 @@ class PlanarNestedSolver:
     def solve(self, start: np.ndarray | None = None) -> NestedFit:
         """Fit from ``start`` (natural units; default the space's start values)."""
         space = self.problem.space
-        lower, upper = space.internal_bounds()
-        z0 = np.clip(space.to_internal(space.start if start is None else start), lower, upper)
-        begin = time.perf_counter()
-        fit = least_squares(
-            lambda z: self.evaluate(z)[0],
-            z0,
-            jac=lambda z: self.evaluate(z)[1],
-            bounds=(lower, upper),
-            method="trf",
-            ftol=self.tolerance,
-            xtol=self.tolerance,
-            gtol=self.tolerance,
-            max_nfev=self.max_evaluations,
+        z, success, status, evaluations, seconds = least_squares_fit(
+            self.evaluate,
+            space,
+            start,
+            tolerance=self.tolerance,
+            max_evaluations=self.max_evaluations,
         )
-        r, _ = self.evaluate(fit.x)
+        r, _ = self.evaluate(z)
         return NestedFit(
-            x=space.to_natural(fit.x),
+            x=space.to_natural(z),
             cost=0.5 * float(r @ r),
             states=[m.state for m in self.memory],
-            success=bool(fit.status > 0),
-            status=str(fit.message),
-            evaluations=int(fit.nfev),
-            seconds=time.perf_counter() - begin,
+            success=bool(success),
+            status=str(status),
+            evaluations=int(evaluations),
+            seconds=seconds,
         )
