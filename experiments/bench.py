@@ -89,12 +89,12 @@ def print_forward(timings: list[ForwardTiming]) -> None:
         grid = "x".join(map(str, t.grid))
         print(
             f"{grid:>10} {t.control_points:>6} {t.free_dofs:>6} {t.stiffness_nonzeros:>8} "
-            f"{t.fit:7.3f} "
-            f"{t.build:8.3f} {t.solve:8.3f} {t.newton_iterations:>4} {t.peak_mb:8.0f}"
+            f"{t.fit:7.3f} {t.build:8.3f} {t.solve:8.3f} {t.newton_iterations:>4} "
+            f"{t.peak_mb:8.0f}"
         )
     sizes = np.array([t.control_points for t in timings], dtype=float)
     builds = np.array([t.build for t in timings])
-    exponent = np.polyfit(np.log(sizes), np.log(builds), 1)[0]
+    exponent = scaling_exponent(sizes, builds)
     ratio = builds[-1] / builds[0]
     nonzeros = [t.stiffness_nonzeros for t in timings]
     print(

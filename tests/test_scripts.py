@@ -1,6 +1,7 @@
 """Research scripts are importable and run headless; each test checks one key number."""
 
 import numpy as np
+import pytest
 
 from experiments import compare, forward, paper
 from experiments.fitting import FitSettings, build_problem
@@ -32,3 +33,20 @@ def test_compare_finds_the_same_optimum_with_both_fast_methods():
     assert np.allclose(*estimates, rtol=1e-6)
     assert rows["simultaneous"]["success_rate"] == 1.0
     assert "success rate" in compare.table(rows)
+
+
+def test_benchmark_measures_in_a_fresh_process_and_judges_the_targets(capsys):
+    """bench: a power law's exponent is recovered; one isolated 9x9x2 measurement
+    carries timings, iterations and peak memory; the targets block names each target."""
+    from experiments.bench import _inverse_job, isolated, print_targets, scaling_exponent
+
+    assert scaling_exponent([1e2, 1e3, 1e4], [3e-2, 3e0, 3e2]) == pytest.approx(2.0)
+    row = isolated(_inverse_job, (9, 9, 2), "simultaneous")
+    assert row["build"] > 0 and row["solve"] > 0 and row["iterations"] > 0
+    assert row["total"] >= row["build"] + row["solve"] - 1e-9
+    assert row["peak_mb"] > 50 and row["dofs"] == 243
+    paper = {**row, "total": 100.0 * row["total"]}
+    print_targets([], {(9, 9, 2): {"simultaneous": row, "paper": paper}})
+    out = capsys.readouterr().out
+    assert "[met] 9x9x2 paper-faithful / simultaneous (build incl.): 100x" in out
+    assert "median of 5 repeats" in out
