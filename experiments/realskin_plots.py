@@ -28,6 +28,26 @@ def _outline(ax, polygon: np.ndarray | None) -> None:
         ax.plot(closed[:, 0], closed[:, 1], color="tab:red", lw=1.0, label="keloid outline")
 
 
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def _slab_map(ax, region: Rect, pads, pad_color: str, outline, title: str) -> None:
+    """Pads, the keloid outline (if any) and the slab's frame on a map of the slab."""
+    for pad in pads:
+        _rect(ax, pad, color=pad_color)
+    _outline(ax, outline)
+    ax.set_xlim(region.x0, region.x1)
+    ax.set_ylim(region.y0, region.y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(title, fontsize=10)
+
+
 def plot_force_curves(path: Path, title: str, record: tuple, fitted: tuple, curves: dict) -> Path:
     """Measured force record, fitted frames and model curves |F| against pad travel.
 
@@ -53,10 +73,7 @@ def plot_force_curves(path: Path, title: str, record: tuple, fitted: tuple, curv
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    atomic_savefig(fig, path, dpi=DPI)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_residual_maps(
@@ -99,10 +116,7 @@ def plot_residual_maps(
             ax.set_aspect("equal")
             fig.colorbar(image, ax=ax, shrink=0.8, label="mm")
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    atomic_savefig(fig, path, dpi=DPI)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_stiffness_map(
@@ -120,19 +134,8 @@ def plot_stiffness_map(
     image = ax.pcolormesh(*grid, np.log10(tension), shading="auto", cmap="viridis")
     fig.colorbar(image, ax=ax, label="log10 T [N/mm]")
     ax.plot(*reference.T, ",", color="w", alpha=0.5)
-    for pad in pads:
-        _rect(ax, pad, color="w")
-    _outline(ax, outline)
-    ax.set_xlim(region.x0, region.x1)
-    ax.set_ylim(region.y0, region.y1)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
-    ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    atomic_savefig(fig, path, dpi=DPI)
-    plt.close(fig)
-    return path
+    _slab_map(ax, region, pads, "w", outline, title)
+    return _save(fig, path)
 
 
 def plot_scan_map(
@@ -155,17 +158,6 @@ def plot_scan_map(
     )
     fig.colorbar(image, ax=ax, label="signed score T of one cell (+: stiffer)")
     _rect(ax, found, color="k", lw=2.0, label="found region")
-    for pad in pads:
-        _rect(ax, pad, color="0.3")
-    _outline(ax, outline)
-    ax.set_xlim(region.x0, region.x1)
-    ax.set_ylim(region.y0, region.y1)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
+    _slab_map(ax, region, pads, "0.3", outline, title)
     ax.legend(loc="upper right", fontsize=7)
-    ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    atomic_savefig(fig, path, dpi=DPI)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
