@@ -45,11 +45,8 @@ from solvers.result import InverseResult
 from solvers.simultaneous import IpoptSettings
 from symbolic.stiffening import to_casadi_sparse
 
-DYNAMIC_DEFAULTS = {"ipopt.mumps_pivot_order": 2, "ipopt.constr_mult_init_max": 1000.0}
+DYNAMIC_DEFAULTS = {"ipopt.mumps_pivot_order": 2}
 """IPOPT options added for this NLP (the user's ``IpoptSettings.options`` override them).
-
-The equality multipliers keep IPOPT's least-squares start (its default bound 1000;
-the static solver starts them at zero, which was measured only on the static NLP).
 
 **choice**: MUMPS with the AMF ordering. MUMPS' automatic choice made the
 factorisations of this time-banded KKT matrix up to 20x slower. Solve times from the
@@ -239,12 +236,7 @@ class DynamicSimultaneousSolver:
         begin = time.perf_counter()
         self.problem, self.parameter_step = problem, float(parameter_step)
         self.settings = settings or IpoptSettings()
-        # the static solver's defaults, then this NLP's own, then the user's
-        self.options = {
-            **self.settings.nlpsol_options(),
-            **DYNAMIC_DEFAULTS,
-            **self.settings.options,
-        }
+        self.options = self.settings.solver_options(DYNAMIC_DEFAULTS)
         self.scheme = TrapezoidalScheme(problem.model, problem.names, problem.grid)
         self.loads = [case.loads(problem.grid.nodes) for case in problem.cases]
         self.blocks = state_blocks(problem)

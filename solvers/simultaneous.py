@@ -48,12 +48,13 @@ class IpoptSettings:
         Expand the MX graph to SX. Evaluation gets faster but building the
         derivative graphs takes seconds (colouring of K's rows), so off by default.
     structured_hessian : bool
-        Give IPOPT the Hessian of the Lagrangian assembled from the problem's
-        structure (``solvers.lagrangian``) instead of CasADi's coloured AD
-        Hessian. Same matrix, several times cheaper per evaluation.
+        Give IPOPT the Hessian of the Lagrangian (and, for the linear model, the
+        constraint Jacobian) assembled from the problem's structure
+        (``solvers.lagrangian``) instead of CasADi's coloured AD derivatives.
+        Same matrices, cheaper per evaluation.
     options : dict
         Extra nlpsol options, e.g. ``{"ipopt.mu_strategy": "adaptive"}``; they
-        override the defaults above.
+        override the defaults above and each solver's own (``STATIC_DEFAULTS``).
 
     Notes
     -----
@@ -63,16 +64,6 @@ class IpoptSettings:
     with a stiff alpha_w). tol = 1e-8 (IPOPT's default) would save one
     iteration, but on the pad-force problem it leaves alpha_w 1.7e-6 from the
     noise-free truth, so 1e-10 stays.
-
-    The equality multipliers start at zero (``constr_mult_init_max`` 0) instead
-    of IPOPT's least-squares estimate: the states start on the equilibrium, and
-    the estimate costs a factorisation of its own. From the same 80 starts it
-    converged 80 times (79 with the estimate) in 15.7 iterations on average
-    (17.8), and in 9 instead of 10 from the paper's start.
-
-    MUMPS orders the KKT matrix with METIS (pivot order 5): on 17 x 17 x 3 it
-    halved the factorisation time against IPOPT's automatic choice (1.9 s
-    against 4.2 s CPU over one solve); on 9 x 9 x 2 the two are within noise.
     """
 
     tol: float = 1e-10
@@ -91,12 +82,27 @@ class IpoptSettings:
             "ipopt.sb": "yes",
             "ipopt.hessian_approximation": "exact",
             "ipopt.mu_strategy": "monotone",
-            "ipopt.mumps_pivot_order": 5,
-            "ipopt.constr_mult_init_max": 0.0,
             "print_time": False,
             "expand": self.expand,
         }
         return {**defaults, **self.options}
+
+    def solver_options(self, solver_defaults: dict) -> dict:
+        """``nlpsol_options`` with one NLP's own defaults in between (the user still wins)."""
+        return {**self.nlpsol_options(), **solver_defaults, **self.options}
+
+
+STATIC_DEFAULTS = {"ipopt.mumps_pivot_order": 5, "ipopt.constr_mult_init_max": 0.0}
+"""IPOPT options measured on the static NLP (``IpoptSettings.options`` override them).
+
+- MUMPS orders the KKT matrix with METIS (pivot order 5): on 17 x 17 x 3 it halved
+  the factorisation time against IPOPT's automatic choice (1.9 s against 4.2 s CPU
+  over one solve); on 9 x 9 x 2 the two are within noise.
+- The equality multipliers start at zero instead of IPOPT's least-squares estimate:
+  the states start on the equilibrium, and the estimate costs a factorisation of its
+  own. From 80 log-uniform starts it converged 80 times (79 with the estimate) in
+  15.7 iterations on average (17.8), and in 9 instead of 10 from the paper's start.
+"""
 
 
 class SimultaneousSolver:
@@ -116,7 +122,7 @@ class SimultaneousSolver:
         start = time.perf_counter()
         self.problem = problem
         self.settings = settings or IpoptSettings()
-        self.options = self.settings.nlpsol_options()
+        self.options = self.settings.solver_options(STATIC_DEFAULTS)
         space = problem.space
         z = ca.MX.sym("z", len(space.names))
         x = space.to_natural(z)

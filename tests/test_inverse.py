@@ -151,6 +151,11 @@ def test_ipopt_defaults_and_user_options_reach_ipopt(noisy):
     result = solver.solve()
     assert result.iterations == 1 and result.status == "Maximum_Iterations_Exceeded"
     assert IpoptSettings().nlpsol_options()["ipopt.mu_strategy"] == "monotone"  # not mutated
+    # the static NLP's own defaults reach it, and the user's options still win over them
+    assert solver.options["ipopt.constr_mult_init_max"] == 0.0
+    assert solver.options["ipopt.mumps_pivot_order"] == 5
+    mine = IpoptSettings(options={"ipopt.mumps_pivot_order": 0})
+    assert SimultaneousSolver(noisy, mine).options["ipopt.mumps_pivot_order"] == 0
 
 
 @pytest.mark.parametrize("case", ["linear", "prescribed", "k0"])
