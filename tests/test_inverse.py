@@ -17,7 +17,7 @@ from solvers.equilibrium import EquilibriumSolver
 from solvers.identifiability import analyse
 from solvers.nested import NestedSolver
 from solvers.problem import InverseProblem, ParameterSpace, observation_case
-from solvers.simultaneous import IpoptSettings, SimultaneousSolver
+from solvers.simultaneous import METIS_ABOVE, IpoptSettings, SimultaneousSolver, static_defaults
 
 ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 TRUTH = np.array([TRUE_PARAMETERS[n] for n in ALPHAS])
@@ -153,9 +153,13 @@ def test_ipopt_defaults_and_user_options_reach_ipopt(noisy):
     assert IpoptSettings().nlpsol_options()["ipopt.mu_strategy"] == "monotone"  # not mutated
     # the static NLP's own defaults reach it, and the user's options still win over them
     assert solver.options["ipopt.constr_mult_init_max"] == 0.0
-    assert solver.options["ipopt.mumps_pivot_order"] == 5
-    mine = IpoptSettings(options={"ipopt.mumps_pivot_order": 0})
-    assert SimultaneousSolver(noisy, mine).options["ipopt.mumps_pivot_order"] == 0
+    assert solver.options["ipopt.fast_step_computation"] == "yes"
+    # AMD below METIS_ABOVE variables, METIS above; the user still wins
+    n_variables = solver.solver.nnz_in(0)
+    assert solver.options["ipopt.mumps_pivot_order"] == (5 if n_variables > METIS_ABOVE else 0)
+    assert static_defaults(METIS_ABOVE + 1)["ipopt.mumps_pivot_order"] == 5
+    mine = IpoptSettings(options={"ipopt.mumps_pivot_order": 4})
+    assert SimultaneousSolver(noisy, mine).options["ipopt.mumps_pivot_order"] == 4
 
 
 @pytest.mark.parametrize("case", ["linear", "prescribed", "k0"])
@@ -187,9 +191,9 @@ def test_structured_derivatives_equal_automatic_differentiation(noisy, case):
     if solver.jacobian is not None:  # the linear model's closed-form constraint Jacobian
         jacobian = ca.Function("j", [nlp["x"]], [ca.jacobian(nlp["g"], nlp["x"])])
         reference = jacobian(v).sparse()
-        assert abs(solver.jacobian(v, [])[1].sparse() - reference).max() < 1e-12 * abs(
-            reference
-        ).max()
+        assert (
+            abs(solver.jacobian(v, [])[1].sparse() - reference).max() < 1e-12 * abs(reference).max()
+        )
     else:
         assert case == "k0"
 
