@@ -33,7 +33,7 @@ from experiments.synthetic import (
     marker_uv,
     probe_loads,
 )
-from solvers.diagnosis_report import report
+from solvers.diagnosis_report import report, verdict
 from solvers.problem import InverseProblem, ParameterSpace, observation_case
 from symbolic.effects import EFFECT_NAMES, make_effect
 from symbolic.effects_base import surface_frame
@@ -275,10 +275,9 @@ def run(dataset_or_path, out: Path, log=print, settings=None) -> dict:
     plot_residuals(diagnosis, out / "residuals.png")
     atomic_write_json(out / "diagnosis.json", document)
     atomic_write_text(out / "report.md", report(diagnosis, document))
-    verdict = "unexplained residual" if document["unexplained"] else "consistent with noise"
     log(
-        f"selected {document['selected'] or 'nothing'}; rms {document['rms_before_mm'] * 1e3:.1f}"
-        f" -> {document['rms_after_mm'] * 1e3:.1f} um ({verdict}) -> {out / 'diagnosis.json'}"
+        f"rms {document['rms_before_mm'] * 1e3:.1f} -> {document['rms_after_mm'] * 1e3:.1f} um; "
+        f"{verdict(document)} -> {out / 'diagnosis.json'}"
     )
     return document
 

@@ -18,6 +18,25 @@ def _parameter_lines(record: dict, names) -> list[str]:
     return lines
 
 
+def verdict(document: dict) -> str:
+    """One sentence on what the diagnosis concludes, worded so that no stand-in reads as a cause.
+
+    When the residual stays significant the added effects are reported as the library's
+    closest approximations, not as the cause of the discrepancy.
+    """
+    selected = ", ".join(document["selected"])
+    if not document["unexplained"]:
+        if selected:
+            return f"explained: the residual is consistent with noise once {selected} is added"
+        return "consistent with noise: the base model needs nothing added"
+    if selected:
+        return (
+            f"unexplained: even with {selected} added the residual is not noise; these are "
+            "the library's closest approximations, not established causes"
+        )
+    return "unexplained: the residual is not noise and no candidate effect accounts for it"
+
+
 def report(diagnosis, document: dict) -> str:
     """report.md: residual before/after, each step's test, the added effects' parameters."""
     steps = document["steps"]
@@ -35,6 +54,7 @@ def report(diagnosis, document: dict) -> str:
         f"- unexplained: **{str(document['unexplained']).lower()}** (final chi^2 "
         f"{last['residual_statistic']:.1f} on {last['residual_dof']} dof, p = "
         f"{last['residual_p_value']:.3g}, level {document['level']})",
+        f"- verdict: {verdict(document)}",
         "",
         "## Steps",
         "",

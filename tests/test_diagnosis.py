@@ -41,6 +41,7 @@ from solvers.diagnosis import SCHEMA, DiagnosisSettings
 from solvers.diagnosis_fit import fit
 from solvers.diagnosis_guard import folds
 from solvers.diagnosis_problem import ExtendedProblem, noise_map
+from solvers.diagnosis_report import verdict
 from solvers.diagnosis_stats import log_chi2_sf, log_chi2_sf_series, score_test
 from symbolic.effects import EFFECT_NAMES, make_effect
 
@@ -138,6 +139,17 @@ def test_negative_control_adds_nothing_and_writes_the_outputs(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "unexplained: **false**" in report and "residuals.png" in report
     assert (tmp_path / "residuals.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("unexplained", [False, True])
+@pytest.mark.parametrize("selected", [[], ["rigid_motion"]])
+def test_verdict_never_presents_a_stand_in_as_the_cause(unexplained, selected):
+    sentence = verdict({"unexplained": unexplained, "selected": selected})
+    assert sentence.startswith("unexplained" if unexplained else ("explained", "consistent"))
+    if unexplained and selected:
+        assert "rigid_motion" in sentence and "not established causes" in sentence
+    if not unexplained and selected:
+        assert "rigid_motion" in sentence
 
 
 def test_command_line_rejects_a_missing_file(tmp_path, capsys):
