@@ -95,7 +95,6 @@ class IpoptSettings:
 STATIC_DEFAULTS = {
     "ipopt.constr_mult_init_max": 0.0,
     "ipopt.mu_superlinear_decrease_power": 1.8,
-    "ipopt.fast_step_computation": "yes",
 }
 """IPOPT options measured on the static NLP (``IpoptSettings.options`` override them).
 
@@ -107,25 +106,31 @@ STATIC_DEFAULTS = {
   monotone strategy's superlinear phase): 7 instead of 9 iterations from the
   paper's start, and 160/160 converged from 160 log-uniform starts (8 draws of 20,
   mean 15.1 iterations against 16.4); 1.9 lost one of the 160.
-- No residual check of each search direction (``fast_step_computation``): the KKT
-  systems here are solved to full accuracy without refinement. About 10 % off a
-  9 x 9 x 2 solve; the same iterations and 240/240 starts.
 """
 
 METIS_ABOVE = 2000
-"""NLP variables above which MUMPS orders the KKT matrix with METIS (``static_defaults``)."""
+"""NLP variables above which the options of a large NLP apply (``static_defaults``)."""
 
 
 def static_defaults(n_variables: int) -> dict:
-    """``STATIC_DEFAULTS`` plus the MUMPS ordering for an NLP of ``n_variables``.
+    """``STATIC_DEFAULTS`` plus the options that depend on the size of the NLP.
 
-    On 17 x 17 x 3 (3,471 variables) METIS halved the factorisation time against
-    IPOPT's automatic choice (1.9 s against 4.2 s CPU over one solve) and matches AMD;
-    on 9 x 9 x 2 (489 variables) AMD is about 15 % faster per solve than METIS, whose
-    own ordering time is then not repaid (40 interleaved solves each, median).
+    - MUMPS ordering: on 17 x 17 x 3 (3,471 variables) METIS halved the factorisation
+      time against IPOPT's automatic choice (1.9 s against 4.2 s CPU over one solve)
+      and matches AMD; on 9 x 9 x 2 (489 variables) AMD is about 15 % faster per
+      solve than METIS, whose own ordering time is then not repaid (40 interleaved
+      solves each, median).
+    - Residual check of each search direction: skipped on small NLPs
+      (``fast_step_computation``), about 10 % off a 9 x 9 x 2 solve with the same
+      iterations and 240/240 starts. Kept on large ones: on 33 x 33 x 4 skipping it
+      took 19 iterations instead of 10.
     """
-    order = 5 if n_variables > METIS_ABOVE else 0
-    return {**STATIC_DEFAULTS, "ipopt.mumps_pivot_order": order}
+    small = n_variables <= METIS_ABOVE
+    return {
+        **STATIC_DEFAULTS,
+        "ipopt.mumps_pivot_order": 0 if small else 5,
+        "ipopt.fast_step_computation": "yes" if small else "no",
+    }
 
 
 class SimultaneousSolver:

@@ -153,11 +153,12 @@ def test_ipopt_defaults_and_user_options_reach_ipopt(noisy):
     assert IpoptSettings().nlpsol_options()["ipopt.mu_strategy"] == "monotone"  # not mutated
     # the static NLP's own defaults reach it, and the user's options still win over them
     assert solver.options["ipopt.constr_mult_init_max"] == 0.0
-    assert solver.options["ipopt.fast_step_computation"] == "yes"
-    # AMD below METIS_ABOVE variables, METIS above; the user still wins
-    n_variables = solver.solver.nnz_in(0)
-    assert solver.options["ipopt.mumps_pivot_order"] == (5 if n_variables > METIS_ABOVE else 0)
-    assert static_defaults(METIS_ABOVE + 1)["ipopt.mumps_pivot_order"] == 5
+    # small NLP: AMD, no residual check; above METIS_ABOVE: METIS, checks; the user wins
+    small = solver.solver.nnz_in(0) <= METIS_ABOVE
+    assert solver.options["ipopt.mumps_pivot_order"] == (0 if small else 5)
+    assert solver.options["ipopt.fast_step_computation"] == ("yes" if small else "no")
+    large = static_defaults(METIS_ABOVE + 1)
+    assert large["ipopt.mumps_pivot_order"] == 5 and large["ipopt.fast_step_computation"] == "no"
     mine = IpoptSettings(options={"ipopt.mumps_pivot_order": 4})
     assert SimultaneousSolver(noisy, mine).options["ipopt.mumps_pivot_order"] == 4
 
