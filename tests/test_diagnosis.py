@@ -294,3 +294,35 @@ def test_log_p_value_stays_finite_and_ordered_beyond_underflow(dof):
         assert log_chi2_sf_series(statistic, dof) == pytest.approx(exact, rel=1e-6)
     values = [log_chi2_sf(t, dof) for t in (2000.0, 3000.0, 5000.0)]
     assert np.all(np.isfinite(values)) and values[0] > values[1] > values[2]
+
+
+# --------------------------------------------------------------------- detection limits
+def test_detection_study_stays_inside_each_effects_bounds():
+    from experiments.detection import admissible
+
+    # heterogeneity's h_u = 0.5 x factor must stay within its bound 0.9
+    assert admissible("heterogeneity", 1.5) and not admissible("heterogeneity", 2.0)
+    assert admissible("contact_patch", 8.0)  # a 48 mm radius is inside its 100 mm bound
+    assert all(admissible(name, 1.0) for name in EFFECT_NAMES)
+
+
+def test_detection_criteria_are_the_acceptance_criteria():
+    from experiments.detection import criteria
+
+    document = {
+        "selected": ["bending"],
+        "rms_before_mm": 0.105,
+        "rms_after_mm": 0.051,
+        "noise_rms_mm": 0.049,
+    }
+    assert all(criteria(document, "bending").values())
+    assert not criteria(document, "pre_tension")["first"]
+    assert not criteria({**document, "rms_after_mm": 0.060}, "bending")["after_near_noise"]
+    assert not criteria({**document, "rms_before_mm": 0.100}, "bending")["before_twice_after"]
+
+
+def test_detection_command_rejects_an_unknown_effect(capsys):
+    from experiments.detection import main as detection_main
+
+    assert detection_main(["--effects", "gravity"]) == 2
+    assert "unknown effects" in capsys.readouterr().err
