@@ -21,12 +21,12 @@ Run ``python -m experiments.detection`` (about 15-25 min CPU for every effect;
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
+from experiments.cli import OneLineParser
 from experiments.diagnose import (
     DIAGNOSIS_CONTACTS,
     DIAGNOSIS_TILT_DEG,
@@ -51,12 +51,12 @@ def admissible(name: str, factor: float) -> bool:
     contact_patch's magnitude is a probe radius, compared with its upper bound.
     """
     effect = make_effect(name)
-    theta = effect.true_parameters(factor * effect.default_magnitude, 1)
-    if name == "contact_patch":
-        theta = np.array([factor * effect.default_magnitude])
-    dim = effect.dim
-    lower = np.resize(np.asarray(effect.lower, dtype=float), theta.size if dim else 0)
-    upper = np.resize(np.asarray(effect.upper, dtype=float), theta.size if dim else 0)
+    magnitude = factor * effect.default_magnitude
+    theta = (
+        np.array([magnitude]) if name == "contact_patch" else effect.true_parameters(magnitude, 1)
+    )
+    lower = np.resize(np.asarray(effect.lower, dtype=float), theta.size)
+    upper = np.resize(np.asarray(effect.upper, dtype=float), theta.size)
     return bool(np.all(theta >= lower) and np.all(theta <= upper))
 
 
@@ -151,7 +151,7 @@ def print_table(results: list[dict], log=print) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m experiments.detection [--effects a,b] [--seed 1] [--design paper]``."""
-    parser = argparse.ArgumentParser(prog="python -m experiments.detection", description=__doc__)
+    parser = OneLineParser(prog="python -m experiments.detection", description=__doc__)
     parser.add_argument("--effects", default="", help="comma list (default: every effect)")
     parser.add_argument("--seed", type=int, default=1, help="random seed of the data")
     parser.add_argument("--design", choices=("diagnosis", "paper"), default="diagnosis")

@@ -19,13 +19,13 @@ Run ``python -m experiments.realskin_twin [--ratios 3.5,23] [--seeds 0,1,2]``.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import time
 
 import numpy as np
 
+from experiments.cli import OneLineParser
 from experiments.paths import shared_data_dir
 from experiments.realskin import RealSkinSettings, Setup, build, close_the_loop
 from experiments.realskin_cases import force_weight, load_cases
@@ -139,8 +139,12 @@ def run_twin(
     force_noise_n: float = FORCE_NOISE_N,
     base: str = "calibrated",
     log=_quiet,
+    real: Setup | None = None,
 ) -> dict:
     """Build one twin and put it through ``close_the_loop``.
+
+    ``real``: the real keloid set-up (``build("keloid", settings)``), built here if not
+    given; pass it to share one build between runs.
 
     Returns
     -------
@@ -155,7 +159,7 @@ def run_twin(
     """
     begin = time.perf_counter()
     settings = settings or RealSkinSettings()
-    real = build("keloid", settings)
+    real = real if real is not None else build("keloid", settings)
     truth = truth_model(real, ratio, settings)
     params = base_parameters(real, truth, settings, base)
     truth_x = np.array([params["alpha_u"], params["alpha_w"], float(ratio)])
@@ -265,11 +269,6 @@ def table(runs: list[dict]) -> str:
 
 
 # ------------------------------------------------------------------------- command line
-class _OneLineParser(argparse.ArgumentParser):
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def _numbers(text: str, kind, what: str) -> list:
     try:
         values = [kind(part) for part in text.split(",") if part.strip()]
@@ -286,7 +285,7 @@ def _numbers(text: str, kind, what: str) -> list:
 
 def main(argv: list[str] | None = None) -> int:
     """Command line; exit 2 with one line on stderr for bad input."""
-    parser = _OneLineParser(prog="realskin_twin", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="realskin_twin", description=__doc__.splitlines()[0])
     parser.add_argument("--ratios", default="3.5,23")
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--force-noise", type=float, default=FORCE_NOISE_N, metavar="N")
@@ -306,14 +305,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"realskin_twin: error: keloid data not found at {data}", file=sys.stderr)
         return 2
     runs = []
+    settings = RealSkinSettings()
+    real = build("keloid", settings)  # data and model once, for every ratio and seed
     for ratio in ratios:
         for seed in seeds:
             run = run_twin(
                 ratio,
                 seed,
+                settings,
                 force_noise_n=args.force_noise,
                 base=args.base,
                 log=print if args.verbose else _quiet,
+                real=real,
             )
             print(line(run), flush=True)
             runs.append(run)

@@ -67,9 +67,8 @@ def test_keloid_twin_is_consistent(shared_data):
     assert cost_at(truth, noisy.cases, TRUTH_NAMES, x, settings) == pytest.approx(expected, rel=0.2)
 
     # one run of the pipeline: well-formed outputs, whatever it localises
-    run = run_twin(3.5, 0, settings)
+    run = run_twin(3.5, 0, settings, real=real)
     assert run["truth"]["region_ratio"] == 3.5
-    assert run["seconds"] < 120
     assert 0.5 < run["force_scale"] < 2.0
     region = real.case.geometry.region
     for entry in (run["first_scan"], run["found"]):
