@@ -98,9 +98,7 @@ def simulate(
     )
     radius = np.full(len(loads), phantom.probe_radius)
     return Dataset(
-        outer_rest=(rest + rng.normal(0.0, measurement.noise_mm, rest.shape)).reshape(
-            shape + (3,)
-        ),
+        outer_rest=(rest + rng.normal(0.0, measurement.noise_mm, rest.shape)).reshape(shape + (3,)),
         inner_rest=(truth.volume.collocation(inner) @ truth.rest).reshape(shape + (3,)),
         forces=np.array([ld.force for ld in loads]),
         contacts=contacts,

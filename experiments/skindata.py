@@ -86,9 +86,15 @@ class SkinGeometry:
         return self.pad_fixed.x0 - self.pad_moving.x1
 
 
-_OPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
-        ast.Div: operator.truediv, ast.Pow: operator.pow, ast.USub: operator.neg,
-        ast.UAdd: operator.pos}
+_OPS = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.Pow: operator.pow,
+    ast.USub: operator.neg,
+    ast.UAdd: operator.pos,
+}
 _FUNCS = {"Sqrt": math.sqrt, "Sin": math.sin, "Cos": math.cos, "Fabs": math.fabs}
 
 
@@ -118,7 +124,8 @@ def _evaluate(expr: str, env: dict) -> float:
 _COMMENTS = re.compile(r"//[^\n]*|/\*.*?\*/", re.S)
 _DELETE = re.compile(r"(?:Recursive\s+)?Delete\s*\{(?:[^{}]|\{[^{}]*\})*\}")
 _ENTITY = re.compile(  # [Physical] Kind [Kind2] (tag) = {values}
-    r"^(Physical\s+)?([A-Za-z]+(?:\s+[A-Za-z]+)?)\s*\(([^)]*)\)\s*=\s*\{([^}]*)\}$")
+    r"^(Physical\s+)?([A-Za-z]+(?:\s+[A-Za-z]+)?)\s*\(([^)]*)\)\s*=\s*\{([^}]*)\}$"
+)
 _ASSIGN = re.compile(r"^([A-Za-z_]\w*)\s*=\s*(.+)$", re.S)
 
 
@@ -187,10 +194,13 @@ def geometry_from_geo(text: str) -> SkinGeometry:
     keloid = None
     if "keloid" in geo["physical"]:
         keloid = loop_polygon(geo, geo["surfaces"][geo["physical"]["keloid"][0]][0])
-    return SkinGeometry(region=_bbox_of_lines(geo, "boundary"),
-                        pad_moving=_bbox_of_lines(geo, "moving_pad"),
-                        pad_fixed=_bbox_of_lines(geo, "fixed_pad"),
-                        keloid=keloid, variables=dict(geo["variables"]))
+    return SkinGeometry(
+        region=_bbox_of_lines(geo, "boundary"),
+        pad_moving=_bbox_of_lines(geo, "moving_pad"),
+        pad_fixed=_bbox_of_lines(geo, "fixed_pad"),
+        keloid=keloid,
+        variables=dict(geo["variables"]),
+    )
 
 
 def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
@@ -243,8 +253,9 @@ def force_at_travel(ux_mm: np.ndarray, fx_n: np.ndarray, ux_query_mm: np.ndarray
     force = np.asarray(fx_n, dtype=float)
     ahead = travel > np.concatenate(([-np.inf], np.maximum.accumulate(travel)[:-1]))
     travel, magnitude = travel[ahead], _pava(-force[ahead])
-    return -np.interp(-np.asarray(ux_query_mm, dtype=float), travel, magnitude,
-                      left=np.nan, right=np.nan)
+    return -np.interp(
+        -np.asarray(ux_query_mm, dtype=float), travel, magnitude, left=np.nan, right=np.nan
+    )
 
 
 # -------------------------------------------------------------------- DIC point quality
@@ -430,14 +441,18 @@ class SkinCase:
         ``frames``, ``reference_model_mm`` (P', 2), ``displacement_mm`` (n, P', 2),
         ``pad_displacement_mm`` (n, 2) and ``force_n`` (n,)."""
         frames, keep = self.frames_for_fit(n), ~self.spurious
-        return {"frames": frames, "reference_model_mm": self.dic_reference_model_mm[keep],
-                "displacement_mm": self.dic_displacement_mm[frames][:, keep],
-                "pad_displacement_mm": self.pad_displacement_mm[frames],
-                "force_n": self.force_at_frame_n[frames]}
+        return {
+            "frames": frames,
+            "reference_model_mm": self.dic_reference_model_mm[keep],
+            "displacement_mm": self.dic_displacement_mm[frames][:, keep],
+            "pad_displacement_mm": self.pad_displacement_mm[frames],
+            "force_n": self.force_at_frame_n[frames],
+        }
 
 
-def dic_to_model_offset(pad_moving0: np.ndarray, pad_fixed0: np.ndarray,
-                        geometry: SkinGeometry) -> np.ndarray:
+def dic_to_model_offset(
+    pad_moving0: np.ndarray, pad_fixed0: np.ndarray, geometry: SkinGeometry
+) -> np.ndarray:
     """Offset [mm] putting the pads' frame-0 reference points symmetric about the middle
     of the modelled pads (x) and the moving pad's reference point on its centre line (y)."""
     pads_mid = 0.5 * (geometry.pad_moving.x1 + geometry.pad_fixed.x0)
@@ -461,8 +476,13 @@ def dic_noise_mm(case: SkinCase, method: str = "spatial") -> float:
     raise ValueError(f"unknown method {method!r}; use 'spatial' or 'temporal'")
 
 
-_FILES = ("displacement/xt_pad_mov.out", "displacement/xt_pad_fix.out",
-          "reactionforce/ux_pad_mov.out", "reactionforce/fx_pad_mov.out", "geometry.geo")
+_FILES = (
+    "displacement/xt_pad_mov.out",
+    "displacement/xt_pad_fix.out",
+    "reactionforce/ux_pad_mov.out",
+    "reactionforce/fx_pad_mov.out",
+    "geometry.geo",
+)
 
 
 def load_case(name: str, root: Path | None = None) -> SkinCase:
@@ -491,8 +511,10 @@ def load_case(name: str, root: Path | None = None) -> SkinCase:
     missing = [f for f in _FILES if not (base / f).is_file()]
     missing += [] if dic_files else ["displacement/xt_dic_*.out"]
     if missing:
-        raise ValueError(f"missing {', '.join(missing)} in {base}; set DVS_SHARED_DATA (or pass "
-                         "root=) to the directory that holds skin-extensometer/")
+        raise ValueError(
+            f"missing {', '.join(missing)} in {base}; set DVS_SHARED_DATA (or pass "
+            "root=) to the directory that holds skin-extensometer/"
+        )
     if [int(f.stem.rsplit("_", 1)[1]) for f in dic_files] != list(range(len(dic_files))):
         raise ValueError(f"DIC frames in {base} are not numbered 0..F-1; restore the files")
     positions = np.stack([np.loadtxt(f, ndmin=2) for f in dic_files])
@@ -500,12 +522,18 @@ def load_case(name: str, root: Path | None = None) -> SkinCase:
     if not len(pad_mov) == len(pad_fix) == len(positions) or len(ux) != len(fx):
         raise ValueError(f"pad or force files in {base} do not match the frames; restore them")
     geometry = geometry_from_geo((base / "geometry.geo").read_text())
-    return SkinCase(name=name, dic_positions_mm=positions, pad_moving_mm=pad_mov,
-                    pad_fixed_mm=pad_fix, force_ux_mm=ux, force_fx_n=fx,
-                    force_at_frame_n=force_at_travel(ux, fx, pad_mov[:, 0] - pad_mov[0, 0]),
-                    geometry=geometry,
-                    dic_to_model_mm=dic_to_model_offset(pad_mov[0], pad_fix[0], geometry),
-                    spurious=spurious_points(positions[0], positions - positions[0]))
+    return SkinCase(
+        name=name,
+        dic_positions_mm=positions,
+        pad_moving_mm=pad_mov,
+        pad_fixed_mm=pad_fix,
+        force_ux_mm=ux,
+        force_fx_n=fx,
+        force_at_frame_n=force_at_travel(ux, fx, pad_mov[:, 0] - pad_mov[0, 0]),
+        geometry=geometry,
+        dic_to_model_mm=dic_to_model_offset(pad_mov[0], pad_fix[0], geometry),
+        spurious=spurious_points(positions[0], positions - positions[0]),
+    )
 
 
 def summary(case: SkinCase) -> str:
@@ -518,25 +546,29 @@ def summary(case: SkinCase) -> str:
     separation = case.pad_fixed_mm[0, 0] - case.pad_moving_mm[0, 0]
     noise = spatial_noise_per_frame(case.dic_reference_mm[keep], case.dic_displacement_mm[:, keep])
     typical = np.median(np.linalg.norm(case.dic_displacement_mm[-1, keep], axis=1))
-    out = [f"{case.name}: {case.n_frames} frames x {case.n_points} points, spurious "
-           f"{case.spurious.sum()} ({100 * case.spurious.mean():.1f} %)",
-           f"  force: {len(force)} samples, max {force[i]:.4f} N at travel {travel[i]:.3f} mm; "
-           f"secant {early:.4f} (first 20 %) -> {force[-1] / travel[-1]:.4f} N/mm (end)",
-           f"  DIC pad travel {-case.pad_displacement_mm[-1, 0]:.3f} mm; frames with force "
-           f"{case.force_valid.sum()}/{case.n_frames} (last: frame {last}, "
-           f"{-case.force_at_frame_n[last]:.4f} N)",
-           f"  noise {np.median(noise[1:]):.4f} mm (median frame), {noise[-1]:.4f} mm (last), "
-           f"jitter {dic_noise_mm(case, 'temporal'):.5f} mm; median |u| last {typical:.3f} mm",
-           f"  pads {g.pad_moving.width:g} x {g.pad_moving.height:g} mm, gap {g.pad_gap_mm:.3f} mm"
-           f" (geo) vs separation {separation:.3f} mm (data)",
-           f"  region {g.region.width:g} x {g.region.height:g} mm; DIC->model offset "
-           f"({case.dic_to_model_mm[0]:.3f}, {case.dic_to_model_mm[1]:.3f}) mm;"
-           f" DIC in model x {ref[:, 0].min():.2f}..{ref[:, 0].max():.2f}, "
-           f"y {ref[:, 1].min():.2f}..{ref[:, 1].max():.2f} mm"]
+    out = [
+        f"{case.name}: {case.n_frames} frames x {case.n_points} points, spurious "
+        f"{case.spurious.sum()} ({100 * case.spurious.mean():.1f} %)",
+        f"  force: {len(force)} samples, max {force[i]:.4f} N at travel {travel[i]:.3f} mm; "
+        f"secant {early:.4f} (first 20 %) -> {force[-1] / travel[-1]:.4f} N/mm (end)",
+        f"  DIC pad travel {-case.pad_displacement_mm[-1, 0]:.3f} mm; frames with force "
+        f"{case.force_valid.sum()}/{case.n_frames} (last: frame {last}, "
+        f"{-case.force_at_frame_n[last]:.4f} N)",
+        f"  noise {np.median(noise[1:]):.4f} mm (median frame), {noise[-1]:.4f} mm (last), "
+        f"jitter {dic_noise_mm(case, 'temporal'):.5f} mm; median |u| last {typical:.3f} mm",
+        f"  pads {g.pad_moving.width:g} x {g.pad_moving.height:g} mm, gap {g.pad_gap_mm:.3f} mm"
+        f" (geo) vs separation {separation:.3f} mm (data)",
+        f"  region {g.region.width:g} x {g.region.height:g} mm; DIC->model offset "
+        f"({case.dic_to_model_mm[0]:.3f}, {case.dic_to_model_mm[1]:.3f}) mm;"
+        f" DIC in model x {ref[:, 0].min():.2f}..{ref[:, 0].max():.2f}, "
+        f"y {ref[:, 1].min():.2f}..{ref[:, 1].max():.2f} mm",
+    ]
     if g.keloid is not None:
         inside = 100 * points_in_polygon(ref, g.keloid).mean()
-        out.append(f"  keloid: {len(g.keloid)} vertices, x {g.keloid[:, 0].min():.2f}.."
-                   f"{g.keloid[:, 0].max():.2f} mm; {inside:.0f} % of DIC points inside")
+        out.append(
+            f"  keloid: {len(g.keloid)} vertices, x {g.keloid[:, 0].min():.2f}.."
+            f"{g.keloid[:, 0].max():.2f} mm; {inside:.0f} % of DIC points inside"
+        )
     return "\n".join(out)
 
 

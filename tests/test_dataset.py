@@ -106,7 +106,12 @@ def test_schema_is_a_zero_d_string_and_optional_keys_are_omitted(tmp_path):
     with np.load(path, allow_pickle=False) as archive:
         assert archive["schema"].shape == () and archive["schema"].item() == SCHEMA
         assert set(archive.files) == {
-            "schema", "outer_rest", "inner_rest", "forces", "contacts", "outer_loaded"
+            "schema",
+            "outer_rest",
+            "inner_rest",
+            "forces",
+            "contacts",
+            "outer_loaded",
         }
     loaded = load_dataset(path)
     assert loaded.noise_mm is None and loaded.times is None and loaded.extra == {}
@@ -247,9 +252,7 @@ def malformed_corpus(valid: Dataset) -> dict[str, dict[str, np.ndarray]]:
             outer_loaded=_edited(good["outer_loaded"], _set((0, 1, 1, 2), -np.inf))
         ),
         "outer_loaded:partly_nan_marker": dict(outer_loaded=half_seen),
-        "outer_loaded:pickled_objects": dict(
-            outer_loaded=good["outer_loaded"].astype(object)
-        ),
+        "outer_loaded:pickled_objects": dict(outer_loaded=good["outer_loaded"].astype(object)),
         "noise_mm:negative": dict(noise_mm=np.array(-0.1)),
         "noise_mm:not_scalar": dict(noise_mm=np.array([0.1, 0.2])),
         "noise_mm:nan": dict(noise_mm=np.array(np.nan)),

@@ -38,16 +38,18 @@ def stereo_rig(baseline: float = 100.0) -> tuple[Camera, Camera]:
 
 def scene(n: int = 30, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    return np.column_stack([rng.uniform(-150, 250, n), rng.uniform(-120, 120, n),
-                            rng.uniform(900, 1100, n)])
+    return np.column_stack(
+        [rng.uniform(-150, 250, n), rng.uniform(-120, 120, n), rng.uniform(900, 1100, n)]
+    )
 
 
 def cylinder_grid(ni: int = 20, nj: int = 14) -> np.ndarray:
     """The MultiDIC layout: radius 57 mm, 12.06 deg per column, 12 mm per row."""
     th = np.radians(12.06) * np.arange(nj)
     z = 10.0 + 12.0 * np.arange(ni)
-    return np.stack(np.broadcast_arrays(57 * np.cos(th)[None], 57 * np.sin(th)[None],
-                                        z[:, None]), axis=-1)
+    return np.stack(
+        np.broadcast_arrays(57 * np.cos(th)[None], 57 * np.sin(th)[None], z[:, None]), axis=-1
+    )
 
 
 def look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple:
@@ -77,10 +79,13 @@ def test_camera_rejects_invalid_parameters():
         Camera(K, t=np.zeros(2))
 
 
-@pytest.mark.parametrize("image", [
-    np.full((480, 640), 200, np.uint8),
-    np.random.default_rng(1).integers(0, 256, (480, 640)).astype(np.uint8),
-])
+@pytest.mark.parametrize(
+    "image",
+    [
+        np.full((480, 640), 200, np.uint8),
+        np.random.default_rng(1).integers(0, 256, (480, 640)).astype(np.uint8),
+    ],
+)
 def test_image_without_a_grid_gives_clear_errors(image):
     with pytest.raises(ValueError, match="chessboard"):
         find_corners(image, (9, 6))
@@ -165,8 +170,13 @@ def test_surface_fit_rejects_underdetermined_problems():
 
 def test_dlt_recovers_a_known_camera():
     R = rotation([0.2, -0.4, 0.1])
-    cam = Camera(np.array([[1500.0, 0, 700], [0, 1520.0, 500], [0, 0, 1]]), np.zeros(5), R,
-                 np.array([20.0, -10.0, 800.0]), (1400, 1000))
+    cam = Camera(
+        np.array([[1500.0, 0, 700], [0, 1520.0, 500], [0, 0, 1]]),
+        np.zeros(5),
+        R,
+        np.array([20.0, -10.0, 800.0]),
+        (1400, 1000),
+    )
     X = scene(50) - [0, 0, 1000]
     fit = dlt_projection(X, cam.project(X))
     assert fit.proper and fit.rms < 1e-6
@@ -178,8 +188,7 @@ def test_dlt_recovers_a_known_camera():
 
 def test_triangulation_error_agrees_with_its_covariance():
     left, right = stereo_rig()
-    third = Camera(K, np.zeros(5), rotation([0.05, 0.0, 0.0]), np.array([-50.0, -60.0, 0.0]),
-                   SIZE)
+    third = Camera(K, np.zeros(5), rotation([0.05, 0.0, 0.0]), np.array([-50.0, -60.0, 0.0]), SIZE)
     cams = [left, right, third]
     X = scene(400, seed=3)
     rng = np.random.default_rng(4)
@@ -228,8 +237,9 @@ def _synthetic_cylinder_view():
     target = np.array([0.0, 0.0, 124.0])
     az = np.radians(80.0)
     R, t = look_at(target + 420 * np.array([np.cos(az), np.sin(az), 0.25]), target)
-    cam = Camera(np.array([[2600.0, 0, 1232], [0, 2600.0, 1640], [0, 0, 1]]), np.zeros(5),
-                 R, t, (2464, 3280))
+    cam = Camera(
+        np.array([[2600.0, 0, 1232], [0, 2600.0, 1640], [0, 0, 1]]), np.zeros(5), R, t, (2464, 3280)
+    )
     n = grid * [1, 1, 0] / 57.0
     ray = cam.center() - grid
     cosang = np.einsum("ijk,ijk->ij", n, ray) / np.linalg.norm(ray, axis=2)
@@ -269,8 +279,9 @@ def test_spline_fits_the_cylinder_and_icp_recovers_a_motion_on_a_curved_patch():
     # ICP needs a surface without sliding symmetry: a doubly curved patch.
     g = np.linspace(-1.0, 1.0, 15)
     x, y = np.meshgrid(g, g, indexing="ij")
-    pts = np.column_stack([40 * x.ravel(), 40 * y.ravel(),
-                           (20 * x**2 - 15 * y**2 + 8 * x * y**2).ravel()])
+    pts = np.column_stack(
+        [40 * x.ravel(), 40 * y.ravel(), (20 * x**2 - 15 * y**2 + 8 * x * y**2).ravel()]
+    )
     uv = np.column_stack([(x.ravel() + 1) / 2, (y.ravel() + 1) / 2])
     surf = fit_surface(pts, uv, (6, 6))
     rng = np.random.default_rng(6)

@@ -82,10 +82,12 @@ def test_triangulated_neighbouring_corners_are_one_square_apart(board):
     d = np.concatenate(per_pair)
     pair_dev = np.array([abs(x.mean() - 1.0) for x in per_pair])
     rms_dev = np.sqrt(np.mean((d - 1.0) ** 2))
-    print(f"neighbour distance: mean {d.mean():.4f} squares, worst pair mean off by "
-          f"{100 * pair_dev.max():.2f}%, RMS deviation {100 * rms_dev:.2f}%, max single "
-          f"{100 * np.abs(d - 1).max():.1f}%, {100 * np.mean(np.abs(d - 1) > 0.02):.1f}% of "
-          "single distances off by more than 2%")
+    print(
+        f"neighbour distance: mean {d.mean():.4f} squares, worst pair mean off by "
+        f"{100 * pair_dev.max():.2f}%, RMS deviation {100 * rms_dev:.2f}%, max single "
+        f"{100 * np.abs(d - 1).max():.1f}%, {100 * np.mean(np.abs(d - 1) > 0.02):.1f}% of "
+        "single distances off by more than 2%"
+    )
     assert np.all(pair_dev < 0.02)
     assert rms_dev < 0.02
 
@@ -104,19 +106,28 @@ def test_column_labels_follow_the_printed_numbers(cylinder):
         assert view.reading.counts[view.reading.first_two_digit] == 2
 
 
-@pytest.mark.parametrize("name", [
-    "201",
-    pytest.param("202", marks=pytest.mark.xfail(
-        strict=True,
-        reason="column j=1 faces camera 202 at 89.5 deg: its centre is in front of the "
-               "silhouette but the dot is < 1 px wide and half behind it, so 20 of the 260 "
-               "'visible' dots cannot be detected (236/260 = 90.8%); see docs/stereo.md")),
-])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "201",
+        pytest.param(
+            "202",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="column j=1 faces camera 202 at 89.5 deg: its centre is in front of the "
+                "silhouette but the dot is < 1 px wide and half behind it, so 20 of the 260 "
+                "'visible' dots cannot be detected (236/260 = 90.8%); see docs/stereo.md",
+            ),
+        ),
+    ],
+)
 def test_visible_dots_detected_and_correctly_indexed(cylinder, name):
     grid, views = cylinder
     r = index_check(views[name], grid)
-    print(f"{name}: {r['visible_labelled_ok']}/{r['visible']} visible dots detected and "
-          f"correctly indexed ({100 * r['visible_frac']:.1f}%)")
+    print(
+        f"{name}: {r['visible_labelled_ok']}/{r['visible']} visible dots detected and "
+        f"correctly indexed ({100 * r['visible_frac']:.1f}%)"
+    )
     assert r["visible_frac"] >= 0.95
 
 
@@ -125,8 +136,10 @@ def test_wholly_visible_dots_detected_and_correctly_indexed(cylinder, name):
     """Same count, for dots that face the camera across their whole width."""
     grid, views = cylinder
     r = index_check(views[name], grid)
-    print(f"{name}: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']} dots facing "
-          f"the camera across their whole width (dot/pitch {r['dot_fraction']:.3f})")
+    print(
+        f"{name}: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']} dots facing "
+        f"the camera across their whole width (dot/pitch {r['dot_fraction']:.3f})"
+    )
     assert r["fully_visible_frac"] >= 0.95
 
 
@@ -141,8 +154,10 @@ def test_no_dot_is_misindexed(cylinder, name):
 
 def test_triangulated_dots_match_p3d(stereo):
     err = np.linalg.norm(stereo.errors, axis=1)
-    print(f"MultiDIC: {stereo.mask.sum()} dots, RMS 3D error {stereo.rms:.4f} mm "
-          f"(max {err.max():.3f} mm); MultiDIC's authors report about 0.06 mm")
+    print(
+        f"MultiDIC: {stereo.mask.sum()} dots, RMS 3D error {stereo.rms:.4f} mm "
+        f"(max {err.max():.3f} mm); MultiDIC's authors report about 0.06 mm"
+    )
     assert stereo.mask.sum() >= 150
     assert stereo.rms <= 0.1
 
@@ -150,9 +165,11 @@ def test_triangulated_dots_match_p3d(stereo):
 def test_holdout_triangulation(cylinder):
     grid, views = cylinder
     hold = md.holdout_check((views["201"], views["202"]), grid)
-    print(f"hold-out (calibrate on one checkerboard half, triangulate the other): RMS 3D "
-          f"error {hold['rms']:.4f} mm over {hold['n']} dots, folds "
-          f"{[round(x, 4) for x in hold['fold_rms']]}")
+    print(
+        f"hold-out (calibrate on one checkerboard half, triangulate the other): RMS 3D "
+        f"error {hold['rms']:.4f} mm over {hold['n']} dots, folds "
+        f"{[round(x, 4) for x in hold['fold_rms']]}"
+    )
     assert hold["n"] >= 150
     assert hold["rms"] <= 0.1
 
@@ -169,6 +186,5 @@ def test_triangulation_covariance_matches_errors(stereo):
 def test_spline_surface_through_triangulated_dots(stereo):
     ij = np.argwhere(stereo.mask)
     surf = fit_surface(stereo.triangulation.points, grid_parameters(ij), SURFACE_GRID)
-    print(f"bicubic {SURFACE_GRID} surface: residual RMS {surf.rms:.4f} mm, "
-          f"max {surf.max:.3f} mm")
+    print(f"bicubic {SURFACE_GRID} surface: residual RMS {surf.rms:.4f} mm, max {surf.max:.3f} mm")
     assert surf.rms < 0.1

@@ -51,8 +51,12 @@ class CameraCalibration:
         return Camera.from_rvec(c.K, c.dist, self.rvecs[k], self.tvecs[k], c.image_size)
 
 
-def calibrate_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                     image_size: tuple[int, int], flags: int = 0) -> CameraCalibration:
+def calibrate_camera(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    flags: int = 0,
+) -> CameraCalibration:
     """``cv2.calibrateCamera`` over several views of a planar target.
 
     Parameters
@@ -103,9 +107,14 @@ class StereoCalibration:
         return float(np.linalg.norm(self.right.center() - self.left.center()))
 
 
-def stereo_calibrate(object_points, left_points, right_points, left: CameraCalibration,
-                     right: CameraCalibration, flags: int = cv2.CALIB_FIX_INTRINSIC
-                     ) -> StereoCalibration:
+def stereo_calibrate(
+    object_points,
+    left_points,
+    right_points,
+    left: CameraCalibration,
+    right: CameraCalibration,
+    flags: int = cv2.CALIB_FIX_INTRINSIC,
+) -> StereoCalibration:
     """``cv2.stereoCalibrate`` with (by default) fixed single-camera intrinsics."""
     n = len(object_points)
     if not (n == len(left_points) == len(right_points)) or n == 0:
@@ -117,8 +126,17 @@ def stereo_calibrate(object_points, left_points, right_points, left: CameraCalib
     r_img = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in right_points]
     cl, cr = left.camera, right.camera
     out = cv2.stereoCalibrateExtended(
-        obj, l_img, r_img, cl.K.copy(), cl.dist.copy(), cr.K.copy(), cr.dist.copy(),
-        cl.image_size, None, None, flags=flags,
+        obj,
+        l_img,
+        r_img,
+        cl.K.copy(),
+        cl.dist.copy(),
+        cr.K.copy(),
+        cr.dist.copy(),
+        cl.image_size,
+        None,
+        None,
+        flags=flags,
     )
     rms, K1, d1, K2, d2, R, T = out[:7]
     per_view = out[-1]
@@ -160,9 +178,9 @@ class ObjectCalibration:
 OBJECT_FLAGS = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3 | cv2.CALIB_THIN_PRISM_MODEL
 
 
-def calibrate_from_object(points3d: np.ndarray, pixels: np.ndarray,
-                          image_size: tuple[int, int], flags: int = OBJECT_FLAGS
-                          ) -> ObjectCalibration:
+def calibrate_from_object(
+    points3d: np.ndarray, pixels: np.ndarray, image_size: tuple[int, int], flags: int = OBJECT_FLAGS
+) -> ObjectCalibration:
     """Calibrate one camera from known 3D points: normalised DLT, then refinement.
 
     Parameters
@@ -193,8 +211,11 @@ def calibrate_from_object(points3d: np.ndarray, pixels: np.ndarray,
     K0 = cam0.K.copy()
     K0[0, 1] = 0.0  # OpenCV's model has no skew
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
-        [X.astype(np.float32).reshape(-1, 1, 3)], [x.astype(np.float32).reshape(-1, 1, 2)],
-        tuple(image_size), K0, np.zeros(12 if flags & cv2.CALIB_THIN_PRISM_MODEL else 5),
+        [X.astype(np.float32).reshape(-1, 1, 3)],
+        [x.astype(np.float32).reshape(-1, 1, 2)],
+        tuple(image_size),
+        K0,
+        np.zeros(12 if flags & cv2.CALIB_THIN_PRISM_MODEL else 5),
         flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
     )
     cam = Camera.from_rvec(K, dist.ravel(), rvecs[0], tvecs[0], tuple(image_size))

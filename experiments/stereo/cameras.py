@@ -93,8 +93,9 @@ class Camera:
     def from_rvec(cls, K, dist, rvec, tvec, image_size=None) -> Camera:
         """Build a camera from an OpenCV Rodrigues vector ``rvec`` and ``tvec``."""
         R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=float).reshape(3, 1))
-        return cls(K=K, dist=dist, R=R, t=np.asarray(tvec, dtype=float).ravel(),
-                   image_size=image_size)
+        return cls(
+            K=K, dist=dist, R=R, t=np.asarray(tvec, dtype=float).ravel(), image_size=image_size
+        )
 
     @property
     def rvec(self) -> np.ndarray:
@@ -161,6 +162,8 @@ class Camera:
             return np.ones(px.shape[0], dtype=bool)
         w, h = self.image_size
         return (
-            (px[:, 0] >= -0.5 - margin) & (px[:, 0] <= w - 0.5 + margin)
-            & (px[:, 1] >= -0.5 - margin) & (px[:, 1] <= h - 0.5 + margin)
+            (px[:, 0] >= -0.5 - margin)
+            & (px[:, 0] <= w - 0.5 + margin)
+            & (px[:, 1] >= -0.5 - margin)
+            & (px[:, 1] <= h - 0.5 + margin)
         )

@@ -27,8 +27,7 @@ def board_points(pattern: tuple[int, int]) -> np.ndarray:
     return np.hstack([grid, np.zeros((grid.shape[0], 1))]).astype(np.float64)
 
 
-def find_corners(image: np.ndarray, pattern: tuple[int, int], subpix_window: int = 5
-                 ) -> np.ndarray:
+def find_corners(image: np.ndarray, pattern: tuple[int, int], subpix_window: int = 5) -> np.ndarray:
     """Sub-pixel chessboard inner corners, row by row, shape (cols * rows, 2) [px].
 
     ``cv2.findChessboardCornersSB`` (exhaustive, accuracy mode) first, the
@@ -58,8 +57,9 @@ def find_corners(image: np.ndarray, pattern: tuple[int, int], subpix_window: int
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def match_board_order(reference: np.ndarray, corners: np.ndarray,
-                      pattern: tuple[int, int]) -> np.ndarray:
+def match_board_order(
+    reference: np.ndarray, corners: np.ndarray, pattern: tuple[int, int]
+) -> np.ndarray:
     """Reverse ``corners`` if needed so their ordering agrees with ``reference``.
 
     A non-square board is found either way round (a 180-degree turn). For a
@@ -101,8 +101,9 @@ class StereoBoardCalibration:
     object_points: np.ndarray
 
 
-def calibrate_stereo_images(left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray],
-                            pattern: tuple[int, int]) -> StereoBoardCalibration:
+def calibrate_stereo_images(
+    left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], pattern: tuple[int, int]
+) -> StereoBoardCalibration:
     """Detect the board in every pair and calibrate both cameras and the pair.
 
     Raises

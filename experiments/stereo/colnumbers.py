@@ -70,9 +70,14 @@ def _columns(centers: np.ndarray, lattice: np.ndarray, valid: np.ndarray):
     return cols
 
 
-def read_column_numbers(image: np.ndarray, centers: np.ndarray, lattice: np.ndarray,
-                        valid: np.ndarray, max_dot_size: int | None = None,
-                        min_spacing: float = 0.5) -> ColumnReading:
+def read_column_numbers(
+    image: np.ndarray,
+    centers: np.ndarray,
+    lattice: np.ndarray,
+    valid: np.ndarray,
+    max_dot_size: int | None = None,
+    min_spacing: float = 0.5,
+) -> ColumnReading:
     """Count the printed digits above each column of a labelled lattice.
 
     Parameters
@@ -95,8 +100,9 @@ def read_column_numbers(image: np.ndarray, centers: np.ndarray, lattice: np.ndar
     """
     gray = to_gray(image)
     k = int(max_dot_size or max(gray.shape) // 40) | 1
-    hat = cv2.morphologyEx(gray, cv2.MORPH_BLACKHAT,
-                           cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    hat = cv2.morphologyEx(
+        gray, cv2.MORPH_BLACKHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    )
     thresh, _ = cv2.threshold(hat, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
     cols = _columns(centers, lattice, valid)
     keys = sorted(cols, key=lambda c: np.mean(centers[cols[c], 0]))
@@ -118,8 +124,13 @@ def read_column_numbers(image: np.ndarray, centers: np.ndarray, lattice: np.ndar
         counts[n] = _count_blobs(hat, thresh, top_xy[n], ups[n], spans[n], 0.05 * dot_area)
     read = np.flatnonzero(counts >= 0)
     seq = counts[read]
-    if seq.size < 2 or np.any((seq != 1) & (seq != 2)) or np.any(np.diff(seq) < 0) \
-            or seq[0] != 1 or seq[-1] != 2:
+    if (
+        seq.size < 2
+        or np.any((seq != 1) & (seq != 2))
+        or np.any(np.diff(seq) < 0)
+        or seq[0] != 1
+        or seq[-1] != 2
+    ):
         raise ValueError(
             f"could not read the printed column numbers (digit-blob counts {counts.tolist()}); "
             "give the labelling an anchor by hand"
@@ -128,14 +139,14 @@ def read_column_numbers(image: np.ndarray, centers: np.ndarray, lattice: np.ndar
     return ColumnReading(np.asarray(tops), counts, first)
 
 
-def _count_blobs(hat: np.ndarray, thresh: float, top: np.ndarray, up: np.ndarray,
-                 span: float, min_area: float) -> int:
+def _count_blobs(
+    hat: np.ndarray, thresh: float, top: np.ndarray, up: np.ndarray, span: float, min_area: float
+) -> int:
     """Dark blobs whose centroid lies 0.3-1.2 row steps above ``top``, within +-span/2."""
     up_len = np.linalg.norm(up)
     u_dir = up / up_len
     side = np.array([-u_dir[1], u_dir[0]])
-    corners = np.array([top + s * up + t * span * side
-                        for s in (0.3, 1.2) for t in (-0.5, 0.5)])
+    corners = np.array([top + s * up + t * span * side for s in (0.3, 1.2) for t in (-0.5, 0.5)])
     h, w = hat.shape
     pad = int(span) + 2  # whole digits, even where they cross the region's edge
     x0, y0 = np.maximum(np.floor(corners.min(axis=0)).astype(int) - pad, 0)

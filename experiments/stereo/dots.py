@@ -83,12 +83,17 @@ def _weighted_centroid(hat: np.ndarray, mask: np.ndarray, x0: int, y0: int) -> t
     """Black-hat-weighted centroid of a blob grown by 2 px (so its blurred edge counts)."""
     wts = hat * cv2.dilate(mask, _GROW).astype(bool)
     total = wts.sum()
-    yy, xx = np.mgrid[0:hat.shape[0], 0:hat.shape[1]]
+    yy, xx = np.mgrid[0 : hat.shape[0], 0 : hat.shape[1]]
     return (x0 + (wts * xx).sum() / total, y0 + (wts * yy).sum() / total)
 
 
-def detect_dots(image: np.ndarray, max_dot_size: int | None = None, min_area: int = 12,
-                min_fill: float = 0.6, min_solidity: float = 0.88) -> Dots:
+def detect_dots(
+    image: np.ndarray,
+    max_dot_size: int | None = None,
+    min_area: int = 12,
+    min_fill: float = 0.6,
+    min_solidity: float = 0.88,
+) -> Dots:
     """Detect dark dots on a bright background with sub-pixel centres.
 
     Parameters
@@ -131,13 +136,21 @@ def detect_dots(image: np.ndarray, max_dot_size: int | None = None, min_area: in
             continue
         centers.append(_weighted_centroid(hat_f[y0:y1, x0:x1], mask, x0, y0))
         areas.append(float(area))
-    return Dots(centers=np.asarray(centers, dtype=float).reshape(-1, 2),
-                areas=np.asarray(areas, dtype=float))
+    return Dots(
+        centers=np.asarray(centers, dtype=float).reshape(-1, 2),
+        areas=np.asarray(areas, dtype=float),
+    )
 
 
-def detect_near(image: np.ndarray, predictions: np.ndarray, spacing: np.ndarray,
-                max_dot_size: int | None = None, accept: float = 0.2,
-                min_area: int = 6, min_contrast: float = 20.0) -> np.ndarray:
+def detect_near(
+    image: np.ndarray,
+    predictions: np.ndarray,
+    spacing: np.ndarray,
+    max_dot_size: int | None = None,
+    accept: float = 0.2,
+    min_area: int = 6,
+    min_contrast: float = 20.0,
+) -> np.ndarray:
     """Look for one dark dot near each predicted position (guided detection).
 
     Used for dots that a calibrated model says are visible but that the
@@ -187,7 +200,7 @@ def detect_near(image: np.ndarray, predictions: np.ndarray, spacing: np.ndarray,
         # Local threshold at half the contrast found near the prediction, so
         # dots washed out by glare are segmented whole.
         r = max(int(accept * sp), 2)
-        peak = np.percentile(hat[cy - r:cy + r + 1, cx - r:cx + r + 1], 95)
+        peak = np.percentile(hat[cy - r : cy + r + 1, cx - r : cx + r + 1], 95)
         if peak < min_contrast:
             continue
         binary = (hat[y0:y1, x0:x1] > min(0.5 * peak, thresh)).astype(np.uint8)

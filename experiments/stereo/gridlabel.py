@@ -42,8 +42,12 @@ from .dlt import dlt_projection, project_matrix
 _TRANSFORMS = [
     np.array(m) * s
     for m in ([[1, 0], [0, 1]], [[0, 1], [1, 0]])
-    for s in (np.array([[1], [1]]), np.array([[1], [-1]]), np.array([[-1], [1]]),
-              np.array([[-1], [-1]]))
+    for s in (
+        np.array([[1], [1]]),
+        np.array([[1], [-1]]),
+        np.array([[-1], [1]]),
+        np.array([[-1], [-1]]),
+    )
 ]
 
 
@@ -85,15 +89,17 @@ class _Candidate:
     P: np.ndarray
 
 
-def _candidates(ab: np.ndarray, pixels: np.ndarray, grid: np.ndarray, min_in_range: float,
-                inlier_px: float) -> list[_Candidate]:
+def _candidates(
+    ab: np.ndarray, pixels: np.ndarray, grid: np.ndarray, min_in_range: float, inlier_px: float
+) -> list[_Candidate]:
     shape = np.array(grid.shape[:2])
     out = []
     for T in _TRANSFORMS:
         q = ab @ T.T
         lo, hi = q.min(axis=0), q.max(axis=0)
-        for oi, oj in itertools.product(range(-hi[0], shape[0] - lo[0]),
-                                        range(-hi[1], shape[1] - lo[1])):
+        for oi, oj in itertools.product(
+            range(-hi[0], shape[0] - lo[0]), range(-hi[1], shape[1] - lo[1])
+        ):
             ij = q + (oi, oj)
             ok = np.all((ij >= 0) & (ij < shape), axis=1)
             if ok.sum() < max(min_in_range * ab.shape[0], 6):
@@ -114,12 +120,18 @@ def _points_up(c: _Candidate, grid: np.ndarray, up_axis: np.ndarray) -> bool:
     return bool(uv[1, 1] < uv[0, 1])
 
 
-def label_grid(centers: np.ndarray, lattice: np.ndarray, valid: np.ndarray,
-               grid: np.ndarray, image_size: tuple[int, int],
-               up_axis: Sequence[float] | None = (0.0, 0.0, 1.0),
-               anchors: Sequence[tuple[int, int | None, int | None]] = (),
-               min_in_range: float = 0.9, inlier_px: float = 8.0,
-               reject_px: float = 3.0) -> Labelling:
+def label_grid(
+    centers: np.ndarray,
+    lattice: np.ndarray,
+    valid: np.ndarray,
+    grid: np.ndarray,
+    image_size: tuple[int, int],
+    up_axis: Sequence[float] | None = (0.0, 0.0, 1.0),
+    anchors: Sequence[tuple[int, int | None, int | None]] = (),
+    min_in_range: float = 0.9,
+    inlier_px: float = 8.0,
+    reject_px: float = 3.0,
+) -> Labelling:
     """Assign object indices ``(i, j)`` to lattice-labelled dots.
 
     Parameters
@@ -174,8 +186,9 @@ def label_grid(centers: np.ndarray, lattice: np.ndarray, valid: np.ndarray,
         if int(dot) not in pos:
             raise ValueError(f"anchor dot {dot} is not on the lattice")
         r = pos[int(dot)]
-        tied = [c for c in tied
-                if (ai is None or c.ij[r, 0] == ai) and (aj is None or c.ij[r, 1] == aj)]
+        tied = [
+            c for c in tied if (ai is None or c.ij[r, 0] == ai) and (aj is None or c.ij[r, 1] == aj)
+        ]
         if not tied:
             raise ValueError(f"no well-fitting labelling agrees with anchor {(dot, ai, aj)}")
     if len(tied) > 1:
@@ -190,9 +203,14 @@ def label_grid(centers: np.ndarray, lattice: np.ndarray, valid: np.ndarray,
     return verify_labelling(centers, ij, grid, image_size, reject_px, n_equivalent)
 
 
-def verify_labelling(centers: np.ndarray, ij: np.ndarray, grid: np.ndarray,
-                     image_size: tuple[int, int], reject_px: float = 3.0,
-                     n_equivalent: int = 1) -> Labelling:
+def verify_labelling(
+    centers: np.ndarray,
+    ij: np.ndarray,
+    grid: np.ndarray,
+    image_size: tuple[int, int],
+    reject_px: float = 3.0,
+    n_equivalent: int = 1,
+) -> Labelling:
     """Calibrate with distortion and drop the worst dot until all reproject within ``reject_px``.
 
     Parameters

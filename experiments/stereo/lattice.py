@@ -147,8 +147,9 @@ def _seed_basis(centers: np.ndarray, tree: cKDTree, i: int, tol: float):
     return (u, v), score
 
 
-def grid_lattice(centers: np.ndarray, tol: float = 0.3, check_tol: float = 0.2,
-                 max_seeds: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def grid_lattice(
+    centers: np.ndarray, tol: float = 0.3, check_tol: float = 0.2, max_seeds: int = 6
+) -> tuple[np.ndarray, np.ndarray]:
     """Integer lattice coordinates of dots forming a (curved) 2D grid.
 
     Parameters

@@ -67,8 +67,9 @@ def visible_mask(camera: Camera, grid: np.ndarray, normals: np.ndarray) -> np.nd
     return (facing & in_front & inside).reshape(grid.shape[:2])
 
 
-def fully_visible_mask(camera: Camera, grid: np.ndarray, normals: np.ndarray,
-                       dot_fraction: float) -> np.ndarray:
+def fully_visible_mask(
+    camera: Camera, grid: np.ndarray, normals: np.ndarray, dot_fraction: float
+) -> np.ndarray:
     """Dots facing the camera across their whole extent, (ni, nj) bool.
 
     A stricter reading of :func:`visible_mask`: the facing test must hold at
@@ -90,8 +91,7 @@ def fully_visible_mask(camera: Camera, grid: np.ndarray, normals: np.ndarray,
     return ok
 
 
-def estimate_dot_fraction(view: LabelledView, grid: np.ndarray, max_angle: float = 30.0
-                          ) -> float:
+def estimate_dot_fraction(view: LabelledView, grid: np.ndarray, max_angle: float = 30.0) -> float:
     """Dot side over grid pitch, from the areas of dots seen within ``max_angle`` [deg] of face-on.
 
     ``side = sqrt(area / cos(angle)) * depth / f`` [mm] per dot (median), over
@@ -152,8 +152,9 @@ class LabelledView:
         return self.labelling.calibration.camera
 
 
-def projected_spacing(camera: Camera, grid: np.ndarray, mask: np.ndarray | None = None
-                      ) -> np.ndarray:
+def projected_spacing(
+    camera: Camera, grid: np.ndarray, mask: np.ndarray | None = None
+) -> np.ndarray:
     """Smallest image distance from each dot to its 4 grid neighbours, (ni, nj) [px].
 
     With ``mask``, only neighbours where ``mask`` is True count (e.g. the
@@ -190,8 +191,7 @@ def label_view(image: np.ndarray, grid: np.ndarray, recover: bool = True) -> Lab
     dots = detect_dots(image)
     lattice, valid = grid_lattice(dots.centers)
     reading = read_column_numbers(image, dots.centers, lattice, valid)
-    labelling = label_grid(dots.centers, lattice, valid, grid, (w, h),
-                           anchors=[reading.anchor()])
+    labelling = label_grid(dots.centers, lattice, valid, grid, (w, h), anchors=[reading.anchor()])
     if recover:
         dots, lattice, valid, labelling = _recover(image, grid, dots, lattice, valid, labelling)
     return LabelledView(dots, lattice, valid, reading, labelling, (w, h))
@@ -220,11 +220,16 @@ def _recover(image, grid, dots, lattice, valid, labelling):
     ij = np.vstack([labelling.ij, new_ij])
     lattice = np.vstack([lattice, np.full((new_ij.shape[0], 2), -1)])
     valid = np.concatenate([valid, np.zeros(new_ij.shape[0], dtype=bool)])
-    relabelled = verify_labelling(centers, ij, grid, cam.image_size,
-                                  n_equivalent=labelling.n_equivalent)
+    relabelled = verify_labelling(
+        centers, ij, grid, cam.image_size, n_equivalent=labelling.n_equivalent
+    )
     rejected = labelling.rejected + relabelled.rejected
-    return (Dots(centers, areas), lattice, valid,
-            Labelling(relabelled.ij, relabelled.calibration, labelling.n_equivalent, rejected))
+    return (
+        Dots(centers, areas),
+        lattice,
+        valid,
+        Labelling(relabelled.ij, relabelled.calibration, labelling.n_equivalent, rejected),
+    )
 
 
 def load_view(path: Path, grid: np.ndarray) -> LabelledView:
@@ -264,8 +269,12 @@ class StereoCheck:
     rms: float
 
 
-def stereo_check(views: tuple[LabelledView, LabelledView], cameras: tuple[Camera, Camera],
-                 grid: np.ndarray, eval_mask: np.ndarray | None = None) -> StereoCheck:
+def stereo_check(
+    views: tuple[LabelledView, LabelledView],
+    cameras: tuple[Camera, Camera],
+    grid: np.ndarray,
+    eval_mask: np.ndarray | None = None,
+) -> StereoCheck:
     """Triangulate the dots both views labelled and compare them with ``P3d``."""
     shape = grid.shape[:2]
     pix = [v.pixel_grid(shape) for v in views]
@@ -302,5 +311,9 @@ def holdout_check(views: tuple[LabelledView, LabelledView], grid: np.ndarray) ->
             test = ~train & np.all(np.isfinite(pix), axis=2)
             rep.append(pix[test] - cam.project(grid[test]))
     r = np.concatenate(rep)
-    return {"rms": float(np.sqrt(sq / n)), "fold_rms": folds, "n": n,
-            "reproj_rms": float(np.sqrt(np.mean(np.sum(r**2, axis=1))))}
+    return {
+        "rms": float(np.sqrt(sq / n)),
+        "fold_rms": folds,
+        "n": n,
+        "reproj_rms": float(np.sqrt(np.mean(np.sum(r**2, axis=1)))),
+    }

@@ -61,8 +61,14 @@ def board_neighbour_distances(cal: StereoBoardCalibration) -> list[np.ndarray]:
     for lc, rc in zip(cal.left_corners, cal.right_corners):
         P = triangulate([cal.stereo.left, cal.stereo.right], [lc, rc]).points
         P = P.reshape(rows, cols, 3)
-        out.append(np.concatenate([np.linalg.norm(np.diff(P, axis=1), axis=2).ravel(),
-                                   np.linalg.norm(np.diff(P, axis=0), axis=2).ravel()]))
+        out.append(
+            np.concatenate(
+                [
+                    np.linalg.norm(np.diff(P, axis=1), axis=2).ravel(),
+                    np.linalg.norm(np.diff(P, axis=0), axis=2).ravel(),
+                ]
+            )
+        )
     return out
 
 
@@ -75,9 +81,12 @@ def check_opencv_stereo(data_dir: Path) -> dict:
     dists = board_neighbour_distances(cal)
     d = np.concatenate(dists)
     return {
-        "pairs": len(left), "pairs_detected": len(cal.left_corners),
-        "left_rms_px": cal.left.rms, "right_rms_px": cal.right.rms,
-        "stereo_rms_px": cal.stereo.rms, "baseline_squares": cal.stereo.baseline,
+        "pairs": len(left),
+        "pairs_detected": len(cal.left_corners),
+        "left_rms_px": cal.left.rms,
+        "right_rms_px": cal.right.rms,
+        "stereo_rms_px": cal.stereo.rms,
+        "baseline_squares": cal.stereo.baseline,
         "neighbour_mean_squares": float(d.mean()),
         "neighbour_pair_mean_max_dev": float(max(abs(x.mean() - 1.0) for x in dists)),
         "neighbour_rms_dev": float(np.sqrt(np.mean((d - 1.0) ** 2))),
@@ -109,14 +118,17 @@ def index_check(view: md.LabelledView, grid: np.ndarray, tol_px: float = 3.0) ->
         err = np.linalg.norm(pix[test] - held.project(grid[test]), axis=1)
         good[test] = err < tol_px
     return {
-        "detected": int(view.dots.centers.shape[0]), "labelled": int(have.sum()),
-        "visible": int(vis.sum()), "visible_labelled_ok": int((vis & have & good).sum()),
+        "detected": int(view.dots.centers.shape[0]),
+        "labelled": int(have.sum()),
+        "visible": int(vis.sum()),
+        "visible_labelled_ok": int((vis & have & good).sum()),
         "visible_frac": float((vis & have & good).sum() / vis.sum()),
         "fully_visible": int(full.sum()),
         "fully_visible_frac": float((full & have & good).sum() / full.sum()),
         "labelled_not_visible": int((have & ~vis).sum()),
         "holdout_reproj_ok_frac": float(good[have].mean()),
-        "dot_fraction": frac, "calib_rms_px": view.labelling.calibration.rms,
+        "dot_fraction": frac,
+        "calib_rms_px": view.labelling.calibration.rms,
         "dlt_rms_px": view.labelling.calibration.dlt_rms,
         "equivalent_labellings": view.labelling.n_equivalent,
     }
@@ -136,19 +148,23 @@ def check_multidic(data_dir: Path) -> tuple[dict, dict]:
     ref = fit_surface(grid[stereo.mask], uv, SURFACE_GRID)
     _, _, icp_rms = icp_to_surface(stereo.triangulation.points, ref, uv)
     out["stereo"] = {
-        "n_dots": int(stereo.mask.sum()), "rms_3d_mm": stereo.rms,
+        "n_dots": int(stereo.mask.sum()),
+        "rms_3d_mm": stereo.rms,
         "max_3d_mm": float(np.linalg.norm(stereo.errors, axis=1).max()),
         "triangulation_rms_px": stereo.triangulation.rms,
         "sigma_px": stereo.triangulation.sigma,
         "mean_std_mm": stereo.triangulation.std.mean(axis=0).tolist(),
-        "holdout_rms_3d_mm": hold["rms"], "holdout_fold_rms_mm": hold["fold_rms"],
-        "holdout_n": hold["n"], "holdout_reproj_rms_px": hold["reproj_rms"],
-        "surface_grid": list(SURFACE_GRID), "surface_rms_mm": surf.rms,
-        "surface_max_mm": surf.max, "icp_to_true_surface_rms_mm": icp_rms,
+        "holdout_rms_3d_mm": hold["rms"],
+        "holdout_fold_rms_mm": hold["fold_rms"],
+        "holdout_n": hold["n"],
+        "holdout_reproj_rms_px": hold["reproj_rms"],
+        "surface_grid": list(SURFACE_GRID),
+        "surface_rms_mm": surf.rms,
+        "surface_max_mm": surf.max,
+        "icp_to_true_surface_rms_mm": icp_rms,
     }
     images = {n: data_dir / f"{n}.jpg" for n in names}
-    return out, {"grid": grid, "views": dict(zip(names, views)), "stereo": stereo,
-                 "images": images}
+    return out, {"grid": grid, "views": dict(zip(names, views)), "stereo": stereo, "images": images}
 
 
 def _write_atomic(path: Path, write) -> None:
@@ -191,14 +207,24 @@ def make_figure(artefacts: dict, path: Path, scale: float = 0.25) -> None:
         res = view.labelling.calibration.residuals
         ax = axes[1, col]
         full = view.dots.centers[lab]
-        q = ax.quiver(full[:, 0], full[:, 1], res[:, 0], res[:, 1], angles="xy",
-                      scale_units="xy", scale=1 / 200.0, width=0.003)
+        q = ax.quiver(
+            full[:, 0],
+            full[:, 1],
+            res[:, 0],
+            res[:, 1],
+            angles="xy",
+            scale_units="xy",
+            scale=1 / 200.0,
+            width=0.003,
+        )
         ax.quiverkey(q, 0.7, 0.06, 1.0, "1 px (drawn x200)", labelpos="E")
         ax.set_xlim(0, view.image_size[0])
         ax.set_ylim(view.image_size[1], 0)
         ax.set_aspect("equal")
-        ax.set_title(f"{name}: reprojection residuals, RMS "
-                     f"{view.labelling.calibration.rms:.2f} px", fontsize=9)
+        ax.set_title(
+            f"{name}: reprojection residuals, RMS {view.labelling.calibration.rms:.2f} px",
+            fontsize=9,
+        )
     stereo = artefacts["stereo"]
     err = np.full(grid.shape[:2], np.nan)
     err[stereo.mask] = np.linalg.norm(stereo.errors, axis=1)
@@ -216,8 +242,9 @@ def make_figure(artefacts: dict, path: Path, scale: float = 0.25) -> None:
         ray = view.camera.center() - X
         n = md.grid_normals(grid)[ij[:, 0], ij[:, 1]]
         ang = np.degrees(np.arccos(np.einsum("nk,nk->n", n, ray) / np.linalg.norm(ray, axis=1)))
-        ax.scatter(ang, np.linalg.norm(view.labelling.calibration.residuals, axis=1), s=6,
-                   label=name)
+        ax.scatter(
+            ang, np.linalg.norm(view.labelling.calibration.residuals, axis=1), s=6, label=name
+        )
     ax.set_xlabel("angle between dot normal and viewing ray [deg]")
     ax.set_ylabel("reprojection residual [px]")
     ax.legend()
@@ -237,32 +264,45 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"real data not found at {data}")
     args.out.mkdir(parents=True, exist_ok=True)
     cv = check_opencv_stereo(data / "opencv-stereo")
-    print(f"opencv-stereo: {cv['pairs_detected']}/{cv['pairs']} pairs detected; RMS left "
-          f"{cv['left_rms_px']:.3f} px, right {cv['right_rms_px']:.3f} px, stereo "
-          f"{cv['stereo_rms_px']:.3f} px")
-    print(f"opencv-stereo: neighbouring corners {cv['neighbour_mean_squares']:.4f} squares "
-          f"apart (RMS deviation {100 * cv['neighbour_rms_dev']:.2f}%, worst pair mean "
-          f"{100 * cv['neighbour_pair_mean_max_dev']:.2f}%, max single "
-          f"{100 * cv['neighbour_max_dev']:.1f}%, {100 * cv['neighbour_frac_over_2pct']:.1f}% "
-          "of distances off by > 2%)")
+    print(
+        f"opencv-stereo: {cv['pairs_detected']}/{cv['pairs']} pairs detected; RMS left "
+        f"{cv['left_rms_px']:.3f} px, right {cv['right_rms_px']:.3f} px, stereo "
+        f"{cv['stereo_rms_px']:.3f} px"
+    )
+    print(
+        f"opencv-stereo: neighbouring corners {cv['neighbour_mean_squares']:.4f} squares "
+        f"apart (RMS deviation {100 * cv['neighbour_rms_dev']:.2f}%, worst pair mean "
+        f"{100 * cv['neighbour_pair_mean_max_dev']:.2f}%, max single "
+        f"{100 * cv['neighbour_max_dev']:.1f}%, {100 * cv['neighbour_frac_over_2pct']:.1f}% "
+        "of distances off by > 2%)"
+    )
     mdr, artefacts = check_multidic(data / "multidic-calibration-object")
     for name in ("201", "202"):
         r = mdr[name]
-        print(f"multidic {name}: {r['visible_labelled_ok']}/{r['visible']} visible dots "
-              f"detected and correctly indexed ({100 * r['visible_frac']:.1f}%); whole dot "
-              f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
-              f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)")
+        print(
+            f"multidic {name}: {r['visible_labelled_ok']}/{r['visible']} visible dots "
+            f"detected and correctly indexed ({100 * r['visible_frac']:.1f}%); whole dot "
+            f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
+            f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)"
+        )
     s = mdr["stereo"]
-    print(f"multidic stereo: {s['n_dots']} dots, RMS 3D error {s['rms_3d_mm']:.4f} mm "
-          f"(max {s['max_3d_mm']:.3f} mm), calibrated and evaluated on the same dots")
-    print(f"multidic hold-out: calibrate on one checkerboard half, triangulate the other: "
-          f"RMS 3D error {s['holdout_rms_3d_mm']:.4f} mm over {s['holdout_n']} dots")
-    print(f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
-          f"residual RMS {s['surface_rms_mm']:.4f} mm (max {s['surface_max_mm']:.3f} mm); "
-          f"ICP to the true surface RMS {s['icp_to_true_surface_rms_mm']:.4f} mm")
+    print(
+        f"multidic stereo: {s['n_dots']} dots, RMS 3D error {s['rms_3d_mm']:.4f} mm "
+        f"(max {s['max_3d_mm']:.3f} mm), calibrated and evaluated on the same dots"
+    )
+    print(
+        f"multidic hold-out: calibrate on one checkerboard half, triangulate the other: "
+        f"RMS 3D error {s['holdout_rms_3d_mm']:.4f} mm over {s['holdout_n']} dots"
+    )
+    print(
+        f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
+        f"residual RMS {s['surface_rms_mm']:.4f} mm (max {s['surface_max_mm']:.3f} mm); "
+        f"ICP to the true surface RMS {s['icp_to_true_surface_rms_mm']:.4f} mm"
+    )
     numbers = {"opencv_stereo": cv, "multidic": mdr}
-    _write_atomic(args.out / "realcheck.json",
-                  lambda fh: fh.write(json.dumps(numbers, indent=2).encode()))
+    _write_atomic(
+        args.out / "realcheck.json", lambda fh: fh.write(json.dumps(numbers, indent=2).encode())
+    )
     make_figure(artefacts, args.out / "realcheck.png")
     print(f"wrote {args.out / 'realcheck.json'} and {args.out / 'realcheck.png'}")
     return 0

@@ -70,8 +70,9 @@ class SplineSurface:
         n = np.cross(self.evaluate(uv, 1, 0), self.evaluate(uv, 0, 1))
         return n / np.linalg.norm(n, axis=1, keepdims=True)
 
-    def closest(self, points: np.ndarray, uv0: np.ndarray, iterations: int = 20
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def closest(
+        self, points: np.ndarray, uv0: np.ndarray, iterations: int = 20
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points to ``points`` (n, 3), by Gauss-Newton from ``uv0`` (n, 2).
 
         Returns the parameters (n, 2), clipped to [0, 1], and the surface points (n, 3).
@@ -90,8 +91,9 @@ class SplineSurface:
         return uv, self.evaluate(uv)
 
 
-def fit_surface(points: np.ndarray, uv: np.ndarray, n_control: tuple[int, int] = (8, 6),
-                degree: int = 3) -> SplineSurface:
+def fit_surface(
+    points: np.ndarray, uv: np.ndarray, n_control: tuple[int, int] = (8, 6), degree: int = 3
+) -> SplineSurface:
     """Least-squares tensor-product B-spline surface through scattered points.
 
     Parameters
@@ -132,12 +134,19 @@ def fit_surface(points: np.ndarray, uv: np.ndarray, n_control: tuple[int, int] =
         )
     res = A @ coef - X
     lengths = np.linalg.norm(res, axis=1)
-    return SplineSurface(bu, bv, coef.reshape(n_control[0], n_control[1], 3), res,
-                         float(np.sqrt(np.mean(lengths**2))), float(lengths.max()))
+    return SplineSurface(
+        bu,
+        bv,
+        coef.reshape(n_control[0], n_control[1], 3),
+        res,
+        float(np.sqrt(np.mean(lengths**2))),
+        float(lengths.max()),
+    )
 
 
-def rigid_align(source: np.ndarray, target: np.ndarray, scale: bool = False
-                ) -> tuple[float, np.ndarray, np.ndarray]:
+def rigid_align(
+    source: np.ndarray, target: np.ndarray, scale: bool = False
+) -> tuple[float, np.ndarray, np.ndarray]:
     """Least-squares similarity ``target ~ s R source + t`` (Kabsch / Umeyama 1991).
 
     Parameters
@@ -167,9 +176,13 @@ def rigid_align(source: np.ndarray, target: np.ndarray, scale: bool = False
     return s, R, mq - s * R @ mp
 
 
-def icp_to_surface(points: np.ndarray, surface: SplineSurface, uv0: np.ndarray,
-                   iterations: int = 50, tol: float = 1e-12
-                   ) -> tuple[np.ndarray, np.ndarray, float]:
+def icp_to_surface(
+    points: np.ndarray,
+    surface: SplineSurface,
+    uv0: np.ndarray,
+    iterations: int = 50,
+    tol: float = 1e-12,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Rigidly align a point cloud to a surface (point-to-plane ICP).
 
     Each iteration finds every point's closest surface point ``q``

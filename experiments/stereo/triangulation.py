@@ -135,9 +135,13 @@ def triangulate_linear(cameras: Sequence[Camera], obs: np.ndarray) -> np.ndarray
     return origin + scale * Yh[:, :3] / Yh[:, 3:4]
 
 
-def triangulate(cameras: Sequence[Camera], pixels: Sequence[np.ndarray],
-                sigma: float | None = None, min_ray_angle: float = 1.0,
-                refine: bool = True) -> Triangulation:
+def triangulate(
+    cameras: Sequence[Camera],
+    pixels: Sequence[np.ndarray],
+    sigma: float | None = None,
+    min_ray_angle: float = 1.0,
+    refine: bool = True,
+) -> Triangulation:
     """Triangulate points seen in two or more calibrated views.
 
     Parameters
@@ -186,8 +190,14 @@ def triangulate(cameras: Sequence[Camera], pixels: Sequence[np.ndarray],
     jacs = np.zeros((n, 2 * len(cameras), 3))
     for p in range(n):
         if refine:
-            X[p] = least_squares(_residual, X[p], jac=_jacobian, method="lm",
-                                 args=(cameras, obs[:, p], seen[:, p]), xtol=1e-12).x
+            X[p] = least_squares(
+                _residual,
+                X[p],
+                jac=_jacobian,
+                method="lm",
+                args=(cameras, obs[:, p], seen[:, p]),
+                xtol=1e-12,
+            ).x
         jacs[p] = _jacobian(X[p], cameras, obs[:, p], seen[:, p])
     _check_in_front(cameras, X, seen)
     residuals = np.full(obs.shape, np.nan)
@@ -221,7 +231,7 @@ def _residual(x, cameras, obs, seen):
     out = np.zeros(2 * len(cameras))
     for k, cam in enumerate(cameras):
         if seen[k]:
-            out[2 * k: 2 * k + 2] = cam.project(x[None])[0] - obs[k]
+            out[2 * k : 2 * k + 2] = cam.project(x[None])[0] - obs[k]
     return out
 
 
@@ -229,5 +239,5 @@ def _jacobian(x, cameras, obs, seen):
     out = np.zeros((2 * len(cameras), 3))
     for k, cam in enumerate(cameras):
         if seen[k]:
-            out[2 * k: 2 * k + 2] = cam.project_with_jacobian(x[None])[1][0]
+            out[2 * k : 2 * k + 2] = cam.project_with_jacobian(x[None])[1][0]
     return out
