@@ -19,6 +19,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests
+	$(BIN)/ruff format --check symbolic solvers experiments tests
 	MPLBACKEND=Agg $(BIN)/python -m pytest
 
 slow: $(STAMP)
@@ -29,6 +30,7 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests
+	$(BIN)/ruff format --check symbolic solvers experiments tests
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache

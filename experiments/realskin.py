@@ -49,6 +49,7 @@ from experiments.realskin_scan import (
     with_region,
 )
 from experiments.realskin_stages import LABELS, NULL, ONE_SIDED, StageFit, fit_stage, score_test
+from experiments.realskin_strain import figure as strain_figure
 from experiments.skindata import Rect, SkinCase, dic_noise_mm, load_case
 from symbolic.model import BoundaryConditions
 from symbolic.stiffening import exponential_stiffening, quadratic_stiffening
@@ -331,7 +332,10 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
     }
     summary["heterogeneity"] = _heterogeneity(setup, found, stages)
     summary["variants"] = _variants(name, settings, stages, found, log)
-    summary["figures"] = [p.name for p in case_figures(out, name, setup, stages, found)]
+    paths = case_figures(out, name, setup, stages, found)
+    strain_path = out / f"strain_{name}.png"
+    strain_figure(setup.case, [f for f in setup.data.frames if f is not None], strain_path)
+    summary["figures"] = [p.name for p in [*paths, strain_path]]
     setup.model = base_model
     summary["seconds"] = time.perf_counter() - begin
     first, last = stages[0], stages[-1]

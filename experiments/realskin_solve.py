@@ -305,9 +305,7 @@ class PlanarNestedSolver:
         residuals, jacobians, results = [], [], []
         for k, case in enumerate(problem.cases):
             try:
-                result = self.forward.solve(
-                    case.force, x, case.prescribed, self.memory[k], case.label
-                )
+                result = self._solve_case(case, x, self.memory[k])
             except EquilibriumError:  # trf shrinks its trust region on a non-finite residual
                 nan = np.full(problem.n_residuals, np.nan)
                 return nan, np.full((nan.size, len(x)), np.nan)
@@ -319,6 +317,16 @@ class PlanarNestedSolver:
         self.memory = results
         self._cache = (np.array(z), r, jac)
         return r, jac
+
+    def _solve_case(self, case: LoadCase, x: np.ndarray, previous: ForwardState | None):
+        """Equilibrium of one case, predicted from ``previous``; if Newton fails from that
+        prediction (a long step of a stiffening model), once more from the rest state."""
+        try:
+            return self.forward.solve(case.force, x, case.prescribed, previous, case.label)
+        except EquilibriumError:
+            if previous is None:
+                raise
+            return self.forward.solve(case.force, x, case.prescribed, None, case.label)
 
     def solve(self, start: np.ndarray | None = None) -> NestedFit:
         """Fit from ``start`` (natural units; default the space's start values)."""

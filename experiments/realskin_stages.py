@@ -61,7 +61,8 @@ def standard_errors(solver: PlanarNestedSolver, x: np.ndarray) -> tuple[np.ndarr
     Returns
     -------
     std : numpy.ndarray
-        Standard error of every parameter (natural units; NaN if S is rank deficient).
+        Standard error of every parameter (natural units; NaN if S is rank deficient or
+        not finite).
     sigma : float
         The residual scale [mm]. It contains the model error, and neighbouring DIC
         residuals are correlated, so these errors are lower bounds.
@@ -71,6 +72,8 @@ def standard_errors(solver: PlanarNestedSolver, x: np.ndarray) -> tuple[np.ndarr
     r, jac_z = solver.evaluate(z)
     sigma = float(np.sqrt(r @ r / max(r.size - len(x), 1)))
     scaled = jac_z  # columns d r / d z: relative (log) or scaled sensitivities
+    if not np.all(np.isfinite(scaled)):  # no equilibrium at x: no local information
+        return np.full(len(x), np.nan), sigma
     singular = np.linalg.svd(scaled, compute_uv=False)
     if singular.min() <= 1e-10 * singular.max():
         return np.full(len(x), np.nan), sigma

@@ -7,12 +7,14 @@ exactly the keloid outline of ``geometry.geo`` (``region_indicator``), plus Gaus
 noise. It then goes through ``realskin.close_the_loop`` unchanged (linear fit, score
 tests, rectangle scan; the scan never sees the outline).
 
-Truth: the linear isotropic model (no k0, no Poisson coupling); ratio inside / outside
-as given; alpha_u, alpha_w the linear fit of the *real* keloid data by the twin's own
-model (outline region, ratio fixed), so that forces and displacements have the real
-magnitudes (``base="calibrated"``; ``"homogeneous"`` puts the homogeneous linear fit
-outside, and the forces grow with the ratio). Noise: DIC sigma ``dic_noise_mm(case)``
-on x and y of every point and frame, force sigma ``FORCE_NOISE_N`` per frame.
+Truth: the isotropic model without Poisson coupling, linear (``k0=0``, default) or
+with the exponential stiffening of eq. (1) at a given k0 (``--k0``, e.g. the real fit's
+3.3); ratio inside / outside as given; alpha_u, alpha_w the linear fit of the *real*
+keloid data by the twin's own model (outline region, ratio and k0 fixed), so that
+forces and displacements have the real magnitudes (``base="calibrated"``;
+``"homogeneous"`` puts the homogeneous fit outside, and the forces grow with the ratio).
+Noise: DIC sigma ``dic_noise_mm(case)`` on x and y of every point and frame, force
+sigma ``FORCE_NOISE_N`` per frame.
 
 Run ``python -m experiments.realskin_twin [--ratios 3.5,23] [--seeds 0,1,2]``.
 """
@@ -49,12 +51,17 @@ def _quiet(*_args) -> None:
     return None
 
 
-def truth_model(setup: Setup, ratio: float, settings: RealSkinSettings) -> SkinSlabModel:
+def truth_model(
+    setup: Setup, ratio: float, settings: RealSkinSettings, k0: float = 0.0
+) -> SkinSlabModel:
     """The slab model with a second material of stiffness ratio ``ratio`` [1] inside the
-    keloid outline (smoothed over ``settings.smoothing_mm``)."""
+    keloid outline (smoothed over ``settings.smoothing_mm``) and stiffening ``k0`` [1]."""
     geometry = setup.case.geometry
     chi = region_indicator(geometry.region, geometry.keloid, settings.smoothing_mm)
-    return dataclasses.replace(setup.model, region=chi, region_ratio=float(ratio), _fast={})
+    parameters = {**setup.model.parameters, "k0": float(k0)}
+    return dataclasses.replace(
+        setup.model, parameters=parameters, region=chi, region_ratio=float(ratio), _fast={}
+    )
 
 
 def base_parameters(
@@ -140,6 +147,7 @@ def run_twin(
     base: str = "calibrated",
     log=_quiet,
     real: Setup | None = None,
+    k0: float = 0.0,
 ) -> dict:
     """Build one twin and put it through ``close_the_loop``.
 
@@ -160,7 +168,7 @@ def run_twin(
     begin = time.perf_counter()
     settings = settings or RealSkinSettings()
     real = real if real is not None else build("keloid", settings)
-    truth = truth_model(real, ratio, settings)
+    truth = truth_model(real, ratio, settings, k0)
     params = base_parameters(real, truth, settings, base)
     truth_x = np.array([params["alpha_u"], params["alpha_w"], float(ratio)])
     twin, _ = make_twin(real, truth, truth_x, seed, real.noise_mm, force_noise_n)
@@ -178,7 +186,7 @@ def run_twin(
         "ratio": float(ratio),
         "seed": int(seed),
         "base": base,
-        "truth": dict(zip(TRUTH_NAMES, map(float, truth_x))),
+        "truth": {**dict(zip(TRUTH_NAMES, map(float, truth_x))), "k0": float(k0)},
         "dic_noise_mm": real.noise_mm,
         "force_noise_n": force_noise_n,
         "force_weight_mm_per_N": twin.weight,
@@ -289,14 +297,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ratios", default="3.5,23")
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--force-noise", type=float, default=FORCE_NOISE_N, metavar="N")
+    parser.add_argument("--k0", type=float, default=0.0, help="stiffening of the truth")
     parser.add_argument("--base", choices=("calibrated", "homogeneous"), default="calibrated")
     parser.add_argument("--verbose", action="store_true", help="print the loop's log")
     args = parser.parse_args(argv)
+    settings = RealSkinSettings()
     try:
         ratios = _numbers(args.ratios, float, "--ratios")
         seeds = _numbers(args.seeds, int, "--seeds")
         if not (np.isfinite(args.force_noise) and args.force_noise >= 0):
             raise ValueError(f"--force-noise must be >= 0 N, got {args.force_noise}")
+        if not (np.isfinite(args.k0) and 0 <= args.k0 <= settings.bounds["k0"][1]):
+            raise ValueError(f"--k0 must be in [0, {settings.bounds['k0'][1]:g}], got {args.k0}")
     except ValueError as error:
         print(f"realskin_twin: error: {error}", file=sys.stderr)
         return 2
@@ -305,7 +317,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"realskin_twin: error: keloid data not found at {data}", file=sys.stderr)
         return 2
     runs = []
-    settings = RealSkinSettings()
     real = build("keloid", settings)  # data and model once, for every ratio and seed
     for ratio in ratios:
         for seed in seeds:
@@ -317,12 +328,13 @@ def main(argv: list[str] | None = None) -> int:
                 base=args.base,
                 log=print if args.verbose else _quiet,
                 real=real,
+                k0=args.k0,
             )
             print(line(run), flush=True)
             runs.append(run)
     print(table(runs))
     print(
-        f"truth: linear model, outline region; base {args.base}; DIC noise "
+        f"truth: k0 {args.k0:g}, outline region; base {args.base}; DIC noise "
         f"{runs[0]['dic_noise_mm']:.4f} mm, force noise {args.force_noise:g} N"
     )
     return 0

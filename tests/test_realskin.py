@@ -217,6 +217,28 @@ def _case(model, pads, names, x):
     return case, space, bounds
 
 
+def test_equilibrium_does_not_depend_on_the_warm_start():
+    """A warm start Newton cannot use (here a non-finite previous state: Newton fails
+    from its prediction and restarts from rest) gives the residual and Jacobian of a
+    cold solve."""
+    from experiments.realskin_solve import ForwardState, PlanarNestedSolver
+
+    model, pads = small_model(BoundaryConditions(fix_inner=True))
+    names, x = ("alpha_u", "k0"), np.array([0.01, 3.0])
+    case, space, _ = _case(model, pads, names, x)
+    z = space.to_internal(x)
+    cold = PlanarNestedSolver(PlanarProblem(model, [case], space))
+    r_cold, j_cold = cold.evaluate(z)
+    done = cold.memory[0]
+    warm = PlanarNestedSolver(PlanarProblem(model, [case], space))
+    poisoned = np.full_like(done.state, np.nan)
+    warm.memory = [ForwardState(x, poisoned, np.zeros_like(done.sensitivity), None)]
+    r_warm, j_warm = warm.evaluate(z)
+    assert np.all(np.isfinite(r_cold)) and np.all(np.isfinite(j_cold))
+    np.testing.assert_allclose(r_warm, r_cold, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(j_warm, j_cold, rtol=1e-6, atol=1e-9)
+
+
 def test_scan_cell_columns_equal_the_models_own_sensitivity():
     """The scan's column of one cell equals d(residual)/d(log ratio) of a model whose
     second material is that cell (stiffened springs and Poisson coupling included)."""

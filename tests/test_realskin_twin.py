@@ -10,21 +10,26 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import exit_code_and_stderr
 
 from experiments.realskin_twin import FORCE_NOISE_N, main
 
 
 @pytest.mark.parametrize(
     "argv",
-    [["--ratios", "abc"], ["--ratios", "-1"], ["--seeds", "1.5"], ["--seeds", ""], ["--nope"]],
+    [
+        ["--ratios", "abc"],
+        ["--ratios", "-1"],
+        ["--seeds", "1.5"],
+        ["--seeds", ""],
+        ["--k0", "-1"],
+        ["--k0", "nan"],
+        ["--nope"],
+    ],
 )
 def test_bad_command_line_is_one_line_and_exit_2(argv, capsys):
-    try:
-        code = main(argv)
-    except SystemExit as stop:
-        code = stop.code
+    code, err = exit_code_and_stderr(main, argv, capsys)
     assert code == 2
-    err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
 
 
@@ -65,6 +70,12 @@ def test_keloid_twin_is_consistent(shared_data):
     n_f = noisy.data.force_n.size
     expected = 0.5 * (n_u * real.noise_mm**2 + n_f * (noisy.weight * FORCE_NOISE_N) ** 2)
     assert cost_at(truth, noisy.cases, TRUTH_NAMES, x, settings) == pytest.approx(expected, rel=0.2)
+
+    # a stiffening truth (k0 > 0) is nonlinear and also reproduces its own clean data
+    stiff = truth_model(real, 3.5, settings, k0=3.3)
+    assert not stiff.is_linear(TRUTH_NAMES) and real.model.parameters["k0"] == 0.0
+    _, clean_k0 = make_twin(real, stiff, x, 0, real.noise_mm)
+    assert cost_at(stiff, clean_k0.cases, TRUTH_NAMES, x, settings) < 1e-8 * linear.cost
 
     # one run of the pipeline: well-formed outputs, whatever it localises
     run = run_twin(3.5, 0, settings, real=real)
