@@ -334,7 +334,8 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
     summary["variants"] = _variants(name, settings, stages, found, log)
     paths = case_figures(out, name, setup, stages, found)
     strain_path = out / f"strain_{name}.png"
-    strain_figure(setup.case, [f for f in setup.data.frames if f is not None], strain_path)
+    frames = [f for f in setup.data.frames if f is not None]
+    strain_figure(setup.case, frames, strain_path, pads=setup.pad_rects)
     summary["figures"] = [p.name for p in [*paths, strain_path]]
     setup.model = base_model
     summary["seconds"] = time.perf_counter() - begin

@@ -89,9 +89,10 @@ def table(case: SkinCase, frames, edges=SEGMENTS_MM) -> str:
     return "\n".join(rows)
 
 
-def figure(case: SkinCase, frames, path, window: int = 4) -> None:
+def figure(case: SkinCase, frames, path, window: int = 4, pads=None) -> None:
     """Axial strain along the pull per frame, over ``window`` column spacings (top), and
-    the keloid outline, pads and DIC points (bottom)."""
+    the keloid outline, the pads (``pads``: two ``Rect``, default those of
+    ``geometry.geo``) and the DIC points (bottom)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -110,7 +111,7 @@ def figure(case: SkinCase, frames, path, window: int = 4) -> None:
     if geometry.keloid is not None:
         outline = np.vstack([geometry.keloid, geometry.keloid[:1]])
         bottom.plot(outline[:, 0], outline[:, 1], "r-", lw=1.2, label="keloid outline")
-    for pad in (geometry.pad_moving, geometry.pad_fixed):
+    for pad in pads or (geometry.pad_moving, geometry.pad_fixed):
         bottom.add_patch(plt.Rectangle((pad.x0, pad.y0), pad.width, pad.height, fill=False, ec="k"))
     points = case.dic_reference_mm + case.dic_to_model_mm
     bottom.plot(points[:, 0], points[:, 1], ".", ms=1, color="0.5", label="DIC points")
@@ -143,7 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         edges = SEGMENTS_MM if args.case == "keloid" else np.linspace(42.8, 60.5, 5)
         print(table(case, frames, edges))
         if args.figure:
-            figure(case, frames, args.figure)
+            from experiments.realskin import pad_rects  # the pads the study models
+
+            figure(case, frames, args.figure, pads=pad_rects(case))
     except (OSError, ValueError) as error:
         print(f"realskin_strain: error: {error}", file=sys.stderr)
         return 2
