@@ -17,7 +17,6 @@ Run ``python -m experiments.realskin --out DIR``; see ``docs/realskin.md``.
 
 from __future__ import annotations
 
-import argparse
 import time
 from dataclasses import asdict, astuple, dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.atomic import atomic_write_json, atomic_write_text
+from experiments.cli import OneLineParser
 from experiments.realskin_cases import FrameData, force_weight, frame_data, load_cases
 from experiments.realskin_figures import case_figures, stage_summary
 from experiments.realskin_model import (
@@ -51,6 +51,7 @@ from experiments.realskin_scan import (
 from experiments.realskin_stages import LABELS, NULL, ONE_SIDED, StageFit, fit_stage, score_test
 from experiments.realskin_strain import figure as strain_figure
 from experiments.skindata import Rect, SkinCase, dic_noise_mm, load_case
+from solvers.equilibrium import EquilibriumError
 from symbolic.model import BoundaryConditions
 from symbolic.stiffening import exponential_stiffening, quadratic_stiffening
 
@@ -95,6 +96,18 @@ class RealSkinSettings:
         ...and its predicted cost decrease is at least this fraction of the cost.
     max_effects : int
         At most this many effects are added.
+    candidates : tuple of str
+        The effects the loop may add.
+    starts : dict
+        Start values tried when a parameter is added, e.g. {"k0": (0, 1, 3, 10)}
+        (``--k0-starts``; the lowest cost wins, a start without equilibrium is skipped).
+        Default: none, every parameter starts at its null value. The stiffening fits
+        have local minima (docs/realskin.md, "Sensitivity"); several starts cost one
+        fit each.
+    diagnostics : tuple of str
+        Extensions scored at the final fit but never added.
+    bounds : dict
+        Bounds of every parameter (natural units).
     """
 
     thickness_mm: float = 2.0
@@ -110,6 +123,7 @@ class RealSkinSettings:
     min_gain: float = 0.05
     max_effects: int = 4
     candidates: tuple[str, ...] = ("k0", POISSON, ANISOTROPY, SCAN)
+    starts: dict = field(default_factory=dict)
     diagnostics: tuple[str, ...] = ()
     bounds: dict = field(
         default_factory=lambda: {
@@ -230,6 +244,34 @@ def _score_all(setup: Setup, fit: StageFit, names, settings) -> dict:
     return out
 
 
+def fit_from_starts(
+    setup: Setup, names: tuple, start: dict, settings: RealSkinSettings, label: str, log
+) -> StageFit:
+    """Fit ``names`` from ``start``; a parameter at its null value with several start
+    values (``settings.starts``) is fitted from each in turn, the other parameters
+    starting from the best fit so far (a continuation: with k0 larger, the tensions
+    must be smaller). The lowest cost wins; a start without equilibrium is skipped."""
+    several = [
+        n for n in names if start.get(n) == NULL.get(n) and len(settings.starts.get(n, ())) > 1
+    ]
+    if not several:
+        return fit_stage(setup.model, setup.cases, _space(names, start, settings), label, log)
+    name, best = several[0], None
+    for value in settings.starts[name]:
+        trial = {**(start if best is None else best.as_dict()), name: value}
+        log(f"  start {name} = {value:g}")
+        try:
+            fit = fit_stage(setup.model, setup.cases, _space(names, trial, settings), label, log)
+        except EquilibriumError as error:
+            log(f"  {label}: start skipped ({error})")
+            continue
+        if best is None or fit.cost < best.cost:
+            best = fit
+    if best is None:
+        raise EquilibriumError(f"{label}: no start reached an equilibrium")
+    return best
+
+
 def _score(entry):
     return entry.score if isinstance(entry, ScanResult) else entry
 
@@ -280,9 +322,7 @@ def close_the_loop(setup: Setup, settings: RealSkinSettings, log=print) -> dict:
             log(f"  found region: {found.rect} (direction {found.score.direction:+.0f})")
         names = stage.names + (parameter,)
         start = {**stage.as_dict(), parameter: NULL[parameter]}
-        stage = fit_stage(
-            setup.model, setup.cases, _space(names, start, settings), f"+ {LABELS[best.name]}", log
-        )
+        stage = fit_from_starts(setup, names, start, settings, f"+ {LABELS[best.name]}", log)
         stages.append(stage)
         available.remove(best.name)
     diagnostics = {
@@ -389,10 +429,11 @@ def _variants(name: str, settings: RealSkinSettings, stages: list[StageFit], fou
     out[f"{other}_linear"] = stage_summary(setup, linear)
     if added:
         start = {**linear.as_dict(), **{n: NULL[n] for n in added}}
-        final = fit_stage(
-            setup.model,
-            setup.cases,
-            _space(linear.names + tuple(added), start, variant),
+        final = fit_from_starts(
+            setup,
+            linear.names + tuple(added),
+            start,
+            variant,
             f"{other} boundary, + " + ", ".join(LABELS[n] for n in added),
             log,
         )
@@ -443,15 +484,29 @@ def run(
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: ``python -m experiments.realskin --out DIR [--boundary lateral]``."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="realskin", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("realskin-output"))
     parser.add_argument("--boundary", choices=("inner", "lateral"), default="inner")
     parser.add_argument("--stiffening", choices=tuple(STIFFENING), default="exponential")
     parser.add_argument("--grid", type=int, nargs=2, default=(21, 11), metavar=("M", "N"))
     parser.add_argument("--case", choices=("healthy", "keloid"), action="append")
+    parser.add_argument(
+        "--k0-starts", default="", metavar="LIST", help="start values of k0, e.g. 0,1,3,10"
+    )
     args = parser.parse_args(argv)
+    try:
+        k0_starts = tuple(float(v) for v in args.k0_starts.split(",") if v.strip())
+    except ValueError:
+        k0_starts = (-1.0,)
+    if any(not (0.0 <= v <= 100.0) for v in k0_starts):
+        parser.error(
+            f"--k0-starts takes a comma list of numbers in [0, 100], got {args.k0_starts!r}"
+        )
     settings = RealSkinSettings(
-        boundary=args.boundary, stiffening=args.stiffening, grid=tuple(args.grid)
+        boundary=args.boundary,
+        stiffening=args.stiffening,
+        grid=tuple(args.grid),
+        starts={"k0": k0_starts} if k0_starts else {},
     )
     run(args.out, settings, tuple(args.case or ("healthy", "keloid")))
     return 0

@@ -223,6 +223,42 @@ class ForwardSolver:
             f"{_norm(g) / scale:.1e}); lower the stiffening bound or the load"
         )
 
+    def solve_by_continuation(
+        self,
+        force: np.ndarray,
+        x: np.ndarray,
+        prescribed: np.ndarray,
+        label: str = "",
+        steps: int = 4,
+        halvings: int = 3,
+    ) -> ForwardState:
+        """Equilibrium by load continuation: Newton at t (F_B, d) for t rising from 0 to
+        1 in ``steps`` steps, each started from the last state scaled by the load ratio;
+        a step whose Newton fails is halved (at most ``halvings`` times in a row).
+
+        For a stiffening model far from the last equilibrium, where Newton from rest
+        fails (large pad travel at large k0).
+        """
+        x = np.asarray(x, dtype=float)
+        t, dt, previous, failures = 0.0, 1.0 / steps, None, 0
+        while t < 1.0:
+            target = min(1.0, t + dt)
+            start = None
+            if previous is not None:
+                start = ForwardState(
+                    x, previous.state * (target / t), np.zeros_like(previous.sensitivity), None
+                )
+            try:
+                previous = self.solve(target * force, x, target * prescribed, start, label)
+            except EquilibriumError:
+                failures += 1
+                if failures > halvings:
+                    raise
+                dt *= 0.5
+                continue
+            t, failures = target, 0
+        return previous
+
     def _finish(self, state, args, factor) -> ForwardState:
         """Sensitivity at the solution, by refinement preconditioned with ``factor``."""
         d_s, d_x = self.derivatives(state, *args)
@@ -320,13 +356,20 @@ class PlanarNestedSolver:
 
     def _solve_case(self, case: LoadCase, x: np.ndarray, previous: ForwardState | None):
         """Equilibrium of one case, predicted from ``previous``; if Newton fails from that
-        prediction (a long step of a stiffening model), once more from the rest state."""
+        prediction (a long step of a stiffening model), from the rest state. With no
+        previous state (a fit's first evaluation), a failure from rest is retried by load
+        continuation (``ForwardSolver.solve_by_continuation``); later in a fit a failure
+        is reported (trf then shortens its step), which is much cheaper."""
+        forward, args = self.forward, (case.force, x, case.prescribed)
+        if previous is not None:
+            try:
+                return forward.solve(*args, previous, case.label)
+            except EquilibriumError:
+                return forward.solve(*args, None, case.label)
         try:
-            return self.forward.solve(case.force, x, case.prescribed, previous, case.label)
+            return forward.solve(*args, None, case.label)
         except EquilibriumError:
-            if previous is None:
-                raise
-            return self.forward.solve(case.force, x, case.prescribed, None, case.label)
+            return forward.solve_by_continuation(*args, label=case.label)
 
     def solve(self, start: np.ndarray | None = None) -> NestedFit:
         """Fit from ``start`` (natural units; default the space's start values)."""
@@ -339,6 +382,10 @@ class PlanarNestedSolver:
             max_evaluations=self.max_evaluations,
         )
         r, _ = self.evaluate(z)
+        if not np.all(np.isfinite(r)):
+            raise EquilibriumError(
+                f"no equilibrium at the end of the fit ({status}); try another start"
+            )
         return NestedFit(
             x=space.to_natural(z),
             cost=0.5 * float(r @ r),

@@ -239,6 +239,49 @@ def test_equilibrium_does_not_depend_on_the_warm_start():
     np.testing.assert_allclose(j_warm, j_cold, rtol=1e-6, atol=1e-9)
 
 
+def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch):
+    """``fit_from_starts``: on this small slab the stiffening fit from k0 = 0 stops in a
+    local minimum (k0 -> 0) that the start k0 = 3 avoids; the lowest cost wins; a start
+    without equilibrium is skipped; if every start fails, the error says so."""
+    from types import SimpleNamespace
+
+    import experiments.realskin as realskin
+    from experiments.realskin_model import SkinParameterSpace
+    from solvers.equilibrium import EquilibriumError
+
+    model, pads = small_model(BoundaryConditions(fix_inner=True))
+    names = ("alpha_u", "k0")
+    case, _, bounds = _case(model, pads, names, np.array([0.01, 0.0]))
+    bounds = {**bounds, "alpha_w": (1e-6, 1e3)}
+    setup = SimpleNamespace(model=model, cases=[case])
+    start = {"alpha_u": 0.01, "k0": 0.0}
+    quiet = {"log": lambda *_: None}
+
+    def single(k0):
+        space = SkinParameterSpace.build(names, {**start, "k0": k0}, bounds)
+        return realskin.fit_stage(model, [case], space, "one start", **quiet)
+
+    from_null, from_three = single(0.0), single(3.0)
+    assert from_three.cost < 0.99 * from_null.cost  # a genuine second minimum
+    settings = realskin.RealSkinSettings(bounds=bounds, starts={"k0": (0.0, 3.0)})
+    best = realskin.fit_from_starts(setup, names, start, settings, "both", **quiet)
+    assert best.cost == pytest.approx(from_three.cost, rel=1e-9)
+
+    original = realskin.fit_stage
+
+    def failing_at_three(model, cases, space, label, log):
+        if space.start[1] == 3.0:
+            raise EquilibriumError("no equilibrium")
+        return original(model, cases, space, label, log)
+
+    monkeypatch.setattr(realskin, "fit_stage", failing_at_three)
+    skipped = realskin.fit_from_starts(setup, names, start, settings, "skip", **quiet)
+    assert skipped.cost == pytest.approx(from_null.cost, rel=1e-9)
+    only_three = realskin.RealSkinSettings(bounds=bounds, starts={"k0": (3.0, 3.0)})
+    with pytest.raises(EquilibriumError, match="no start"):
+        realskin.fit_from_starts(setup, names, start, only_three, "none", **quiet)
+
+
 def test_scan_cell_columns_equal_the_models_own_sensitivity():
     """The scan's column of one cell equals d(residual)/d(log ratio) of a model whose
     second material is that cell (stiffened springs and Poisson coupling included)."""
@@ -371,3 +414,42 @@ def test_keloid_scan_finds_a_stiff_region_on_the_outline(study):
     overlap = found["overlap"]
     assert overlap["centroid_inside"]
     assert overlap["inside_fraction"] >= 2.0 * overlap["chance"]
+
+
+@pytest.mark.parametrize(
+    "argv", [["--k0-starts", "1,x"], ["--k0-starts", "-1"], ["--grid", "3"], ["--nope"]]
+)
+def test_bad_study_command_line_is_one_line_and_exit_2(argv, capsys):
+    from conftest import exit_code_and_stderr
+
+    from experiments.realskin import main
+
+    code, err = exit_code_and_stderr(main, argv, capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_load_continuation_reaches_the_equilibrium_newton_misses(shared_data):
+    """Healthy skin at the longest force-only travel (8.42 mm) with k0 = 1 and the linear
+    fit's tensions: Newton from rest fails; continuation in the load reaches an
+    equilibrium (residual at Newton's tolerance). Where Newton converges (k0 = 0.25), the
+    two agree."""
+    from experiments.realskin import RealSkinSettings, build
+    from experiments.realskin_solve import ForwardSolver
+    from solvers.equilibrium import EquilibriumError
+
+    setup = build("healthy", RealSkinSettings())
+    case = setup.cases[-1]
+    solver = ForwardSolver(setup.model, ("alpha_u", "alpha_w", "k0"))
+    args = (case.force, np.array([0.01199, 0.06124, 1.0]), case.prescribed)
+    with pytest.raises(EquilibriumError):
+        solver.solve(*args)
+    reached = solver.solve_by_continuation(*args)
+    inputs = (args[1], args[0], args[2])  # g(s, x, F_B, d)
+    g = solver.g(reached.state, *inputs).full().ravel()
+    scale = np.linalg.norm(solver.g(np.zeros_like(reached.state), *inputs).full())
+    assert np.linalg.norm(g) <= 1e-8 * scale
+    easy = (case.force, np.array([0.01199, 0.06124, 0.25]), case.prescribed)
+    np.testing.assert_allclose(
+        solver.solve_by_continuation(*easy).state, solver.solve(*easy).state, rtol=1e-6, atol=1e-9
+    )
