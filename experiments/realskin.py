@@ -251,12 +251,13 @@ def fit_from_starts(
     values (``settings.starts``) is fitted from each in turn, the other parameters
     starting from the best fit so far (a continuation: with k0 larger, the tensions
     must be smaller). The lowest cost wins; a start without equilibrium is skipped."""
-    several = [
-        n for n in names if start.get(n) == NULL.get(n) and len(settings.starts.get(n, ())) > 1
-    ]
-    if not several:
+    name = next(
+        (n for n in names if start.get(n) == NULL.get(n) and len(settings.starts.get(n, ())) > 1),
+        None,
+    )
+    if name is None:
         return fit_stage(setup.model, setup.cases, _space(names, start, settings), label, log)
-    name, best = several[0], None
+    best = None
     for value in settings.starts[name]:
         trial = {**(start if best is None else best.as_dict()), name: value}
         log(f"  start {name} = {value:g}")
@@ -494,13 +495,15 @@ def main(argv: list[str] | None = None) -> int:
         "--k0-starts", default="", metavar="LIST", help="start values of k0, e.g. 0,1,3,10"
     )
     args = parser.parse_args(argv)
+    low, high = RealSkinSettings().bounds["k0"]
     try:
         k0_starts = tuple(float(v) for v in args.k0_starts.split(",") if v.strip())
+        if not all(low <= v <= high for v in k0_starts):
+            raise ValueError
     except ValueError:
-        k0_starts = (-1.0,)
-    if any(not (0.0 <= v <= 100.0) for v in k0_starts):
         parser.error(
-            f"--k0-starts takes a comma list of numbers in [0, 100], got {args.k0_starts!r}"
+            f"--k0-starts takes a comma list of numbers in [{low:g}, {high:g}], "
+            f"got {args.k0_starts!r}"
         )
     settings = RealSkinSettings(
         boundary=args.boundary,

@@ -32,14 +32,11 @@ from experiments.paths import shared_data_dir
 from experiments.realskin import RealSkinSettings, Setup, build, close_the_loop
 from experiments.realskin_cases import force_weight, load_cases
 from experiments.realskin_scan import overlap, scan
+from experiments.realskin_twin import _quiet
 
 CHECKS = ("edges", "slip", "two-sided")
 EDGE_MARGIN_MM = 3.0
 """``edges``: DIC points closer than this to a pad [mm] are dropped (half a knot span)."""
-
-
-def _quiet(*_args) -> None:
-    return None
 
 
 def with_points(setup: Setup, keep: np.ndarray) -> Setup:

@@ -75,9 +75,15 @@ def segment_strain(case: SkinCase, frame: int, edges=SEGMENTS_MM) -> np.ndarray:
     return np.array(out)
 
 
+def quarters(case: SkinCase) -> np.ndarray:
+    """x edges [mm] cutting the DIC's x extent (model frame) into four equal parts."""
+    x = case.dic_reference_mm[:, 0] + case.dic_to_model_mm[0]
+    return np.linspace(x.min(), x.max(), 5)
+
+
 def table(case: SkinCase, frames, edges=SEGMENTS_MM) -> str:
     """Markdown table: mean axial strain per segment and frame, and the pad travel."""
-    head = [f"x {a:g}-{b:g} mm" for a, b in zip(edges[:-1], edges[1:])]
+    head = [f"x {a:.1f}-{b:.1f} mm" for a, b in zip(edges[:-1], edges[1:])]
     rows = [
         "| frame | pad travel [mm] | " + " | ".join(head) + " |",
         "|" + "---|" * (len(head) + 2),
@@ -141,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         case = load_case(args.case)
-        edges = SEGMENTS_MM if args.case == "keloid" else np.linspace(42.8, 60.5, 5)
+        edges = SEGMENTS_MM if args.case == "keloid" else quarters(case)
         print(table(case, frames, edges))
         if args.figure:
             from experiments.realskin import pad_rects  # the pads the study models

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import exit_code_and_stderr
 from test_dataset import make_dataset, malformed_corpus
 
 from experiments.cli import main
@@ -87,11 +88,7 @@ def test_bad_arguments_exit_2_with_one_line(
 ):
     monkeypatch.chdir(tmp_path)
     args = [a.replace("{data}", str(dataset_file)) for a in args]
-    try:
-        code = main(args)
-    except SystemExit as stop:
-        code = stop.code
-    err = capsys.readouterr().err
+    code, err = exit_code_and_stderr(main, args, capsys)
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and fragment in err
     assert not (tmp_path / "x").exists()

@@ -71,6 +71,23 @@ def test_closed_form_jacobian_equals_automatic_differentiation(boundary, names):
     assert np.allclose(d_x.full(), g_x(*args).full(), atol=1e-12)
 
 
+def _marker_case(model, pads, points, offset, pad_mm) -> LoadCase:
+    """A load case observing skin markers at ``points`` [mm] (targets -offset) and the
+    moving pad's x force (-0.05 N), with the moving pad at ``pad_mm``."""
+    rows = model.volume.collocation(model.volume.outer_params(surface_uv(REGION, points)))
+    return LoadCase(
+        force=np.zeros((model.n_free, 3)),
+        rows=rows[:, model.free].tocsr(),
+        offset=offset,
+        weights=np.ones(len(points)),
+        prescribed=pads.displacement(pad_mm),
+        rest_points=rows @ model.rest,
+        force_rows=sp.csr_matrix(model.point_force_rows(pads.moving_index)[:1]),
+        force_target=np.array([-0.05]),
+        force_weight=10.0,
+    )
+
+
 def test_isotropic_tension_and_region_terms():
     model, _ = small_model(BoundaryConditions(True, False))
     values = model.values({"alpha_u": 0.01, REGION_RATIO: 4.0})
@@ -91,18 +108,8 @@ def test_isotropic_tension_and_region_terms():
 def test_planar_problem_sees_x_and_y_but_not_z():
     model, pads = small_model(BoundaryConditions(True, False))
     points = np.array([[45.0, 18.0], [55.0, 22.0]])
-    rows = model.volume.collocation(model.volume.outer_params(surface_uv(REGION, points)))
-    case = LoadCase(
-        force=np.zeros((model.n_free, 3)),
-        rows=rows[:, model.free].tocsr(),
-        offset=np.array([[0.1, -0.2, 5.0], [0.3, 0.0, -7.0]]),
-        weights=np.ones(2),
-        prescribed=pads.displacement([-1.0, 0.0]),
-        rest_points=rows @ model.rest,
-        force_rows=sp.csr_matrix(model.point_force_rows(pads.moving_index)[:1]),
-        force_target=np.array([-0.05]),
-        force_weight=10.0,
-    )
+    offset = np.array([[0.1, -0.2, 5.0], [0.3, 0.0, -7.0]])
+    case = _marker_case(model, pads, points, offset, [-1.0, 0.0])
     problem = PlanarProblem(model, [case], ParameterSpace.create(("alpha_u",)))
     jacobian = problem.case_residual_jacobian(case)
     assert jacobian.shape == (2 * 2 + 1, problem.n_state)
@@ -193,18 +200,8 @@ def test_standard_errors_scale_with_the_residual(shared_data):
 def _case(model, pads, names, x):
     """One synthetic load case and the problem of a model at x (no data needed)."""
     points = np.array([[45.0, 18.0], [55.0, 22.0], [40.0, 25.0], [60.0, 15.0]])
-    rows = model.volume.collocation(model.volume.outer_params(surface_uv(REGION, points)))
-    case = LoadCase(
-        force=np.zeros((model.n_free, 3)),
-        rows=rows[:, model.free].tocsr(),
-        offset=np.array([[0.1, -0.2, 0.0], [0.3, 0.0, 0.0], [0.2, 0.1, 0.0], [0.0, 0.1, 0.0]]),
-        weights=np.ones(4),
-        prescribed=pads.displacement([-1.0, 0.1]),
-        rest_points=rows @ model.rest,
-        force_rows=sp.csr_matrix(model.point_force_rows(pads.moving_index)[:1]),
-        force_target=np.array([-0.05]),
-        force_weight=10.0,
-    )
+    offset = np.array([[0.1, -0.2, 0.0], [0.3, 0.0, 0.0], [0.2, 0.1, 0.0], [0.0, 0.1, 0.0]])
+    case = _marker_case(model, pads, points, offset, [-1.0, 0.1])
     bounds = {
         "alpha_u": (1e-5, 1e3),
         "k0": (0.0, 100.0),
