@@ -26,7 +26,7 @@ slow: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -m slow
 
 bench: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m experiments.bench
+	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
 
 lint: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests

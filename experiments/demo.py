@@ -38,7 +38,7 @@ class Report:
 
 
 def _forward(out: Path, report: Report, log) -> dict:
-    from experiments import forward
+    from experiments.phantom import forward
 
     summary = forward.run(out, force=0.25, log=log)
     report.section(
@@ -60,7 +60,7 @@ to reach a relative residual of {summary["relative_residual"]:.1e}; building the
 
 def _images(out: Path, report: Report, log) -> dict:
     from experiments.dataset import save_dataset
-    from experiments.simulate import SimulationSettings, simulate
+    from experiments.phantom.simulate import SimulationSettings, simulate
     from experiments.stereo.reconstruct import reconstruct
     from experiments.stereo.render import write_synthetic_experiment
     from experiments.stereo.rig import RigSettings
@@ -100,9 +100,9 @@ _STATE: dict = {}
 
 
 def _inverse(out: Path, report: Report, log) -> dict:
-    from experiments import paper
     from experiments.fitting import FitSettings, fit_dataset, write_fit_outputs
-    from experiments.simulate import simulate
+    from experiments.inverse import paper
+    from experiments.phantom.simulate import simulate
 
     dataset = _STATE.get("dataset") or simulate()
     fits = {}
@@ -165,10 +165,10 @@ Table 1 of the paper, next to separate and joint fits on the synthetic data
 
 
 def _compare(out: Path, report: Report, log) -> dict:
-    from experiments import compare
     from experiments.fitting import FitSettings, build_problem
-    from experiments.simulate import simulate
-    from experiments.synthetic import TRUE_PARAMETERS
+    from experiments.inverse import compare
+    from experiments.phantom.forehead import TRUE_PARAMETERS
+    from experiments.phantom.simulate import simulate
 
     problem = build_problem(simulate(), FitSettings(names=compare.ALPHAS))
     rows = compare.compare(
@@ -186,7 +186,7 @@ def _compare(out: Path, report: Report, log) -> dict:
 
 
 def _transient(out: Path, report: Report, log) -> dict:
-    from experiments import transient
+    from experiments.dynamics import transient
 
     summary = transient.run(out / "transient", log=log)
     report.section(
@@ -211,11 +211,12 @@ The transient costs {summary["wall_time_ratio"]:.0f} static solves.
 
 
 def _diagnosis(out: Path, report: Report, log) -> dict:
-    from experiments import diagnose
     from experiments.dataset import save_dataset
+    from experiments.diagnosis import diagnose
+    from experiments.phantom.simulate import simulate_with_effects
 
     hidden = {"rigid_motion": 0.1}
-    dataset = diagnose.simulate_with_effects(hidden, noise_mm=0.02, seed=1)
+    dataset = simulate_with_effects(hidden, noise_mm=0.02, seed=1)
     save_dataset(out / "hidden-effect.npz", dataset)
     document = diagnose.run(out / "hidden-effect.npz", out / "diagnosis", log=log)
     steps = "\n".join(
@@ -279,3 +280,24 @@ def run(out: Path) -> int:
     atomic_write_json(out / "timings.json", {**timings, "total": total})
     print(f"done in {total:.1f} s -> {out / 'report.md'}")
     return 0 if np.isfinite(total) else 1
+
+
+def build_parser(prog: str = "python -m experiments.demo"):
+    """The options of ``dvs demo``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, "The main job: the paper, end to end, on the phantom.")
+    parser.add_argument("--out", type=Path, default=Path("demo-output"), help="output directory")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.demo") -> int:
+    """``dvs demo [--out DIR]``."""
+    from experiments.options import run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+    return run_guarded(prog, lambda: run(args.out))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

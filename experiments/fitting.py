@@ -223,3 +223,65 @@ def fit_dataset(
     result.build_time_s += setup
     report = analyse(problem, result.x)
     return problem, result, report, result_document(problem, result, report, settings)
+
+
+# ------------------------------------------------------------------------ dvs fit
+def build_parser(prog: str = "python -m experiments.fitting"):
+    """The options of ``dvs fit`` (docs/cli.md)."""
+    from pathlib import Path
+
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
+    parser.add_argument("dataset", type=Path, help="dataset v1 (.npz)")
+    parser.add_argument(
+        "--method",
+        choices=("simultaneous", "nested", "paper"),
+        default="simultaneous",
+        help="inverse formulation (docs/inverse.md)",
+    )
+    parser.add_argument("--params", default=",".join(DEFAULT_NAMES), help="comma list")
+    parser.add_argument("--grid", default="9x9x2", help="control grid MxNxL")
+    parser.add_argument(
+        "--objective",
+        choices=("markers", "control_points"),
+        default=None,
+        help="what is compared (default: markers; control_points for --method paper)",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitting") -> int:
+    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input."""
+    from experiments.dataset import load_dataset
+    from experiments.options import parse_grid, parse_names, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        objective = "control_points" if args.method == "paper" else "markers"
+        settings = FitSettings(
+            names=parse_names(args.params),
+            grid=parse_grid(args.grid),
+            objective=args.objective or objective,
+        )
+        dataset = load_dataset(args.dataset)
+        print(
+            f"fitting {args.dataset} ({dataset.n_loads} load cases) with the {args.method} method"
+        )
+        problem, result, report, document = fit_dataset(dataset, settings, args.method)
+        write_fit_outputs(args.out, problem, result, document)
+        for line in report.summary_lines():
+            print("  " + line)
+        print(
+            f"  rms {document['rms_mm'] * 1e3:.2f} um; {result.status}; {result.iterations} "
+            f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
+        )
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

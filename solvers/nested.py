@@ -182,7 +182,7 @@ class PaperNestedSolver:
     DYNAMICS = {"mu": 1e-4, "gamma": 15.0}
 
     def __init__(self, problem: InverseProblem, steady_tol=1e-10, t_max=1e4, max_evaluations=400):
-        from solvers.timestepping import TransientSolver
+        from solvers.transient.stepping import TransientSolver
 
         start = time.perf_counter()
         self.problem = problem

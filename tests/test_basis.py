@@ -98,7 +98,7 @@ def test_fit_reproduces_polynomials_of_the_spline_degree():
 
 def test_fit_error_decreases_with_refinement():
     """A sphere is not polynomial: the fit error falls at about h^4 for cubics."""
-    from experiments.synthetic import PhantomSettings, segmented_surfaces
+    from experiments.phantom.forehead import PhantomSettings, segmented_surfaces
 
     data = segmented_surfaces(PhantomSettings(segmentation=(41, 41)))
     errors = [VolumeSpline.fit(data, (m, m, 2))[1].rms for m in (5, 9, 17)]

@@ -5,7 +5,7 @@ import pytest
 
 pytest.importorskip("dask.distributed")
 
-from experiments.batch import coverage_task, run_batch  # noqa: E402
+from experiments.inverse.batch import coverage_task, run_batch  # noqa: E402
 
 
 def test_local_cluster_results_equal_serial_results():

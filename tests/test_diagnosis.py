@@ -27,23 +27,17 @@ from functools import cache
 import numpy as np
 import pytest
 
-from experiments.diagnose import (
-    BASE_NAMES,
-    DIAGNOSIS_CONTACTS,
-    DIAGNOSIS_TILT_DEG,
-    diagnose_dataset,
-    main,
-    run,
-    simulate_with_effects,
-)
+from experiments.diagnosis.diagnose import BASE_NAMES, diagnose_dataset, main, run
 from experiments.fitting import FitSettings, build_problem, dataset_loads
-from solvers.diagnosis import SCHEMA, DiagnosisSettings
-from solvers.diagnosis_fit import fit
-from solvers.diagnosis_guard import folds
-from solvers.diagnosis_problem import ExtendedProblem, noise_map
-from solvers.diagnosis_report import verdict
-from solvers.diagnosis_stats import log_chi2_sf, log_chi2_sf_series, score_test
-from symbolic.effects import EFFECT_NAMES, make_effect
+from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
+from experiments.phantom.simulate import simulate_with_effects
+from solvers.diagnosis.fit import fit
+from solvers.diagnosis.guard import folds
+from solvers.diagnosis.loop import SCHEMA, DiagnosisSettings
+from solvers.diagnosis.problem import ExtendedProblem, noise_map
+from solvers.diagnosis.report import verdict
+from solvers.diagnosis.stats import log_chi2_sf, log_chi2_sf_series, score_test
+from symbolic.effects.library import EFFECT_NAMES, make_effect
 
 SEED = 1
 FAST = ("rigid_motion", "measurement_scale", "force_direction")
@@ -244,7 +238,7 @@ def test_out_of_library_data_is_not_confidently_misattributed(seed):
     """FE slab (stiff skin on soft fat, point probe): nothing in the library is the
     physics, so the loop must end with an unexplained residual (or add only
     volumetric_coupling, the one correct partial explanation)."""
-    from experiments.outoflibrary import simulate_slab
+    from experiments.diagnosis.outoflibrary import simulate_slab
 
     document = diagnose_dataset(simulate_slab(seed=seed)).document()
     assert document["unexplained"] or set(document["selected"]) <= {"volumetric_coupling"}
@@ -256,7 +250,7 @@ def test_out_of_library_gaussian_probe_with_the_diagnosis_design(seed):
     """FE slab pressed by a 2 mm Gaussian probe at the diagnosis design's ten loads:
     contact_patch and volumetric_coupling are genuinely present (partial
     explanations); anything else must leave the residual unexplained."""
-    from experiments.outoflibrary import SlabSettings, simulate_slab
+    from experiments.diagnosis.outoflibrary import SlabSettings, simulate_slab
 
     settings = SlabSettings(spread=2.0, contacts=DIAGNOSIS_CONTACTS, tilt_deg=DIAGNOSIS_TILT_DEG)
     document = diagnose_dataset(simulate_slab(settings, seed=seed)).document()
@@ -265,7 +259,7 @@ def test_out_of_library_gaussian_probe_with_the_diagnosis_design(seed):
 
 
 def test_out_of_library_one_seed():
-    from experiments.outoflibrary import simulate_slab
+    from experiments.diagnosis.outoflibrary import simulate_slab
 
     document = diagnose_dataset(
         simulate_slab(seed=0), DiagnosisSettings(max_effects=1, max_attempts=2)
@@ -275,7 +269,7 @@ def test_out_of_library_one_seed():
 
 @pytest.mark.slow
 def test_benchmark_prints_the_cost_of_the_score_tests(capsys):
-    from experiments.diagnose import benchmark
+    from experiments.diagnosis.study import benchmark
 
     result = benchmark(repeat=2)
     printed = capsys.readouterr().out
@@ -298,7 +292,7 @@ def test_log_p_value_stays_finite_and_ordered_beyond_underflow(dof):
 
 # --------------------------------------------------------------------- detection limits
 def test_detection_study_stays_inside_each_effects_bounds():
-    from experiments.detection import admissible
+    from experiments.diagnosis.detection import admissible
 
     # heterogeneity's h_u = 0.5 x factor must stay within its bound 0.9
     assert admissible("heterogeneity", 1.5) and not admissible("heterogeneity", 2.0)
@@ -307,7 +301,7 @@ def test_detection_study_stays_inside_each_effects_bounds():
 
 
 def test_detection_criteria_are_the_acceptance_criteria():
-    from experiments.detection import criteria
+    from experiments.diagnosis.detection import criteria
 
     document = {
         "selected": ["bending"],
@@ -322,7 +316,8 @@ def test_detection_criteria_are_the_acceptance_criteria():
 
 
 def test_detection_command_rejects_an_unknown_effect(capsys):
-    from experiments.detection import main as detection_main
+    from experiments.diagnosis.detection import main as detection_main
 
     assert detection_main(["--effects", "gravity"]) == 2
-    assert "unknown effects" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "gravity" in err and err.count("\n") == 1

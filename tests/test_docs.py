@@ -6,14 +6,14 @@ code without a line in docs/formats.md fails here.
 
 from __future__ import annotations
 
-import argparse
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from experiments.cli import build_parser, main
+from experiments.cli import COMMANDS, command_parser, main
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
@@ -46,19 +46,45 @@ def written(tmp_path_factory):
     return root
 
 
+def _sections(text: str) -> dict[str, str]:
+    """'### `dvs NAME`' headings of docs/cli.md -> the text of each section."""
+    parts = text.split("\n### `dvs ")[1:]
+    return {part.split("`", 1)[0].split()[0]: part for part in parts}
+
+
 def test_every_command_and_option_is_in_the_cli_reference():
-    text = (DOCS / "cli.md").read_text()
-    parser = build_parser()
-    (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    """Each command has a section of docs/cli.md that names every option it takes."""
+    sections = _sections((DOCS / "cli.md").read_text())
     missing = []
-    for name, sub in commands.choices.items():
-        if f"dvs {name}" not in text:
-            missing.append(f"dvs {name}")
-        for action in sub._actions:
+    for name in COMMANDS:
+        if name not in sections:
+            missing.append(f"section dvs {name}")
+            continue
+        for action in command_parser(name)._actions:
             for option in action.option_strings:
-                if option.startswith("--") and option != "--help" and option not in text:
+                if option.startswith("--") and option != "--help" and option not in sections[name]:
                     missing.append(f"dvs {name} {option}")
     assert not missing, f"not in docs/cli.md: {missing}"
+
+
+def test_every_script_is_a_dvs_command():
+    """Every module that runs as ``python -m`` is in dvs's table, and so is every
+    ``python -m experiments.X`` that the docs name."""
+    modules = {module for module, _ in COMMANDS.values()}
+    root = DOCS.parent
+    scripts = {
+        ".".join(path.relative_to(root).with_suffix("").parts)
+        for path in (root / "experiments").rglob("*.py")
+        if 'if __name__ == "__main__"' in path.read_text()
+    }
+    assert "experiments.inverse.paper" in scripts  # the scan itself works
+    assert not scripts - modules - {"experiments.cli"}, sorted(scripts - modules)
+    pattern = r"python -m (experiments(?:\.\w+)+)"
+    assert re.findall(pattern, "run python -m experiments.inverse.paper --out x")
+    text = " ".join(path.read_text() for path in DOCS.rglob("*.md"))
+    named = set(re.findall(pattern, text + (root / "README.md").read_text()))
+    named -= {"experiments.realskin"}  # the package runs experiments.realskin.study
+    assert not named - modules, f"scripts without a dvs command: {sorted(named - modules)}"
 
 
 def test_every_dataset_key_is_in_the_format_reference(written):

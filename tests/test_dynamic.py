@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from experiments import dynamic
-from experiments.dynamic import (
+from experiments.dynamics import inverse as dynamic
+from experiments.dynamics.inverse import (
     DYNAMIC_NAMES,
     DYNAMIC_PHANTOM,
     DYNAMIC_TRUTH,
@@ -13,17 +13,17 @@ from experiments.dynamic import (
     truth_trajectories,
 )
 from experiments.fitting import FitSettings, build_problem
-from experiments.simulate import simulate
-from experiments.synthetic import forehead_model, marker_uv, probe_loads
-from solvers.dynamic import DynamicProblem, TimeGrid, trajectory_case
-from solvers.dynamic_identifiability import analyse_dynamic
-from solvers.dynamic_nested import DynamicNestedSolver
-from solvers.dynamic_scheme import TrapezoidalScheme
-from solvers.dynamic_simultaneous import DynamicSimultaneousSolver
+from experiments.phantom.forehead import forehead_model, marker_uv, probe_loads
+from experiments.phantom.simulate import simulate
+from solvers.dynamic.identifiability import analyse_dynamic
+from solvers.dynamic.nested import DynamicNestedSolver
+from solvers.dynamic.problem import DynamicProblem, TimeGrid, trajectory_case
+from solvers.dynamic.scheme import TrapezoidalScheme
+from solvers.dynamic.simultaneous import DynamicSimultaneousSolver
 from solvers.identifiability import analyse
 from solvers.problem import ParameterSpace
 from solvers.simultaneous import IpoptSettings, SimultaneousSolver
-from solvers.timestepping import StepSettings, TransientSolver
+from solvers.transient.stepping import StepSettings, TransientSolver
 
 TRUTH = np.array([DYNAMIC_TRUTH[n] for n in DYNAMIC_NAMES])
 SHORT = 2e-3 * np.arange(1, 11)

@@ -5,21 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.diagnose import (
-    BASE_NAMES,
+from experiments.diagnosis.diagnose import BASE_NAMES
+from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.phantom.simulate import (
+    SimulationSettings,
     parse_effect_specs,
+    simulate,
     simulate_with_effects,
 )
-from experiments.fitting import FitSettings, build_problem, dataset_loads
-from experiments.simulate import SimulationSettings, simulate
-from solvers.diagnosis_fit import fit
-from solvers.diagnosis_problem import ExtendedProblem
-from symbolic.effects import EFFECT_NAMES, effect_library, make_effect
-from symbolic.effects_base import surface_frame, surface_rule
-from symbolic.effects_load import basis_values
-from symbolic.effects_measurement import cayley_rotation
-from symbolic.effects_stiffening import stiffening_force
-from symbolic.effects_stiffness import PreTension, VolumetricCoupling
+from solvers.diagnosis.fit import fit
+from solvers.diagnosis.problem import ExtendedProblem
+from symbolic.effects.base import surface_frame, surface_rule
+from symbolic.effects.library import EFFECT_NAMES, effect_library, make_effect
+from symbolic.effects.load import basis_values
+from symbolic.effects.measurement import cayley_rotation
+from symbolic.effects.stiffening import stiffening_force
+from symbolic.effects.stiffness import PreTension, VolumetricCoupling
 
 DESIGN_NAMES = {
     "nonlinear_stiffening",
@@ -266,7 +267,7 @@ def test_parse_effect_specs():
 
 
 def test_simulation_without_effects_is_simulate():
-    """The same random stream and measurement as experiments.simulate."""
+    """The same random stream and measurement as experiments.phantom.simulate."""
     ours = simulate_with_effects({}, seed=5)
     theirs = simulate(measurement=SimulationSettings(seed=5))
     for key in ("outer_rest", "inner_rest", "forces", "contacts"):

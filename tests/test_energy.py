@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from experiments.synthetic import forehead_model
+from experiments.phantom.forehead import forehead_model
 from symbolic.basis import VolumeBasis
 from symbolic.energy import damping_matrix, mass_matrix, stiffness_terms
 

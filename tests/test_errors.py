@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from experiments.synthetic import PhantomSettings, forehead_model, segmented_surfaces
+from experiments.phantom.forehead import PhantomSettings, forehead_model, segmented_surfaces
 from solvers.equilibrium import EquilibriumSolver, NewtonSettings
 from symbolic.basis import BSplineBasis, VolumeBasis
 from symbolic.loads import PointForce, PrescribedDisplacement, ProbeForce

@@ -5,7 +5,7 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 
 from experiments.export import write_vtu
-from experiments.synthetic import forehead_model, probe_loads
+from experiments.phantom.forehead import forehead_model, probe_loads
 from solvers.equilibrium import EquilibriumSolver
 
 

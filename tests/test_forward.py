@@ -4,7 +4,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from experiments.synthetic import TRUE_PARAMETERS, PhantomSettings, forehead_model, probe_loads
+from experiments.phantom.forehead import (
+    TRUE_PARAMETERS,
+    PhantomSettings,
+    forehead_model,
+    probe_loads,
+)
 from solvers.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings
 from symbolic.loads import PointForce, PrescribedDisplacement, ProbeForce
 from symbolic.model import BoundaryConditions, TissueModel

@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 
 from experiments.fitting import FitSettings, build_problem
-from experiments.simulate import SimulationSettings, simulate
-from experiments.synthetic import (
+from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
     forehead_model,
     marker_uv,
     probe_loads,
 )
+from experiments.phantom.simulate import SimulationSettings, simulate
 from solvers.equilibrium import EquilibriumSolver
 from solvers.identifiability import analyse
 from solvers.nested import NestedSolver

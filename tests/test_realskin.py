@@ -13,19 +13,17 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from experiments.realskin_model import (
-    POISSON,
-    REGION_RATIO,
+from experiments.realskin.geometry import Rect
+from experiments.realskin.model import POISSON, REGION_RATIO, SkinSlabModel
+from experiments.realskin.slab import (
     Pads,
-    SkinSlabModel,
     polygon_distance,
     region_indicator,
     slab_volume,
     surface_uv,
 )
-from experiments.realskin_solve import PlanarProblem
-from experiments.realskin_stages import standard_errors
-from experiments.skindata import Rect
+from experiments.realskin.solve import PlanarProblem
+from experiments.realskin.stages import standard_errors
 from solvers.problem import LoadCase, ParameterSpace
 from symbolic.model import BoundaryConditions
 from symbolic.stiffening import exponential_stiffening
@@ -123,8 +121,9 @@ def test_planar_problem_sees_x_and_y_but_not_z():
 @pytest.fixture(scope="module")
 def healthy_fits(shared_data):
     """Healthy skin fitted with the linear model, then with k0 added."""
-    from experiments.realskin import RealSkinSettings, _space, build
-    from experiments.realskin_stages import fit_stage
+    from experiments.realskin.loop import parameter_space as _space
+    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.stages import fit_stage
 
     settings = RealSkinSettings()
     setup = build("healthy", settings)
@@ -160,8 +159,10 @@ def test_keloid_is_stiffer_than_its_surroundings(shared_data):
     """Keloid, membrane model (lateral ring fixed), the material placed by hand inside
     the outline (``outline_region``, not the study's default): it is stiffer (ratio > 1),
     and adding it is significant (likelihood ratio)."""
-    from experiments.realskin import RealSkinSettings, _space, build, likelihood_ratio
-    from experiments.realskin_stages import fit_stage
+    from experiments.realskin.loop import likelihood_ratio
+    from experiments.realskin.loop import parameter_space as _space
+    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.stages import fit_stage
 
     settings = RealSkinSettings(boundary="lateral", outline_region=True)
     setup = build("keloid", settings)
@@ -182,8 +183,9 @@ def test_keloid_is_stiffer_than_its_surroundings(shared_data):
 
 
 def test_standard_errors_scale_with_the_residual(shared_data):
-    from experiments.realskin import RealSkinSettings, _space, build
-    from experiments.realskin_solve import PlanarNestedSolver
+    from experiments.realskin.loop import parameter_space as _space
+    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.solve import PlanarNestedSolver
 
     settings = RealSkinSettings()
     setup = build("healthy", settings)
@@ -208,7 +210,7 @@ def _case(model, pads, names, x):
         POISSON: (0.0, 20.0),
         REGION_RATIO: (0.1, 100.0),
     }
-    from experiments.realskin_model import SkinParameterSpace
+    from experiments.realskin.model import SkinParameterSpace
 
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
     return case, space, bounds
@@ -218,7 +220,7 @@ def test_equilibrium_does_not_depend_on_the_warm_start():
     """A warm start Newton cannot use (here a non-finite previous state: Newton fails
     from its prediction and restarts from rest) gives the residual and Jacobian of a
     cold solve."""
-    from experiments.realskin_solve import ForwardState, PlanarNestedSolver
+    from experiments.realskin.solve import ForwardState, PlanarNestedSolver
 
     model, pads = small_model(BoundaryConditions(fix_inner=True))
     names, x = ("alpha_u", "k0"), np.array([0.01, 3.0])
@@ -242,8 +244,8 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
     without equilibrium is skipped; if every start fails, the error says so."""
     from types import SimpleNamespace
 
-    import experiments.realskin as realskin
-    from experiments.realskin_model import SkinParameterSpace
+    import experiments.realskin.loop as realskin
+    from experiments.realskin.model import SkinParameterSpace
     from solvers.equilibrium import EquilibriumError
 
     model, pads = small_model(BoundaryConditions(fix_inner=True))
@@ -282,15 +284,15 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
 def test_scan_cell_columns_equal_the_models_own_sensitivity():
     """The scan's column of one cell equals d(residual)/d(log ratio) of a model whose
     second material is that cell (stiffened springs and Poisson coupling included)."""
-    from experiments.realskin_model import SkinParameterSpace
-    from experiments.realskin_scan import (
+    from experiments.realskin.model import SkinParameterSpace
+    from experiments.realskin.scan import (
         CellGrid,
         CellTerms,
         cell_columns,
         rect_indicator,
         with_region,
     )
-    from experiments.realskin_solve import PlanarNestedSolver
+    from experiments.realskin.solve import PlanarNestedSolver
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     model = SkinSlabModel(
@@ -336,7 +338,7 @@ def test_poisson_coupling_contracts_the_skin_across_the_pull():
             isotropic=True,
             poisson=c,
         )
-        from experiments.realskin_solve import ForwardSolver
+        from experiments.realskin.solve import ForwardSolver
 
         result = ForwardSolver(model, ("alpha_u",)).solve(
             np.zeros((model.n_free, 3)), np.array([0.01]), pads.displacement([-2.0, 0.0])
@@ -351,7 +353,7 @@ def test_poisson_coupling_contracts_the_skin_across_the_pull():
 
 
 def test_overlap_of_a_rectangle_with_a_polygon():
-    from experiments.realskin_scan import overlap
+    from experiments.realskin.scan import overlap
 
     inside = overlap(Rect(40.0, 18.0, 50.0, 22.0), STRIP, REGION)
     assert inside["inside_fraction"] == pytest.approx(1.0)
@@ -365,7 +367,7 @@ def test_overlap_of_a_rectangle_with_a_polygon():
 # ------------------------------------------------------------------------ the full study
 @pytest.fixture(scope="module")
 def study(shared_data, tmp_path_factory):
-    from experiments import realskin
+    from experiments.realskin import study as realskin
 
     out = tmp_path_factory.mktemp("realskin")
     return realskin.run(out, log=lambda *_: None), out
@@ -419,7 +421,7 @@ def test_keloid_scan_finds_a_stiff_region_on_the_outline(study):
 def test_bad_study_command_line_is_one_line_and_exit_2(argv, capsys):
     from conftest import exit_code_and_stderr
 
-    from experiments.realskin import main
+    from experiments.realskin.study import main
 
     code, err = exit_code_and_stderr(main, argv, capsys)
     assert code == 2
@@ -431,8 +433,8 @@ def test_load_continuation_reaches_the_equilibrium_newton_misses(shared_data):
     fit's tensions: Newton from rest fails; continuation in the load reaches an
     equilibrium (residual at Newton's tolerance). Where Newton converges (k0 = 0.25), the
     two agree."""
-    from experiments.realskin import RealSkinSettings, build
-    from experiments.realskin_solve import ForwardSolver
+    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.solve import ForwardSolver
     from solvers.equilibrium import EquilibriumError
 
     setup = build("healthy", RealSkinSettings())

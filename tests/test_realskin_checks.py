@@ -1,4 +1,4 @@
-"""The keloid checks (experiments/realskin_checks.py): data variants are built right.
+"""The keloid checks (experiments/realskin/checks.py): data variants are built right.
 
 The checks' outcomes (where the loop puts its region) are measurements reported in
 docs/realskin.md, not asserted here.
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import exit_code_and_stderr
 
-from experiments.realskin_checks import main
+from experiments.realskin.checks import main
 
 
 @pytest.mark.parametrize("argv", [["--check", "nope"], ["--check", ","], ["--bad"]])
@@ -22,14 +22,14 @@ def test_bad_command_line_is_one_line_and_exit_2(argv, capsys):
 
 @pytest.fixture(scope="module")
 def keloid(shared_data):
-    from experiments.realskin import RealSkinSettings, build
+    from experiments.realskin.setup import RealSkinSettings, build
 
     return build("keloid", RealSkinSettings())
 
 
 def test_dropping_points_rebuilds_weight_and_cases(keloid):
-    from experiments.realskin_cases import force_weight
-    from experiments.realskin_checks import near_pads, with_points
+    from experiments.realskin.cases import force_weight
+    from experiments.realskin.checks import near_pads, with_points
 
     near = near_pads(keloid, 3.0)
     x = keloid.data.reference_mm[:, 0]
@@ -45,7 +45,7 @@ def test_dropping_points_rebuilds_weight_and_cases(keloid):
 
 
 def test_fixed_pad_slip_is_prescribed_and_grows_with_the_pull(keloid):
-    from experiments.realskin_checks import fixed_pad_slip
+    from experiments.realskin.checks import fixed_pad_slip
 
     setup, slip = fixed_pad_slip(keloid)
     n = keloid.pads.n_moving

@@ -1,4 +1,4 @@
-"""Model-free axial strain along the pull (experiments/realskin_strain.py)."""
+"""Model-free axial strain along the pull (experiments/realskin/strain.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import exit_code_and_stderr
 
-from experiments.realskin_strain import axial_strain, main
+from experiments.realskin.strain import axial_strain, main
 
 
 @pytest.mark.parametrize("window", [1, 2, 5])
@@ -34,8 +34,8 @@ def test_keloid_strain_is_not_that_of_one_material(shared_data):
     """The measured keloid strip: no strain at rest; under load the segment at the fixed
     pad strains more than 3x the left lobe (0.151 against 0.041 at frame 84), although
     at 0.7 mm of travel the two differ by less than 1.5x (0.017, 0.013)."""
-    from experiments.realskin_strain import segment_strain
-    from experiments.skindata import load_case
+    from experiments.realskin.data import load_case
+    from experiments.realskin.strain import segment_strain
 
     case = load_case("keloid")
     np.testing.assert_allclose(segment_strain(case, 0), 0.0, atol=1e-12)

@@ -1,4 +1,4 @@
-"""The synthetic keloid twin (experiments/realskin_twin.py).
+"""The synthetic keloid twin (experiments/realskin/twin.py).
 
 The slow test builds one twin (ratio 3.5, seed 0) and checks what must hold whatever
 the scan finds: the truth reproduces its own clean data, the homogeneous linear model
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import exit_code_and_stderr
 
-from experiments.realskin_twin import FORCE_NOISE_N, main
+from experiments.realskin.twin import FORCE_NOISE_N, main
 
 
 @pytest.mark.parametrize(
@@ -35,10 +35,10 @@ def test_bad_command_line_is_one_line_and_exit_2(argv, capsys):
 
 @pytest.mark.slow
 def test_keloid_twin_is_consistent(shared_data):
-    from experiments.realskin import RealSkinSettings, build
-    from experiments.realskin_model import SkinParameterSpace
-    from experiments.realskin_stages import fit_stage
-    from experiments.realskin_twin import (
+    from experiments.realskin.model import SkinParameterSpace
+    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.stages import fit_stage
+    from experiments.realskin.twin import (
         TRUTH_NAMES,
         base_parameters,
         cost_at,

@@ -1,18 +1,17 @@
-"""Tests of experiments.skindata: synthetic checks of each rule, then the real data."""
+"""Tests of experiments.realskin.data: synthetic checks of each rule, then the real data."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from experiments.skindata import (
+from experiments.realskin.data import (
     force_at_travel,
-    geometry_from_geo,
     load_case,
-    points_in_polygon,
     spatial_noise_per_frame,
     spurious_points,
 )
+from experiments.realskin.geometry import geometry_from_geo, points_in_polygon
 
 EXPECTED = {  # case: (frames, points, force samples, pad gap [mm], max |F| [N], at ux [mm])
     "healthy": (50, 537, 827, 32.0, 0.31, -8.4),
@@ -203,7 +202,7 @@ def test_spurious_rule_discards_few_points(case):
 
 @pytest.mark.realdata
 def test_noise_is_small_against_displacement(case):
-    from experiments.skindata import dic_noise_mm
+    from experiments.realskin.data import dic_noise_mm
 
     noise = dic_noise_mm(case)
     typical = np.median(np.linalg.norm(case.dic_displacement_mm[-1, ~case.spurious], axis=1))

@@ -31,7 +31,7 @@ from experiments.stereo.rig import RigCalibration, RigSettings
 from experiments.stereo.surface import rigid_align
 from solvers.nested import NestedSolver
 
-TRUE_ALPHA = np.array([2.6, 0.18, 1.7])  # N/mm, experiments.synthetic.TRUE_PARAMETERS
+TRUE_ALPHA = np.array([2.6, 0.18, 1.7])  # N/mm, experiments.phantom.forehead.TRUE_PARAMETERS
 
 
 @pytest.fixture(scope="module")

@@ -5,11 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from experiments.synthetic import TRUE_PARAMETERS, forehead_model, probe_loads
-from solvers.modal import StepResponse, modal_basis, optimal_damping, probe_observation
-from solvers.steadystate import compare_with_equilibrium, run_to_steady_state
-from solvers.sundials import integrate_casadi
-from solvers.timestepping import StepSettings, ramp_load, transient_solver
+from experiments.phantom.forehead import TRUE_PARAMETERS, forehead_model, probe_loads
+from solvers.transient.loads import ramp_load
+from solvers.transient.modal import StepResponse, modal_basis, optimal_damping, probe_observation
+from solvers.transient.steadystate import compare_with_equilibrium, run_to_steady_state
+from solvers.transient.stepping import StepSettings, transient_solver
+from solvers.transient.sundials import integrate_casadi
 
 PAPER_RATIO_MIN = 100.0
 """gamma = 15 is heavily overdamped: it settles more than 100 times slower than gamma*."""
@@ -115,7 +116,7 @@ def test_overrides_reject_stiffness_parameters(linear):
 
 
 def test_experiment_writes_summary_on_the_linear_phantom(tmp_path):
-    from experiments import transient
+    from experiments.dynamics import transient
 
     summary = transient.run(tmp_path, model=forehead_model(), log=lambda line: None)
     written = json.loads((tmp_path / "transient.json").read_text())

@@ -17,7 +17,6 @@ residuals. Both are written atomically (temporary file, then ``os.replace``).
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import tempfile
@@ -253,59 +252,73 @@ def make_figure(artefacts: dict, path: Path, scale: float = 0.25) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command-line entry point; returns the exit status."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
+    """The options of ``dvs realcheck``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--data", type=Path, default=None, help="shared data directory")
-    args = parser.parse_args(argv)
-    data = args.data or shared_data_dir()
-    if not data.is_dir():
-        parser.error(f"real data not found at {data}")
-    args.out.mkdir(parents=True, exist_ok=True)
-    cv = check_opencv_stereo(data / "opencv-stereo")
-    print(
-        f"opencv-stereo: {cv['pairs_detected']}/{cv['pairs']} pairs detected; RMS left "
-        f"{cv['left_rms_px']:.3f} px, right {cv['right_rms_px']:.3f} px, stereo "
-        f"{cv['stereo_rms_px']:.3f} px"
-    )
-    print(
-        f"opencv-stereo: neighbouring corners {cv['neighbour_mean_squares']:.4f} squares "
-        f"apart (RMS deviation {100 * cv['neighbour_rms_dev']:.2f}%, worst pair mean "
-        f"{100 * cv['neighbour_pair_mean_max_dev']:.2f}%, max single "
-        f"{100 * cv['neighbour_max_dev']:.1f}%, {100 * cv['neighbour_frac_over_2pct']:.1f}% "
-        "of distances off by > 2%)"
-    )
-    mdr, artefacts = check_multidic(data / "multidic-calibration-object")
-    for name in ("201", "202"):
-        r = mdr[name]
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.realcheck"):
+    """``dvs realcheck --out DIR``: realcheck.json and realcheck.png."""
+    from experiments.options import UsageError, check_output_dir, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        data = args.data or shared_data_dir()
+        if not data.is_dir():
+            raise UsageError(f"real data not found at {data}; give --data DIR")
+        check_output_dir(args.out)
+        args.out.mkdir(parents=True, exist_ok=True)
+        cv = check_opencv_stereo(data / "opencv-stereo")
         print(
-            f"multidic {name}: {r['visible_labelled_ok']}/{r['visible']} visible dots "
-            f"detected and correctly indexed ({100 * r['visible_frac']:.1f}%); whole dot "
-            f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
-            f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)"
+            f"opencv-stereo: {cv['pairs_detected']}/{cv['pairs']} pairs detected; RMS left "
+            f"{cv['left_rms_px']:.3f} px, right {cv['right_rms_px']:.3f} px, stereo "
+            f"{cv['stereo_rms_px']:.3f} px"
         )
-    s = mdr["stereo"]
-    print(
-        f"multidic stereo: {s['n_dots']} dots, RMS 3D error {s['rms_3d_mm']:.4f} mm "
-        f"(max {s['max_3d_mm']:.3f} mm), calibrated and evaluated on the same dots"
-    )
-    print(
-        f"multidic hold-out: calibrate on one checkerboard half, triangulate the other: "
-        f"RMS 3D error {s['holdout_rms_3d_mm']:.4f} mm over {s['holdout_n']} dots"
-    )
-    print(
-        f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
-        f"residual RMS {s['surface_rms_mm']:.4f} mm (max {s['surface_max_mm']:.3f} mm); "
-        f"ICP to the true surface RMS {s['icp_to_true_surface_rms_mm']:.4f} mm"
-    )
-    numbers = {"opencv_stereo": cv, "multidic": mdr}
-    _write_atomic(
-        args.out / "realcheck.json", lambda fh: fh.write(json.dumps(numbers, indent=2).encode())
-    )
-    make_figure(artefacts, args.out / "realcheck.png")
-    print(f"wrote {args.out / 'realcheck.json'} and {args.out / 'realcheck.png'}")
-    return 0
+        print(
+            f"opencv-stereo: neighbouring corners {cv['neighbour_mean_squares']:.4f} squares "
+            f"apart (RMS deviation {100 * cv['neighbour_rms_dev']:.2f}%, worst pair mean "
+            f"{100 * cv['neighbour_pair_mean_max_dev']:.2f}%, max single "
+            f"{100 * cv['neighbour_max_dev']:.1f}%, {100 * cv['neighbour_frac_over_2pct']:.1f}% "
+            "of distances off by > 2%)"
+        )
+        mdr, artefacts = check_multidic(data / "multidic-calibration-object")
+        for name in ("201", "202"):
+            r = mdr[name]
+            print(
+                f"multidic {name}: {r['visible_labelled_ok']}/{r['visible']} visible dots "
+                f"detected and correctly indexed ({100 * r['visible_frac']:.1f}%); whole dot "
+                f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
+                f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)"
+            )
+        s = mdr["stereo"]
+        print(
+            f"multidic stereo: {s['n_dots']} dots, RMS 3D error {s['rms_3d_mm']:.4f} mm "
+            f"(max {s['max_3d_mm']:.3f} mm), calibrated and evaluated on the same dots"
+        )
+        print(
+            f"multidic hold-out: calibrate on one checkerboard half, triangulate the other: "
+            f"RMS 3D error {s['holdout_rms_3d_mm']:.4f} mm over {s['holdout_n']} dots"
+        )
+        print(
+            f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
+            f"residual RMS {s['surface_rms_mm']:.4f} mm (max {s['surface_max_mm']:.3f} mm); "
+            f"ICP to the true surface RMS {s['icp_to_true_surface_rms_mm']:.4f} mm"
+        )
+        numbers = {"opencv_stereo": cv, "multidic": mdr}
+        _write_atomic(
+            args.out / "realcheck.json", lambda fh: fh.write(json.dumps(numbers, indent=2).encode())
+        )
+        make_figure(artefacts, args.out / "realcheck.png")
+        print(f"wrote {args.out / 'realcheck.json'} and {args.out / 'realcheck.png'}")
+        return 0
+
+    return run_guarded(prog, work)
 
 
 if __name__ == "__main__":

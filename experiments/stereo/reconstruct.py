@@ -1,17 +1,6 @@
 """Images of a multi-camera experiment -> dataset v1 (``python -m experiments.stereo.reconstruct``).
 
-**Folder** (``c`` camera, ``k`` load, ``j`` board pose; all counted from 0):
-``cam{c}_board{j}.png`` (every camera sees every pose), ``cam{c}_rest.png``,
-``cam{c}_load{k}.png`` (probe in view), ``experiment.json`` and, for frame
-``"segmentation"``, ``segmentation.npz`` (``outer``, ``inner``: (U, V, 3) [mm], the skin at
-the markers and the inner surface below them). ``experiment.json``::
-
-    {"schema": "dvs-stereo-experiment/1", "cameras": C, "markers": [U, V],
-     "board": {"pattern": [cols, rows], "square_mm": s, "views": B},
-     "frame": "segmentation" | "camera0", "segmentation": "segmentation.npz",
-     "thickness_mm": h (frame camera0 only),
-     "loads": [{"force_N": [fx, fy, fz], "contact_mm": [x, y, z], "probe_radius_mm": r}]}
-
+The folder's layout and ``experiment.json`` are described in ``experiments.stereo.experiment``.
 Forces and contacts are given in the output frame. The pipeline (calibration, dots with a
 clean surround, grid indexing, guided matching of the loaded dots, triangulation with
 verification) and the frames are described in ``docs/stereo.md``. In short, frame
@@ -23,7 +12,6 @@ frame and offsets the rest grid by ``thickness_mm`` along its inward normal.
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,13 +24,12 @@ from experiments.dataset import Dataset, save_dataset, validate
 
 from .cameras import Camera
 from .dots import detect_dots, to_gray
+from .experiment import read_experiment
 from .lattice import grid_lattice
-from .render import write_synthetic_experiment  # noqa: F401  (re-exported)
-from .rig import BoardTarget, RigCalibration, calibrate_rig
+from .rig import RigCalibration, calibrate_rig
 from .surface import rigid_align
 from .triangulation import triangulate
 
-SCHEMA = "dvs-stereo-experiment/1"
 _AXES = (np.eye(2, dtype=int), np.eye(2, dtype=int)[::-1])
 _PERMUTATIONS = [np.diag(s) @ p for p in _AXES for s in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
 
@@ -76,86 +63,6 @@ class ReconstructSettings:
     reject_factor: float = 6.0
     max_displacement: float = 0.5
     min_ray_angle: float = 1.0
-
-
-@dataclass(frozen=True)
-class Experiment:
-    """An experiment folder, read and checked; lengths in mm, forces in N."""
-
-    folder: Path
-    n_cameras: int
-    shape: tuple[int, int]
-    target: BoardTarget
-    n_boards: int
-    forces: np.ndarray
-    contacts: np.ndarray
-    probe_radius: np.ndarray
-    segmentation: tuple[np.ndarray, np.ndarray] | None
-    thickness_mm: float | None
-
-    def image(self, c: int, name: str, size: tuple[int, int] | None = None) -> np.ndarray:
-        """Grey image ``cam{c}_{name}.png``, checked against the calibrated ``size`` (w, h)."""
-        image = cv2.imread(str(self.folder / f"cam{c}_{name}.png"), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise ValueError(f"{self.folder / f'cam{c}_{name}.png'}: not a readable image")
-        if size is not None and tuple(size) != image.shape[::-1]:
-            raise ValueError(
-                f"cam{c}_{name}.png is {image.shape[1]}x{image.shape[0]} px, but "
-                f"the calibration of camera {c} is for {size[0]}x{size[1]} px"
-            )
-        return image
-
-
-def read_experiment(folder) -> Experiment:
-    """Read ``experiment.json`` and check that every image (and the segmentation) is present.
-
-    Raises
-    ------
-    ValueError
-        For a missing or malformed ``experiment.json``, missing images (all named) or a
-        missing or misshapen segmentation.
-    """
-    folder = Path(folder)
-    path = folder / "experiment.json"
-    if not path.is_file():
-        raise ValueError(f"{folder}: no experiment.json (see experiments.stereo.reconstruct)")
-    try:
-        spec = json.loads(path.read_text())
-        n_cams, (U, V), board = int(spec["cameras"]), spec["markers"], spec["board"]
-        target = BoardTarget(tuple(board["pattern"]), float(board["square_mm"]))
-        loads = [
-            (ld["force_N"], ld["contact_mm"], ld.get("probe_radius_mm", 0)) for ld in spec["loads"]
-        ]
-        forces, contacts, radius = (np.array(v, float) for v in zip(*loads))
-        ok = spec["schema"] == SCHEMA and spec["frame"] in ("segmentation", "camera0")
-        if not (ok and n_cams >= 2 and min(U, V) >= 3 and forces.shape[1:] == (3,)):
-            raise ValueError("need its schema, >= 2 cameras, U, V >= 3, a frame, >= 1 load")
-    except (ValueError, KeyError, TypeError, IndexError) as err:
-        raise ValueError(f"{path}: malformed ({err}); see experiments.stereo.reconstruct") from None
-    views = int(board["views"])
-    names = [
-        "rest",
-        *(f"load{k}" for k in range(len(forces))),
-        *(f"board{j}" for j in range(views)),
-    ]
-    missing = [f"cam{c}_{n}.png" for c in range(n_cams) for n in names]
-    missing = [m for m in missing if not (folder / m).is_file()]
-    if missing:
-        raise ValueError(f"{folder}: missing images {', '.join(missing)}")
-    seg, thickness = None, spec.get("thickness_mm")
-    if spec["frame"] == "segmentation":
-        seg_path = folder / spec.get("segmentation", "segmentation.npz")
-        try:
-            with np.load(seg_path, allow_pickle=False) as data:
-                seg = (np.asarray(data["outer"], float), np.asarray(data["inner"], float))
-        except (OSError, KeyError, ValueError) as err:
-            raise ValueError(f"{seg_path}: no segmentation with outer and inner ({err})") from None
-        if any(a.shape != (U, V, 3) for a in seg):
-            raise ValueError(f"{seg_path}: outer and inner must have shape {(U, V, 3)}")
-    elif not (isinstance(thickness, (int, float)) and thickness > 0):
-        raise ValueError(f"{path}: frame 'camera0' needs thickness_mm > 0")
-    args = (forces, contacts, radius, seg, thickness)
-    return Experiment(folder, n_cams, (U, V), target, views, *args)
 
 
 def detect_markers(image: np.ndarray, ring_spread: float = 0.25) -> np.ndarray:
@@ -454,28 +361,42 @@ def reconstruct(
     )
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m experiments.stereo.reconstruct FOLDER --out FILE.npz``; exit 2 on bad input."""
-    from experiments.cli import OneLineParser  # one-line usage errors, exit code 2
+def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
+    """The options of ``dvs reconstruct``."""
+    from experiments.options import make_parser
 
-    parser = OneLineParser(description="Reconstruct a dataset from stereo images.")
-    parser.add_argument("folder", help="experiment folder (see the module docstring)")
-    parser.add_argument("--out", required=True, help="dataset file to write (.npz)")
-    args = parser.parse_args(argv)
-    try:
-        rec = reconstruct(args.folder, progress=lambda m: print(m, file=sys.stderr))
+    parser = make_parser(prog, "Reconstruct a dataset from the images of an experiment.")
+    parser.add_argument("folder", type=Path, help="experiment folder (docs/stereo.md)")
+    parser.add_argument("--out", type=Path, required=True, help="dataset file to write (.npz)")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.reconstruct"):
+    """``dvs reconstruct FOLDER --out FILE.npz``; exit 2 with one line on bad input."""
+    from experiments.options import UsageError, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        if args.out.suffix != ".npz":
+            raise UsageError(f"--out must name a .npz file, got {args.out}")
+        try:
+            rec = reconstruct(args.folder, progress=lambda m: print(m, file=sys.stderr))
+        except cv2.error as error:
+            raise ValueError(" ".join(str(error).split())) from None
+        args.out.parent.mkdir(parents=True, exist_ok=True)
         save_dataset(args.out, rec.dataset)
-    except (ValueError, OSError, cv2.error) as err:
-        print(f"error: {' '.join(str(err).split())}", file=sys.stderr)
-        return 2
-    seen = rec.views[1:].astype(bool).sum(axis=(1, 2)).tolist()
-    reg = rec.registration_rms_mm
-    print(
-        f"wrote {args.out}: {rec.views.shape[1]} x {rec.views.shape[2]} markers, seen under "
-        f"load {seen}, reprojection RMS {np.round(rec.reprojection_rms_px, 3).tolist()} px"
-        + ("" if reg is None else f", rest markers {reg * 1000:.1f} um RMS from the segmentation")
-    )
-    return 0
+        seen = rec.views[1:].astype(bool).sum(axis=(1, 2)).tolist()
+        reg = rec.registration_rms_mm
+        registration = "" if reg is None else f", rest markers {reg * 1e3:.1f} um from segmentation"
+        print(
+            f"wrote {args.out}: {rec.views.shape[1]} x {rec.views.shape[2]} markers, seen under "
+            f"load {seen}, reprojection RMS {np.round(rec.reprojection_rms_px, 3).tolist()} px"
+            + registration
+        )
+        return 0
+
+    return run_guarded(prog, work)
 
 
 if __name__ == "__main__":

@@ -14,13 +14,12 @@ One :class:`Renderer` per camera (the model is described in ``docs/stereo.md``):
 - then Gaussian blur, noise of variance ``read^2 + gain * signal`` [DN^2] and uint8.
 
 :func:`write_synthetic_experiment` renders a whole experiment folder from the phantom of
-:mod:`experiments.synthetic` (naming in :mod:`.reconstruct`):
+:mod:`experiments.phantom.forehead` (naming in :mod:`.reconstruct`):
 ``python -m experiments.stereo.render FOLDER [--scale 0.5]``.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +28,7 @@ import cv2
 import numpy as np
 
 from experiments.atomic import atomic_save_npz, atomic_write_bytes, atomic_write_text
-from experiments.synthetic import PhantomSettings
+from experiments.phantom.forehead import PhantomSettings
 
 from .cameras import Camera
 from .rig import BoardTarget, PhantomScene, RigSettings, board_poses, default_rig, phantom_scene
@@ -401,19 +400,35 @@ def write_synthetic_experiment(
     return SyntheticExperiment(folder, cameras, scene, target)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m experiments.stereo.render FOLDER [--scale S] [--boards N] [--seed N]``."""
-    parser = argparse.ArgumentParser(description="Render a synthetic forehead experiment.")
-    parser.add_argument("folder")
-    parser.add_argument("--scale", type=float, default=1.0, help="sensor binning (0.5 = half)")
-    parser.add_argument("--boards", type=int, default=12, help="board poses")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    write_synthetic_experiment(
-        args.folder, rig=RigSettings(scale=args.scale), n_boards=args.boards, seed=args.seed
-    )
-    print(f"wrote {args.folder}")
-    return 0
+def build_parser(prog: str = "python -m experiments.stereo.render"):
+    """The options of ``dvs render``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, "Render a synthetic forehead experiment for dvs reconstruct.")
+    parser.add_argument("folder", type=Path, help="experiment folder to write")
+    parser.add_argument("--scale", type=float, default=1.0, help="sensor binning, 0.1-2")
+    parser.add_argument("--boards", type=int, default=12, help="board poses, 3-50")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.render"):
+    """``dvs render FOLDER [--scale S] [--boards N] [--seed N]``."""
+    from experiments.options import UsageError, check_output_dir, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        if not 0.1 <= args.scale <= 2 or not 3 <= args.boards <= 50 or args.seed < 0:
+            raise UsageError("--scale must lie in [0.1, 2], --boards in 3-50 and --seed >= 0")
+        check_output_dir(args.folder, "FOLDER")
+        print(f"rendering {args.boards} board poses and the experiment into {args.folder}")
+        rig = RigSettings(scale=args.scale)
+        write_synthetic_experiment(args.folder, rig=rig, n_boards=args.boards, seed=args.seed)
+        print(f"wrote {args.folder}")
+        return 0
+
+    return run_guarded(prog, work)
 
 
 if __name__ == "__main__":

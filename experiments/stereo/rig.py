@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from experiments.synthetic import (
+from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
     forehead_model,

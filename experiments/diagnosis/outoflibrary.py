@@ -1,0 +1,306 @@
+"""Data from physics the effect library does not contain: a linear-elastic FE slab.
+
+The generator shares nothing with the spline model but the phantom's shape
+and the measurement:
+
+- geometry: the forehead phantom's layer (a 40 x 40 mm patch of a sphere of
+  radius 80 mm, 5 mm thick), meshed by 16 x 16 x 4 trilinear hexahedra;
+- physics: a stiff skin (E = 0.3 MPa, 1.25 mm) on soft fat (E = 0.003 MPa),
+  isotropic linear elasticity with Poisson's ratio 0.45 (2 x 2 x 2 Gauss
+  points), with the inner surface fixed and the lateral faces free; the
+  probe is a Gaussian traction of standard deviation 0.5 mm around the
+  contact (a 1 mm tip: the point force the dataset declares), lumped to the
+  skin nodes;
+- markers: the 9 x 9 skin nodes every second node, measured as
+  ``experiments.phantom.simulate`` does (noise on rest and loaded markers, occlusion,
+  random losses).
+
+The spline model's energy (eq. 18) is anisotropic in parameter space, has no
+layers, no Poisson coupling and no shear between components; the continuum
+has all of these (the stiff skin on soft fat acts as a plate on a foundation
+and spreads the load far). The moduli give a marker displacement RMS of
+0.15 mm under 0.25 N, like the phantom's 0.14 mm.
+
+Run as ``python -m experiments.diagnosis.outoflibrary --out FILE.npz``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from experiments.dataset import Dataset, save_dataset
+from experiments.phantom.simulate import SimulationSettings
+
+
+@dataclass(frozen=True)
+class SlabSettings:
+    """The FE slab (lengths in mm, forces in N, moduli in N/mm^2 = MPa).
+
+    Attributes
+    ----------
+    width, curvature_radius, thickness : float
+        Geometry of the phantom's layer.
+    elements : tuple of int
+        Hexahedra along x, y and through the thickness; x and y counts must be
+        multiples of ``markers - 1``.
+    markers : int
+        Markers per direction (every ``elements / (markers - 1)``-th skin node).
+    young, poisson : float
+        Young's modulus of the fat [N/mm^2] and Poisson's ratio of both layers.
+    skin_young : float
+        Young's modulus of the skin, the outermost ``skin_layers`` element
+        layers [N/mm^2]. The stiff skin on soft fat spreads the probe's load as
+        the phantom's large alpha_u does.
+    skin_layers : int
+        Element layers of skin (1 of 4: 1.25 mm).
+    forces : tuple of float
+        Probe forces along the inward normal at the centre [N].
+    spread : float
+        Standard deviation of the Gaussian traction of the probe [mm].
+    contacts : tuple of (u, v), optional
+        Contact points as fractions of the patch (x = (u - 1/2) width, y likewise);
+        every one is loaded with each force (contact-major order). Default: the
+        centre only (the paper's experiment).
+    tilt_deg : float
+        Forces after the first at a contact lean this far from the normal, away
+        from the patch centre (along x at the centre), as
+        ``experiments.phantom.designs.design_loads`` does for the phantom.
+    """
+
+    width: float = 40.0
+    curvature_radius: float = 80.0
+    thickness: float = 5.0
+    elements: tuple[int, int, int] = (16, 16, 4)
+    markers: int = 9
+    young: float = 0.003
+    poisson: float = 0.45
+    skin_young: float = 0.3
+    skin_layers: int = 1
+    forces: tuple[float, ...] = (0.17, 0.25)
+    spread: float = 0.5
+    contacts: tuple[tuple[float, float], ...] | None = None
+    tilt_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        nx, ny, nz = self.elements
+        if min(self.elements) < 1 or nx % (self.markers - 1) or ny % (self.markers - 1):
+            raise ValueError("elements along x and y must be multiples of markers - 1")
+        if not (0 < self.poisson < 0.5) or self.young <= 0:
+            raise ValueError("need E > 0 and 0 < nu < 0.5")
+
+
+def slab_nodes(settings: SlabSettings) -> np.ndarray:
+    """Node positions, shape (nx+1, ny+1, nz+1, 3) [mm]; layer 0 is the inner surface."""
+    nx, ny, nz = settings.elements
+    half, radius = 0.5 * settings.width, settings.curvature_radius
+    x, y = np.meshgrid(
+        np.linspace(-half, half, nx + 1), np.linspace(-half, half, ny + 1), indexing="ij"
+    )
+    outer = np.stack([x, y, np.sqrt(radius**2 - x**2 - y**2) - radius], axis=-1)
+    center = np.array([0.0, 0.0, -radius])
+    inner = center + (outer - center) * (radius - settings.thickness) / radius
+    t = np.linspace(0.0, 1.0, nz + 1)
+    return inner[:, :, None, :] + t[None, None, :, None] * (outer - inner)[:, :, None, :]
+
+
+def _connectivity(shape: tuple[int, int, int]) -> np.ndarray:
+    """Node indices of every hexahedron, (n_elements, 8), in the usual corner order."""
+    nx, ny, nz = shape
+    index = np.arange((nx + 1) * (ny + 1) * (nz + 1)).reshape(nx + 1, ny + 1, nz + 1)
+    corners = [
+        (0, 0, 0),
+        (1, 0, 0),
+        (1, 1, 0),
+        (0, 1, 0),
+        (0, 0, 1),
+        (1, 0, 1),
+        (1, 1, 1),
+        (0, 1, 1),
+    ]
+    return np.stack(
+        [index[a : a + nx, b : b + ny, c : c + nz].ravel() for a, b, c in corners], axis=1
+    )
+
+
+def _elasticity(young: float, poisson: float) -> np.ndarray:
+    """Isotropic 6 x 6 elasticity matrix (Voigt order xx, yy, zz, yz, xz, xy)."""
+    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
+    mu = young / (2 * (1 + poisson))
+    matrix = np.zeros((6, 6))
+    matrix[:3, :3] = lam
+    matrix[np.arange(3), np.arange(3)] += 2 * mu
+    matrix[np.arange(3, 6), np.arange(3, 6)] = mu
+    return matrix
+
+
+def stiffness(nodes: np.ndarray, elements: np.ndarray, young, poisson: float):
+    """Global stiffness (3 N, 3 N), dof order node-major (x, y, z per node) [N/mm].
+
+    ``young`` is one modulus or one per element [N/mm^2].
+    """
+    signs = np.array(
+        [
+            [-1, -1, -1],
+            [1, -1, -1],
+            [1, 1, -1],
+            [-1, 1, -1],
+            [-1, -1, 1],
+            [1, -1, 1],
+            [1, 1, 1],
+            [-1, 1, 1],
+        ],
+        dtype=float,
+    )
+    g = 1.0 / np.sqrt(3.0)
+    gauss = np.array([[a, b, c] for a in (-g, g) for b in (-g, g) for c in (-g, g)])
+    coords = nodes.reshape(-1, 3)[elements]  # (E, 8, 3)
+    d_matrix = _elasticity(1.0, poisson)
+    moduli = np.broadcast_to(np.asarray(young, dtype=float), (len(elements),))
+    k_e = np.zeros((len(elements), 24, 24))
+    for xi in gauss:
+        # dN/dxi (8, 3) of the trilinear shape functions N = prod (1 + s xi) / 8
+        factors = 1 + signs * xi
+        d_ref = np.stack(
+            [signs[:, k] * np.prod(np.delete(factors, k, axis=1), axis=1) / 8 for k in range(3)],
+            axis=1,
+        )
+        jac = np.einsum("nk,enj->ekj", d_ref, coords)  # (E, 3 ref, 3 phys)
+        det = np.linalg.det(jac)
+        d_phys = np.einsum("ekj,nk->enj", np.linalg.inv(jac), d_ref)  # (E, 8, 3): dN/dx
+        b = np.zeros((len(elements), 6, 24))
+        for a in range(8):
+            dx, dy, dz = d_phys[:, a, 0], d_phys[:, a, 1], d_phys[:, a, 2]
+            col = 3 * a
+            b[:, 0, col], b[:, 1, col + 1], b[:, 2, col + 2] = dx, dy, dz
+            b[:, 3, col + 1], b[:, 3, col + 2] = dz, dy
+            b[:, 4, col], b[:, 4, col + 2] = dz, dx
+            b[:, 5, col], b[:, 5, col + 1] = dy, dx
+        k_e += np.einsum("eki,kl,elj,e->eij", b, d_matrix, b, np.abs(det) * moduli)
+    dofs = (3 * elements[:, :, None] + np.arange(3)[None, None, :]).reshape(len(elements), 24)
+    rows = np.repeat(dofs, 24, axis=1).ravel()
+    cols = np.tile(dofs, (1, 24)).ravel()
+    size = 3 * nodes.reshape(-1, 3).shape[0]
+    return sp.csr_matrix((k_e.ravel(), (rows, cols)), shape=(size, size))
+
+
+def slab_loads(settings: SlabSettings) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(contact point [mm], force vector [N]) of every load case."""
+    radius, center = settings.curvature_radius, np.array([0.0, 0.0, -settings.curvature_radius])
+    loads = []
+    for u, v in settings.contacts or ((0.5, 0.5),):
+        x, y = (u - 0.5) * settings.width, (v - 0.5) * settings.width
+        contact = np.array([x, y, np.sqrt(radius**2 - x**2 - y**2) - radius])
+        normal = (contact - center) / radius
+        away = np.array([x, y, 0.0]) if abs(x) + abs(y) > 1e-9 else np.array([1.0, 0.0, 0.0])
+        away -= (away @ normal) * normal
+        away /= np.linalg.norm(away)
+        angle = np.radians(settings.tilt_deg)
+        for k, size in enumerate(settings.forces):
+            direction = -normal if k == 0 else -np.cos(angle) * normal + np.sin(angle) * away
+            loads.append((contact, size * direction))
+    return loads
+
+
+def solve_slab(settings: SlabSettings) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """Rest nodes (nx+1, ny+1, nz+1, 3), displacements per load case, and the contacts [mm].
+
+    The contacts are (K, 3), one row per load case (``slab_loads``).
+    """
+    nodes = slab_nodes(settings)
+    nx, ny, nz = settings.elements
+    layers = np.broadcast_to(np.arange(nz), (nx, ny, nz)).ravel()
+    young = np.where(layers >= nz - settings.skin_layers, settings.skin_young, settings.young)
+    matrix = stiffness(nodes, _connectivity(settings.elements), young, settings.poisson)
+    fixed = np.zeros(nodes.shape[:3], dtype=bool)
+    fixed[:, :, 0] = True
+    free = np.flatnonzero(np.repeat(~fixed.reshape(-1), 3))
+    factor = spla.splu(matrix[free][:, free].tocsc())
+    skin = nodes[:, :, -1].reshape(-1, 3)
+    skin_index = np.arange(nodes[..., 0].size).reshape(nodes.shape[:3])[:, :, -1].ravel()
+    results, contacts = [], []
+    for contact, force in slab_loads(settings):
+        weights = np.exp(-np.sum((skin - contact) ** 2, axis=1) / (2 * settings.spread**2))
+        weights /= weights.sum()
+        load = np.zeros(nodes.size)
+        for k in range(3):
+            load[3 * skin_index + k] = force[k] * weights
+        displacement = np.zeros(nodes.size)
+        displacement[free] = factor.solve(load[free])
+        results.append(displacement.reshape(nodes.shape))
+        contacts.append(contact)
+    return nodes, results, np.array(contacts)
+
+
+def simulate_slab(
+    settings: SlabSettings | None = None,
+    noise_mm: float = 0.02,
+    seed: int = 0,
+    missing_fraction: float = 0.03,
+) -> Dataset:
+    """A dataset v1 of the FE slab, measured like ``experiments.phantom.simulate``."""
+    from experiments.phantom.simulate import measured_dataset
+
+    settings = settings or SlabSettings()
+    nodes, displacements, contacts = solve_slab(settings)
+    step = settings.elements[0] // (settings.markers - 1)
+    pick = (
+        slice(None, None, step),
+        slice(None, None, settings.elements[1] // (settings.markers - 1)),
+    )
+    rest = nodes[pick][:, :, -1].reshape(-1, 3)
+    inner = nodes[pick][:, :, 0].reshape(-1, 3)
+    positions = [rest + d[pick][:, :, -1].reshape(-1, 3) for d in displacements]
+    forces = np.array([force for _, force in slab_loads(settings)])
+    measurement = SimulationSettings(
+        noise_mm=noise_mm, seed=seed, missing_fraction=missing_fraction
+    )
+    return measured_dataset(
+        rest,
+        inner,
+        positions,
+        forces,
+        contacts,
+        measurement,
+        (settings.markers, settings.markers),
+    )
+
+
+def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
+    """The options of ``dvs outoflibrary``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, __doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True, help="output .npz file")
+    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
+    """``dvs outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
+    from experiments.options import UsageError, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        if args.out.suffix != ".npz":
+            raise UsageError(f"--out must name a .npz file, got {args.out}")
+        if not 0 <= args.noise < np.inf or args.seed < 0:
+            raise UsageError("--noise must be a finite number >= 0 mm and --seed >= 0")
+        print("solving the linear-elastic FE slab under every load", flush=True)
+        dataset = simulate_slab(noise_mm=args.noise, seed=args.seed)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        save_dataset(args.out, dataset)
+        print(f"wrote {args.out}: FE slab, {dataset.n_loads} load cases")
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,212 @@
+"""Simultaneous vs nested exact vs nested paper-faithful, on one problem (``dvs compare``).
+
+For each method: iterations, forward solves, build and solve wall time, final
+cost, parameter error (when the truth is known), and the success rate over a
+multi-start set (log-uniform within the bounds). A start succeeds when the
+method reports convergence and its cost is within 1e-6 (relative) of the best
+cost any method found.
+
+Run ``python -m experiments.inverse.compare --out DIR`` for the default phantom.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from experiments.atomic import atomic_savefig, atomic_write_json, atomic_write_text  # noqa: E402
+from experiments.fitting import FitSettings, build_problem  # noqa: E402
+from solvers.nested import NestedSolver, PaperNestedSolver  # noqa: E402
+from solvers.problem import InverseProblem  # noqa: E402
+from solvers.simultaneous import SimultaneousSolver  # noqa: E402
+
+METHODS = {
+    "simultaneous": SimultaneousSolver,
+    "nested": NestedSolver,
+    "paper": PaperNestedSolver,
+}
+ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
+
+
+def log_uniform_starts(problem: InverseProblem, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` start points, log-uniform within the bounds (natural units)."""
+    rng = np.random.default_rng(seed)
+    lower, upper = problem.space.lower, problem.space.upper
+    return np.exp(rng.uniform(np.log(lower), np.log(upper), (count, len(lower))))
+
+
+def compare(
+    problem: InverseProblem,
+    starts: int = 20,
+    paper_starts: int | None = None,
+    truth: dict | None = None,
+    seed: int = 0,
+    methods=tuple(METHODS),
+    log=print,
+) -> dict:
+    """Run every method from the paper's start and from a multi-start set.
+
+    Parameters
+    ----------
+    problem : InverseProblem
+        The shared problem.
+    starts : int
+        Multi-start points for the simultaneous and nested exact methods.
+    paper_starts : int, optional
+        Multi-start points for the paper-faithful method (default ``starts``);
+        it is about two orders of magnitude slower per start.
+    truth : dict, optional
+        True parameter values, for the parameter error.
+    """
+    points = log_uniform_starts(problem, starts, seed)
+    rows = {}
+    for name in methods:
+        begin = time.perf_counter()
+        solver = METHODS[name](problem)
+        build = time.perf_counter() - begin
+        result = solver.solve()
+        row = {
+            "iterations": result.iterations,
+            "forward_solves": result.forward_solves,
+            "build_time_s": build,
+            "solve_time_s": result.solve_time_s,
+            "cost": result.cost,
+            "estimate": result.as_dict(),
+            "status": result.status,
+        }
+        if truth:
+            row["max_relative_error"] = max(
+                abs(result.as_dict()[n] / truth[n] - 1) for n in problem.names if n in truth
+            )
+        count = starts if name != "paper" or paper_starts is None else paper_starts
+        multi = [solver.solve(point) for point in points[:count]]
+        row["multistart"] = [(r.success, r.cost) for r in multi]
+        row["multistart_time_s"] = sum(r.solve_time_s for r in multi)
+        rows[name] = row
+        log(
+            f"  {name:>12}: cost {result.cost:.6g}, {result.iterations} its, "
+            f"{result.forward_solves} forward solves, build {build:.3f} s, "
+            f"solve {result.solve_time_s:.3f} s, {count} starts in {row['multistart_time_s']:.1f} s"
+        )
+    best = min(
+        min(c for _, c in row["multistart"] + [(True, row["cost"])]) for row in rows.values()
+    )
+    for row in rows.values():
+        hits = [ok and c <= best * (1 + 1e-6) + 1e-15 for ok, c in row["multistart"]]
+        row["success_rate"] = float(np.mean(hits)) if hits else float("nan")
+        row["starts"] = len(hits)
+        del row["multistart"]
+    if "simultaneous" in rows and "paper" in rows:
+        sim, paper = rows["simultaneous"], rows["paper"]
+        total = sim["build_time_s"] + sim["solve_time_s"]
+        rows["speedup_simultaneous_vs_paper"] = (
+            paper["build_time_s"] + paper["solve_time_s"]
+        ) / total
+    return rows
+
+
+def table(rows: dict) -> str:
+    """Markdown table of a comparison."""
+    header = (
+        "| method | iterations | forward solves | build [s] | solve [s] | cost [mm^2] "
+        "| max rel. error | success rate |\n|---|---|---|---|---|---|---|---|\n"
+    )
+    lines = []
+    for name, row in rows.items():
+        if not isinstance(row, dict):
+            continue
+        error = row.get("max_relative_error")
+        lines.append(
+            f"| {name} | {row['iterations']} | {row['forward_solves']} | "
+            f"{row['build_time_s']:.3f} | {row['solve_time_s']:.3f} | {row['cost']:.6g} | "
+            f"{'' if error is None else f'{error:.2e}'} | "
+            f"{row['success_rate']:.0%} of {row['starts']} |"
+        )
+    text = header + "\n".join(lines) + "\n"
+    if "speedup_simultaneous_vs_paper" in rows:
+        text += (
+            f"\nSimultaneous (build + solve) is {rows['speedup_simultaneous_vs_paper']:.0f} times "
+            "faster than the paper-faithful nested method, measured in the same run.\n"
+        )
+    return text
+
+
+def plot(rows: dict, path: Path) -> None:
+    """Wall time (log scale) and success rate per method."""
+    names = [n for n, r in rows.items() if isinstance(r, dict)]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.6))
+    total = [rows[n]["build_time_s"] + rows[n]["solve_time_s"] for n in names]
+    left.bar(names, total, color=["C0", "C1", "C2"][: len(names)])
+    left.set(yscale="log", ylabel="build + solve [s]", title="time from the paper's start")
+    right.bar(names, [100 * rows[n]["success_rate"] for n in names], color="0.5")
+    right.set(ylim=(0, 105), ylabel="converged [%]", title="multi-start success")
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=120)
+    plt.close(fig)
+
+
+def run(dataset, out: Path, starts: int = 20, paper_starts: int = 5, truth=None, log=print):
+    """Compare the methods on a dataset (path or Dataset) and write the outputs."""
+    from experiments.dataset import Dataset, load_dataset
+
+    data = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
+    problem = build_problem(data, FitSettings(names=ALPHAS))
+    log(
+        f"comparing methods on {problem.n_residuals} residuals, {starts} starts "
+        f"({paper_starts} for the paper-faithful method)"
+    )
+    rows = compare(problem, starts, paper_starts, truth, log=log)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "compare.json", rows)
+    atomic_write_text(out / "compare.md", table(rows))
+    plot(rows, out / "compare.png")
+    return rows
+
+
+def build_parser(prog: str = "python -m experiments.inverse.compare"):
+    """The options of ``dvs compare``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, "Simultaneous vs nested vs paper-faithful, multi-start.")
+    parser.add_argument(
+        "dataset", type=Path, nargs="?", default=None, help="dataset v1 (.npz); default: phantom"
+    )
+    parser.add_argument("--starts", type=int, default=20, help="multi-start points")
+    parser.add_argument(
+        "--paper-starts",
+        type=int,
+        default=3,
+        help="multi-start points for the (slow) paper-faithful method",
+    )
+    parser.add_argument("--out", type=Path, default=Path("compare-output"), help="directory")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
+    """``dvs compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
+    from experiments.options import UsageError, run_guarded
+    from experiments.phantom.forehead import TRUE_PARAMETERS
+    from experiments.phantom.simulate import simulate
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        if args.starts < 1 or args.paper_starts < 0:
+            raise UsageError("--starts must be >= 1 and --paper-starts >= 0")
+        dataset = args.dataset or simulate()
+        truth = None if args.dataset else TRUE_PARAMETERS
+        print(table(run(dataset, args.out, args.starts, args.paper_starts, truth)))
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

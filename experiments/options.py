@@ -1,0 +1,137 @@
+"""Command-line plumbing shared by ``dvs`` and every research script.
+
+The contract of every command (docs/cli.md): exit 0 on success; exit 2 with one
+line on stderr for bad input, never a traceback; 130 when interrupted. Each
+command module has ``build_parser(prog)`` and ``main(argv, prog)``; ``run_guarded``
+turns the errors a user can fix into that one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+
+from experiments.dataset import DatasetError
+
+EXIT_BAD_INPUT = 2
+"""Exit code for input the user can fix (an option, a path, a dataset)."""
+
+EXIT_INTERRUPTED = 130
+"""Exit code after Ctrl-C (128 + SIGINT)."""
+
+
+class UsageError(ValueError):
+    """Bad input that a user can fix; printed as one line, exit code 2."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (and exit code 2)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Help that ends each option's line with its default, when it has a useful one."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        empty = action.default in (None, "", False, []) or action.default is argparse.SUPPRESS
+        if action.required or empty or "%(default)" in text or not action.option_strings:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def make_parser(prog: str, description: str) -> OneLineParser:
+    """A one-line-error parser that shows every option's default in ``--help``."""
+    return OneLineParser(prog=prog, description=description, formatter_class=_DefaultsFormatter)
+
+
+def one_line(error: BaseException) -> str:
+    """The first line of an error's message, or its type's name when it has none."""
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
+USER_ERRORS = (UsageError, DatasetError, ValueError, OSError)
+"""Errors that mean bad input (options, paths, files): one line and exit 2."""
+
+
+def run_guarded(prog: str, work: Callable[[], int | None]) -> int:
+    """Run ``work``; bad input gives one line on stderr and exit 2, Ctrl-C exit 130.
+
+    Parameters
+    ----------
+    prog : str
+        Name printed before the message, e.g. "dvs fit".
+    work : callable
+        The command's body; returns an exit code (None means 0).
+    """
+    try:
+        return int(work() or 0)
+    except USER_ERRORS as error:
+        print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def parse_grid(text: str, option: str = "--grid") -> tuple[int, int, int]:
+    """'9x9x2' -> (9, 9, 2): three integers >= 2."""
+    try:
+        grid = tuple(int(part) for part in text.lower().split("x"))
+    except ValueError:
+        grid = ()
+    if len(grid) != 3 or min(grid) < 2:
+        raise UsageError(f"{option} must look like 9x9x2 (three integers >= 2), got {text!r}")
+    return grid
+
+
+def parse_names(text: str, option: str = "--params") -> tuple[str, ...]:
+    """'alpha_u,alpha_v' -> ('alpha_u', 'alpha_v'), checked against the model's names."""
+    from symbolic.model import PARAMETERS
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in PARAMETERS]
+    if not names or unknown:
+        raise UsageError(f"{option} takes a comma list from {', '.join(PARAMETERS)}; got {text!r}")
+    return names
+
+
+def parse_numbers(text: str, option: str, kind=float) -> tuple:
+    """'1,2,3' -> (1, 2, 3) of ``kind``; an empty string gives ()."""
+    try:
+        return tuple(kind(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise UsageError(f"{option} takes a comma list of numbers, got {text!r}") from None
+
+
+def check_output_dir(path, option: str = "--out"):
+    """Check, before any work, that ``path`` can become a writable output directory.
+
+    Nothing is created: the directory is made when the first output is written, so a
+    command that fails on its input leaves nothing behind.
+
+    Raises
+    ------
+    UsageError
+        When ``path`` is empty, an existing file, below a file, or not writable.
+    """
+    import os
+    from pathlib import Path
+
+    if path is None or str(path) == "":
+        raise UsageError(f"{option} needs a directory name")
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{option} {path} is an existing file; name a directory")
+    ancestor = path
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise UsageError(f"{option} {path}: {ancestor} is a file, not a directory")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: {ancestor} is not writable; choose another place")
+    return path

@@ -1,0 +1,5 @@
+"""``python -m experiments.realskin``: the real-skin study (``dvs realskin``)."""
+
+from experiments.realskin.study import main
+
+raise SystemExit(main())

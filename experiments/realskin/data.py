@@ -1,0 +1,418 @@
+"""Loader for the two-pad extensometer measurements of in vivo skin (``skin-extensometer``).
+
+Two 8 x 8 mm pads are glued on the skin; the moving pad travels along -x, the other is
+fixed, a 2D DIC tracks the skin between them and a sensor records the x force at the
+moving pad. Data: ``aflahelouneg/inverse_identification_soft_tissue`` (MIT, (c) 2018
+Danas Sutula), read from ``shared_data_dir()``; see ``docs/realskin-data.md``.
+
+Frames (units mm, N):
+
+* DIC frame: origin at the moving pad's reference point at frame 0, x from the moving
+  to the fixed pad, y in the image plane. All ``.out`` positions use it.
+* Model frame: the gmsh coordinates of ``geometry.geo`` (rectangle [0, 100] x [-5, 45],
+  pads centred on y = 20, symmetric about x = 50). ``x_model = x_dic + dic_to_model_mm``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from experiments.paths import shared_data_dir
+from experiments.realskin.geometry import SkinGeometry, geometry_from_geo, points_in_polygon
+
+CASES = ("healthy", "keloid")
+SPURIOUS_K = 5.0
+"""Threshold of the normalised median test (robust standard deviations)."""
+NEIGHBOUR_RADIUS = 1.5
+"""Neighbourhood radius in median DIC grid spacings (the 8 grid neighbours)."""
+_MAD = 1.4826  # MAD -> standard deviation for Gaussian data
+
+
+# ------------------------------------------------------------------------ force record
+def _pava(values: np.ndarray) -> np.ndarray:
+    """Non-decreasing least-squares fit of a sequence (pool-adjacent-violators)."""
+    means: list[float] = []
+    sizes: list[int] = []
+    for v in values:
+        means.append(float(v))
+        sizes.append(1)
+        while len(means) > 1 and means[-2] > means[-1]:
+            n = sizes[-2] + sizes[-1]
+            means[-2:] = [(means[-2] * sizes[-2] + means[-1] * sizes[-1]) / n]
+            sizes[-2:] = [n]
+    return np.repeat(means, sizes)
+
+
+def force_at_travel(ux_mm: np.ndarray, fx_n: np.ndarray, ux_query_mm: np.ndarray) -> np.ndarray:
+    """Force of the record at given moving-pad displacements.
+
+    Rule: keep only samples whose travel -ux exceeds every earlier sample (drops stalls
+    and reversals), make the force magnitude non-decreasing in travel by isotonic
+    (pool-adjacent-violators) regression, which replaces short relaxation dips by their
+    mean, then interpolate linearly. Queries outside the record's travel give NaN.
+
+    Parameters
+    ----------
+    ux_mm, fx_n : ndarray (N,)
+        The record: pad displacement [mm] (negative, along -x) and x force [N].
+    ux_query_mm : ndarray (Q,)
+        Pad displacements [mm] at which the force is wanted.
+
+    Returns
+    -------
+    ndarray (Q,)
+        Force [N] (negative in tension), NaN outside the record.
+    """
+    travel = -np.asarray(ux_mm, dtype=float)
+    force = np.asarray(fx_n, dtype=float)
+    ahead = travel > np.concatenate(([-np.inf], np.maximum.accumulate(travel)[:-1]))
+    travel, magnitude = travel[ahead], _pava(-force[ahead])
+    return -np.interp(
+        -np.asarray(ux_query_mm, dtype=float), travel, magnitude, left=np.nan, right=np.nan
+    )
+
+
+# -------------------------------------------------------------------- DIC point quality
+def _neighbours(ref: np.ndarray, keep: np.ndarray | None = None) -> list[np.ndarray]:
+    """Indices of each point's neighbours within NEIGHBOUR_RADIUS grid spacings."""
+    keep = np.ones(len(ref), bool) if keep is None else keep
+    tree = cKDTree(ref)
+    spacing = float(np.median(tree.query(ref, k=2)[0][:, 1]))
+    lists = tree.query_ball_point(ref, NEIGHBOUR_RADIUS * spacing)
+    return [np.array([j for j in n if j != i and keep[j]], dtype=int) for i, n in enumerate(lists)]
+
+
+def _detrend(ref: np.ndarray, disp: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``disp`` (F, P, 2) minus its least-squares cubic polynomial in x, y (fitted on
+    ``rows``, per frame and component); other rows become NaN."""
+    x, y = ((ref - ref[rows].mean(0)) / ref[rows].std(0)).T
+    basis = np.stack([x**a * y**b for a in range(4) for b in range(4 - a)], axis=1)
+    flat = disp.transpose(1, 0, 2).reshape(len(ref), -1)
+    coef = np.linalg.lstsq(basis[rows], flat[rows], rcond=None)[0]
+    out = np.where(rows[:, None], flat - basis @ coef, np.nan)
+    return out.reshape(len(ref), *disp.shape[::2]).transpose(1, 0, 2)
+
+
+def spurious_points(ref_mm: np.ndarray, disp_mm: np.ndarray, k: float = SPURIOUS_K) -> np.ndarray:
+    """Spurious DIC points: non-finite values or a failed normalised median test.
+
+    Parameters
+    ----------
+    ref_mm : ndarray (P, 2)
+        Reference positions [mm].
+    disp_mm : ndarray (F, P, 2)
+        Displacements [mm] per frame.
+    k : float
+        Threshold in robust standard deviations.
+
+    Returns
+    -------
+    ndarray (P,) of bool
+        True for a discarded point.
+
+    Notes
+    -----
+    The cubic trend of each frame is removed first (so one-sided neighbourhoods at the
+    border see no large gradient). Then, per frame, point and component, ``r = u - med``
+    with ``med`` the median of the grid neighbours; the point is spurious when
+    ``|r| > k (1.4826 rm + sigma)`` in any frame, ``rm`` being the median of
+    ``|u_j - med|`` over the neighbours (local spread: steep but smooth gradients pass)
+    and ``sigma`` the frame's robust standard deviation of ``r`` (noise floor).
+    Points without neighbours are kept.
+    """
+    ref = np.asarray(ref_mm, dtype=float)
+    disp = np.asarray(disp_mm, dtype=float)
+    bad = ~np.isfinite(disp).all(axis=(0, 2)) | ~np.isfinite(ref).all(axis=1)
+    ref = np.where(bad[:, None], 0.0, ref)
+    disp = _detrend(ref, np.where(np.isfinite(disp), disp, 0.0), ~bad)
+    resid = np.full(disp.shape, np.nan)
+    spread = np.full(disp.shape, np.nan)
+    for i, nbrs in enumerate(_neighbours(ref, ~bad)):
+        if len(nbrs) and not bad[i]:
+            med = np.median(disp[:, nbrs, :], axis=1)
+            resid[:, i] = disp[:, i] - med
+            spread[:, i] = np.median(np.abs(disp[:, nbrs, :] - med[:, None]), axis=1)
+    sigma = np.maximum(_MAD * np.nanmedian(np.abs(resid), axis=1, keepdims=True), 1e-9)
+    with np.errstate(invalid="ignore"):
+        return bad | (np.abs(resid) > k * (_MAD * spread + sigma)).any(axis=(0, 2))
+
+
+def spatial_noise_per_frame(ref_mm: np.ndarray, disp_mm: np.ndarray) -> np.ndarray:
+    """DIC noise per frame from residuals of a local plane fit.
+
+    Parameters
+    ----------
+    ref_mm : ndarray (P, 2)
+        Reference positions [mm] (spurious points already removed).
+    disp_mm : ndarray (F, P, 2)
+        Displacements [mm].
+
+    Returns
+    -------
+    ndarray (F,)
+        Noise standard deviation [mm] of one displacement component, per frame.
+
+    Notes
+    -----
+    Each point is predicted by a least-squares plane through its (>= 3) neighbours; the
+    residual is divided by ``sqrt(1 + ||e0 pinv(A)||^2)`` (the prediction's own variance
+    factor) and the noise is 1.4826 x the median absolute residual over points and both
+    components. Unresolved sub-grid field curvature is counted as noise (upper bound).
+    """
+    disp = np.asarray(disp_mm, dtype=float)
+    resid = np.full(disp.shape, np.nan)
+    for i, nbrs in enumerate(_neighbours(ref_mm)):
+        if len(nbrs) >= 3:
+            weights = np.linalg.pinv(np.c_[np.ones(len(nbrs)), ref_mm[nbrs] - ref_mm[i]])[0]
+            pred = np.einsum("k,fkc->fc", weights, disp[:, nbrs, :])
+            resid[:, i] = (disp[:, i] - pred) / np.sqrt(1.0 + weights @ weights)
+    return _MAD * np.nanmedian(np.abs(resid).reshape(len(disp), -1), axis=1)
+
+
+# ----------------------------------------------------------------------------- the case
+@dataclass
+class SkinCase:
+    """One extensometer measurement. Positions in the DIC frame [mm], forces [N].
+
+    Attributes
+    ----------
+    name : str
+        "healthy" or "keloid".
+    dic_positions_mm : ndarray (F, P, 2)
+        DIC point positions per frame; frame 0 is the reference (a regular grid).
+    pad_moving_mm, pad_fixed_mm : ndarray (F, 2)
+        Reference point of each pad per frame (``xt_pad_mov.out``, ``xt_pad_fix.out``);
+        the moving one starts at (0, 0), so it is also the pad displacement.
+    force_ux_mm, force_fx_n : ndarray (N,)
+        Force record: moving-pad displacement [mm] (negative) and x force [N] (negative).
+    force_at_frame_n : ndarray (F,)
+        Force synchronised to each frame by :func:`force_at_travel`; NaN beyond the record.
+    geometry : SkinGeometry
+        Model-frame geometry from ``geometry.geo``.
+    dic_to_model_mm : ndarray (2,)
+        Offset mapping DIC to model coordinates; see :func:`dic_to_model_offset`.
+    spurious : ndarray (P,) of bool
+        Points discarded by :func:`spurious_points`.
+    """
+
+    name: str
+    dic_positions_mm: np.ndarray
+    pad_moving_mm: np.ndarray
+    pad_fixed_mm: np.ndarray
+    force_ux_mm: np.ndarray
+    force_fx_n: np.ndarray
+    force_at_frame_n: np.ndarray
+    geometry: SkinGeometry
+    dic_to_model_mm: np.ndarray
+    spurious: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return self.dic_positions_mm.shape[0]
+
+    @property
+    def n_points(self) -> int:
+        return self.dic_positions_mm.shape[1]
+
+    @property
+    def dic_reference_mm(self) -> np.ndarray:
+        """Reference positions (P, 2) [mm], DIC frame (= frame 0)."""
+        return self.dic_positions_mm[0]
+
+    @property
+    def dic_displacement_mm(self) -> np.ndarray:
+        """Displacements (F, P, 2) [mm] relative to frame 0."""
+        return self.dic_positions_mm - self.dic_positions_mm[0]
+
+    @property
+    def dic_reference_model_mm(self) -> np.ndarray:
+        """Reference positions (P, 2) [mm] in the model (gmsh) frame."""
+        return self.dic_reference_mm + self.dic_to_model_mm
+
+    @property
+    def pad_displacement_mm(self) -> np.ndarray:
+        """Moving-pad displacement (F, 2) [mm] relative to frame 0."""
+        return self.pad_moving_mm - self.pad_moving_mm[0]
+
+    @property
+    def force_valid(self) -> np.ndarray:
+        """Frames (F,) whose pad displacement lies inside the force record."""
+        return np.isfinite(self.force_at_frame_n)
+
+    def frames_for_fit(self, n: int) -> np.ndarray:
+        """``n`` frame indices with a valid force, spread evenly in pad travel
+        (targets ``s_max i / n``, i = 1..n, nearest frame each); excludes frame 0."""
+        travel = -self.pad_displacement_mm[:, 0]
+        valid = np.flatnonzero(self.force_valid & (np.arange(self.n_frames) > 0))
+        targets = np.linspace(travel[valid].max() / n, travel[valid].max(), n)
+        picked = np.unique(valid[np.abs(travel[valid][None] - targets[:, None]).argmin(1)])
+        if len(picked) != n:
+            raise ValueError(f"only {len(picked)} distinct frames for n={n}; ask for fewer")
+        return picked
+
+    def fit_subset(self, n: int) -> dict:
+        """Arrays for a model fit on ``frames_for_fit(n)``, spurious points removed:
+        ``frames``, ``reference_model_mm`` (P', 2), ``displacement_mm`` (n, P', 2),
+        ``pad_displacement_mm`` (n, 2) and ``force_n`` (n,)."""
+        frames, keep = self.frames_for_fit(n), ~self.spurious
+        return {
+            "frames": frames,
+            "reference_model_mm": self.dic_reference_model_mm[keep],
+            "displacement_mm": self.dic_displacement_mm[frames][:, keep],
+            "pad_displacement_mm": self.pad_displacement_mm[frames],
+            "force_n": self.force_at_frame_n[frames],
+        }
+
+
+def dic_to_model_offset(
+    pad_moving0: np.ndarray, pad_fixed0: np.ndarray, geometry: SkinGeometry
+) -> np.ndarray:
+    """Offset [mm] putting the pads' frame-0 reference points symmetric about the middle
+    of the modelled pads (x) and the moving pad's reference point on its centre line (y)."""
+    pads_mid = 0.5 * (geometry.pad_moving.x1 + geometry.pad_fixed.x0)
+    pad_y = 0.5 * (geometry.pad_moving.y0 + geometry.pad_moving.y1)
+    return np.array([pads_mid - 0.5 * (pad_moving0[0] + pad_fixed0[0]), pad_y - pad_moving0[1]])
+
+
+def dic_noise_mm(case: SkinCase, method: str = "spatial") -> float:
+    """DIC noise estimate [mm] over the non-spurious points.
+
+    ``"spatial"``: median over frames 1..F-1 of :func:`spatial_noise_per_frame`.
+    ``"temporal"``: 1.4826 MAD / sqrt(6) of second differences over frames (temporal
+    jitter; the trajectories in the files are smooth in time, so this is far smaller).
+    """
+    keep = ~case.spurious
+    disp = case.dic_displacement_mm[:, keep]
+    if method == "spatial":
+        return float(np.median(spatial_noise_per_frame(case.dic_reference_mm[keep], disp)[1:]))
+    if method == "temporal":
+        return float(_MAD * np.median(np.abs(np.diff(disp[1:], n=2, axis=0))) / math.sqrt(6))
+    raise ValueError(f"unknown method {method!r}; use 'spatial' or 'temporal'")
+
+
+_FILES = (
+    "displacement/xt_pad_mov.out",
+    "displacement/xt_pad_fix.out",
+    "reactionforce/ux_pad_mov.out",
+    "reactionforce/fx_pad_mov.out",
+    "geometry.geo",
+)
+
+
+def load_case(name: str, root: Path | None = None) -> SkinCase:
+    """Load one extensometer case.
+
+    Parameters
+    ----------
+    name : {"healthy", "keloid"}
+        The case; files are read from ``root/skin-extensometer/<name>``.
+    root : Path, optional
+        Directory of the shared data sets; default ``shared_data_dir()``.
+
+    Returns
+    -------
+    SkinCase
+
+    Raises
+    ------
+    ValueError
+        Unknown name, missing files or inconsistent frame/sample counts.
+    """
+    if name not in CASES:
+        raise ValueError(f"unknown case {name!r}; use one of {', '.join(CASES)}")
+    base = Path(root if root is not None else shared_data_dir()) / "skin-extensometer" / name
+    dic_files = sorted((base / "displacement").glob("xt_dic_*.out"))
+    missing = [f for f in _FILES if not (base / f).is_file()]
+    missing += [] if dic_files else ["displacement/xt_dic_*.out"]
+    if missing:
+        raise ValueError(
+            f"missing {', '.join(missing)} in {base}; set DVS_SHARED_DATA (or pass "
+            "root=) to the directory that holds skin-extensometer/"
+        )
+    if [int(f.stem.rsplit("_", 1)[1]) for f in dic_files] != list(range(len(dic_files))):
+        raise ValueError(f"DIC frames in {base} are not numbered 0..F-1; restore the files")
+    positions = np.stack([np.loadtxt(f, ndmin=2) for f in dic_files])
+    pad_mov, pad_fix, ux, fx = (np.loadtxt(base / f, ndmin=1) for f in _FILES[:4])
+    if not len(pad_mov) == len(pad_fix) == len(positions) or len(ux) != len(fx):
+        raise ValueError(f"pad or force files in {base} do not match the frames; restore them")
+    geometry = geometry_from_geo((base / "geometry.geo").read_text())
+    return SkinCase(
+        name=name,
+        dic_positions_mm=positions,
+        pad_moving_mm=pad_mov,
+        pad_fixed_mm=pad_fix,
+        force_ux_mm=ux,
+        force_fx_n=fx,
+        force_at_frame_n=force_at_travel(ux, fx, pad_mov[:, 0] - pad_mov[0, 0]),
+        geometry=geometry,
+        dic_to_model_mm=dic_to_model_offset(pad_mov[0], pad_fix[0], geometry),
+        spurious=spurious_points(positions[0], positions - positions[0]),
+    )
+
+
+def summary(case: SkinCase) -> str:
+    """A few lines with the numbers quoted in ``docs/realskin-data.md``."""
+    g, ref, keep = case.geometry, case.dic_reference_model_mm, ~case.spurious
+    travel, force = -case.force_ux_mm, -case.force_fx_n
+    i, last = int(np.argmax(force)), np.flatnonzero(case.force_valid)[-1]
+    first = (travel > 0) & (travel <= 0.2 * travel.max())
+    early = np.median(force[first] / travel[first])
+    separation = case.pad_fixed_mm[0, 0] - case.pad_moving_mm[0, 0]
+    noise = spatial_noise_per_frame(case.dic_reference_mm[keep], case.dic_displacement_mm[:, keep])
+    typical = np.median(np.linalg.norm(case.dic_displacement_mm[-1, keep], axis=1))
+    out = [
+        f"{case.name}: {case.n_frames} frames x {case.n_points} points, spurious "
+        f"{case.spurious.sum()} ({100 * case.spurious.mean():.1f} %)",
+        f"  force: {len(force)} samples, max {force[i]:.4f} N at travel {travel[i]:.3f} mm; "
+        f"secant {early:.4f} (first 20 %) -> {force[-1] / travel[-1]:.4f} N/mm (end)",
+        f"  DIC pad travel {-case.pad_displacement_mm[-1, 0]:.3f} mm; frames with force "
+        f"{case.force_valid.sum()}/{case.n_frames} (last: frame {last}, "
+        f"{-case.force_at_frame_n[last]:.4f} N)",
+        f"  noise {np.median(noise[1:]):.4f} mm (median frame), {noise[-1]:.4f} mm (last), "
+        f"jitter {dic_noise_mm(case, 'temporal'):.5f} mm; median |u| last {typical:.3f} mm",
+        f"  pads {g.pad_moving.width:g} x {g.pad_moving.height:g} mm, gap {g.pad_gap_mm:.3f} mm"
+        f" (geo) vs separation {separation:.3f} mm (data)",
+        f"  region {g.region.width:g} x {g.region.height:g} mm; DIC->model offset "
+        f"({case.dic_to_model_mm[0]:.3f}, {case.dic_to_model_mm[1]:.3f}) mm;"
+        f" DIC in model x {ref[:, 0].min():.2f}..{ref[:, 0].max():.2f}, "
+        f"y {ref[:, 1].min():.2f}..{ref[:, 1].max():.2f} mm",
+    ]
+    if g.keloid is not None:
+        inside = 100 * points_in_polygon(ref, g.keloid).mean()
+        out.append(
+            f"  keloid: {len(g.keloid)} vertices, x {g.keloid[:, 0].min():.2f}.."
+            f"{g.keloid[:, 0].max():.2f} mm; {inside:.0f} % of DIC points inside"
+        )
+    return "\n".join(out)
+
+
+def build_parser(prog: str = "python -m experiments.realskin.data"):
+    """The options of ``dvs realskin-data``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(prog, "Summary of the extensometer measurements (docs/realskin-data.md).")
+    parser.add_argument("--case", choices=CASES, action="append", help="repeatable; default both")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.data") -> int:
+    """Print :func:`summary` for the cases (``dvs realskin-data``)."""
+    from experiments.options import run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        for name in args.case or CASES:
+            print(summary(load_case(name)))
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,159 @@
+"""The extensometer's slab: its volume, the glued pads and a second material's region.
+
+Geometry (model frame of ``geometry.geo``, units mm, N):
+
+- the slab covers the modelled rectangle (100 x 50 mm), outer surface (the skin, w = 1)
+  at z = 0, inner surface (w = 0) at z = -thickness; the map from (u, v) to (x, y) is
+  linear, so a material point's (u, v) is its position scaled to the rectangle;
+- each pad is a k x k grid of prescribed skin points covering its 8 x 8 mm square: the
+  fixed pad's displacement is 0, the moving pad's the measured pad displacement;
+- a second material's region is a smoothed indicator chi(x, y) of a polygon (the
+  keloid outline); ``coupling_matrix`` is the in-plane volumetric term (div u)^2.
+
+The model built on them is ``experiments.realskin.model.SkinSlabModel``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from experiments.realskin.geometry import Rect, points_in_polygon
+from symbolic.energy import Field, quadrature
+from symbolic.loads import PrescribedDisplacement
+from symbolic.volume import VolumeSpline
+
+
+def slab_volume(region: Rect, thickness: float, grid: tuple[int, int] = (31, 17)) -> VolumeSpline:
+    """A flat slab over ``region``: bicubic in-plane, linear through the thickness.
+
+    Parameters
+    ----------
+    region : Rect
+        Modelled rectangle in the model frame [mm].
+    thickness : float
+        Slab thickness [mm]; outer surface z = 0, inner z = -thickness.
+    grid : tuple of int
+        Control points (M, N) in u (x) and v (y); L = 2 layers.
+
+    Returns
+    -------
+    VolumeSpline
+        The fitted rest volume (exact: the slab is a trilinear shape).
+    """
+    if thickness <= 0:
+        raise ValueError(f"thickness must be > 0 mm, got {thickness}")
+    m, n = (int(g) for g in grid)
+    x = np.linspace(region.x0, region.x1, 2 * m + 1)
+    y = np.linspace(region.y0, region.y1, 2 * n + 1)
+    points = np.zeros((x.size, y.size, 2, 3))
+    points[..., 0] = x[:, None, None]
+    points[..., 1] = y[None, :, None]
+    points[:, :, 0, 2] = -thickness
+    volume, _ = VolumeSpline.fit(points, (m, n, 2), (3, 3, 1), parameterization="uniform")
+    return volume
+
+
+def surface_uv(region: Rect, points_xy: np.ndarray) -> np.ndarray:
+    """(u, v) on the slab's skin of points (n, 2) [mm] in the model frame."""
+    points_xy = np.atleast_2d(np.asarray(points_xy, dtype=float))
+    uv = np.column_stack(
+        [
+            (points_xy[:, 0] - region.x0) / region.width,
+            (points_xy[:, 1] - region.y0) / region.height,
+        ]
+    )
+    if np.any(uv < -1e-9) or np.any(uv > 1 + 1e-9):
+        raise ValueError("points lie outside the modelled region; enlarge the region")
+    return np.clip(uv, 0.0, 1.0)
+
+
+def pad_points(pad: Rect, per_side: int = 4) -> np.ndarray:
+    """A per_side x per_side grid of points (n, 2) [mm] covering a pad, edges included."""
+    if per_side < 2:
+        raise ValueError(f"per_side must be >= 2, got {per_side}")
+    t = np.linspace(0.0, 1.0, per_side)
+    return np.array([[pad.x0 + a * pad.width, pad.y0 + b * pad.height] for a in t for b in t])
+
+
+@dataclass(frozen=True)
+class Pads:
+    """The prescribed skin points of both pads.
+
+    Attributes
+    ----------
+    prescribed : PrescribedDisplacement
+        All pad points, the moving pad's first.
+    n_moving : int
+        Number of moving-pad points.
+    """
+
+    prescribed: PrescribedDisplacement
+    n_moving: int
+
+    @classmethod
+    def build(cls, region: Rect, moving: Rect, fixed: Rect, per_side: int = 4) -> Pads:
+        """Pads from their rectangles [mm] (model frame)."""
+        points = np.vstack([pad_points(moving, per_side), pad_points(fixed, per_side)])
+        return cls(PrescribedDisplacement(surface_uv(region, points)), per_side**2)
+
+    @property
+    def moving_index(self) -> np.ndarray:
+        """Indices of the moving pad's points in ``prescribed.uv``."""
+        return np.arange(self.n_moving)
+
+    def displacement(self, moving_mm: np.ndarray) -> np.ndarray:
+        """d (m, 3) [mm]: the moving pad's in-plane displacement (2,), the fixed pad 0."""
+        d = np.zeros((len(self.prescribed.uv), 3))
+        d[: self.n_moving, :2] = np.asarray(moving_mm, dtype=float)[:2]
+        return d
+
+
+def polygon_distance(points_xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Signed distance [mm] of points (n, 2) to a closed polygon (V, 2), positive inside."""
+    p = np.asarray(points_xy, dtype=float)[:, None, :]
+    a = polygon[None, :, :]
+    b = np.roll(polygon, -1, axis=0)[None, :, :]
+    edge = b - a
+    t = np.clip(np.sum((p - a) * edge, axis=2) / np.sum(edge**2, axis=2), 0.0, 1.0)
+    nearest = a + t[..., None] * edge
+    distance = np.sqrt(np.min(np.sum((p - nearest) ** 2, axis=2), axis=1))
+    inside = points_in_polygon(np.asarray(points_xy, dtype=float), polygon)
+    return np.where(inside, distance, -distance)
+
+
+def region_indicator(region: Rect, polygon: np.ndarray, smoothing_mm: float = 1.0) -> Field:
+    """chi(u, v, w) = 1/2 (1 + tanh(2 d / smoothing)), d the signed distance to the polygon.
+
+    chi goes from 0.12 to 0.88 over ``smoothing_mm`` across the outline [mm].
+    """
+    polygon = np.asarray(polygon, dtype=float)
+
+    def chi(params: np.ndarray) -> np.ndarray:
+        xy = np.column_stack(
+            [region.x0 + params[:, 0] * region.width, region.y0 + params[:, 1] * region.height]
+        )
+        return 0.5 * (1.0 + np.tanh(2.0 * polygon_distance(xy, polygon) / smoothing_mm))
+
+    return chi
+
+
+def coupling_matrix(
+    basis, lengths: tuple[float, float], weight: Field | None = None, extra_points: int = 0
+) -> sp.csr_matrix:
+    """integral chi D^T D over [0, 1]^3 with D vec(Delta) = du_x/dx + du_y/dy, (3n, 3n).
+
+    D = [J_u / L_x, J_v / L_y, 0] (the map (u, v) -> (x, y) is linear); chi = 1 by
+    default, else a field such as the region's indicator.
+    """
+    points, weights = quadrature(basis, extra_points)
+    if weight is not None:
+        weights = weights * np.asarray(weight(points), dtype=float).reshape(-1)
+    d_x = basis.collocation(points, (1, 0, 0)) / lengths[0]
+    d_y = basis.collocation(points, (0, 1, 0)) / lengths[1]
+    n = d_x.shape[1]
+    d = sp.hstack([d_x, d_y, sp.csr_matrix((len(points), n))]).tocsr()
+    gram = (d.T @ sp.diags(weights) @ d).tocsr()
+    return (0.5 * (gram + gram.T)).tocsr()

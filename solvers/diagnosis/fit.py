@@ -1,0 +1,172 @@
+"""A nested least-squares fit of an extended problem (MODEL.md eq. 24-34).
+
+``fit`` minimises |W r(p)|^2 over any subset of p = [x; theta] with scipy's
+trust-region reflective method, in the internal coordinates of
+``ExtendedProblem`` (log for alpha, scaled linear for theta) and with the
+exact reduced Jacobian (implicit function theorem through eq. 22).
+``EffectFit`` keeps what the tests need: the whitened residual rho, its
+Jacobian, the states and their dg/ds factorisations.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from solvers.diagnosis.problem import ExtendedProblem
+from solvers.equilibrium import EquilibriumError
+
+
+@dataclass
+class EffectFit:
+    """A nested least-squares fit of an extended problem.
+
+    Attributes
+    ----------
+    problem : ExtendedProblem
+        The problem fitted.
+    p : numpy.ndarray
+        Estimate [x; theta] in natural units.
+    free : numpy.ndarray
+        Which entries of p were estimated.
+    states : list of numpy.ndarray
+        Equilibrium states at p.
+    residual : numpy.ndarray
+        Raw residual r [mm].
+    whitened : numpy.ndarray
+        rho = W r [mm].
+    jacobian : numpy.ndarray
+        d rho / dp (natural units).
+    state_jacobians : list of StateJacobian
+        dg/ds of every case at the solution.
+    """
+
+    problem: ExtendedProblem
+    p: np.ndarray
+    free: np.ndarray
+    states: list
+    residual: np.ndarray
+    whitened: np.ndarray
+    jacobian: np.ndarray
+    success: bool = True
+    status: str = ""
+    evaluations: int = 0
+    wall_time_s: float = 0.0
+    state_jacobians: list = field(default_factory=list)
+
+    @property
+    def cost(self) -> float:
+        """|rho|^2 [mm^2]."""
+        return float(self.whitened @ self.whitened)
+
+    def at_bound(self, tolerance: float = 1e-6) -> np.ndarray:
+        """Entries of p on a bound (by a fraction of the range)."""
+        span = self.problem.upper - self.problem.lower
+        return (np.abs(self.p - self.problem.lower) <= tolerance * span) | (
+            np.abs(self.problem.upper - self.p) <= tolerance * span
+        )
+
+    def estimated(self) -> np.ndarray:
+        """Free entries that are not on a bound: the ones the statistics count."""
+        return self.free & ~self.at_bound()
+
+    def standard_errors(self, sigma: float) -> np.ndarray:
+        """sigma sqrt(diag((J^T J)^-1)) over the estimated entries (NaN elsewhere) [natural]."""
+        out = np.full(self.p.size, np.nan)
+        chosen = self.estimated()
+        if chosen.any():
+            sub = self.jacobian[:, chosen]
+            try:
+                covariance = np.linalg.pinv(sub.T @ sub, rcond=1e-12)
+                out[chosen] = sigma * np.sqrt(np.maximum(np.diag(covariance), 0.0))
+            except np.linalg.LinAlgError:
+                pass
+        return out
+
+    def rms(self) -> tuple[float, float]:
+        """RMS and maximum marker distance [mm]."""
+        return self.problem.rms(self.residual)
+
+
+def fit(
+    problem: ExtendedProblem,
+    start=None,
+    free=None,
+    states=None,
+    max_evaluations=100,
+    tolerance=1e-10,
+) -> EffectFit:
+    """Nested least squares of |W r(p)|^2 over the ``free`` entries of p.
+
+    Parameters
+    ----------
+    problem : ExtendedProblem
+        The problem.
+    start : numpy.ndarray, optional
+        Start p in natural units (default ``problem.start()``); clipped to the bounds.
+    free : numpy.ndarray of bool, optional
+        Entries to estimate (default all).
+    states : list, optional
+        Warm-start states of the cases.
+    """
+    begin = time.perf_counter()
+    p0 = problem.start() if start is None else np.array(start, dtype=float)
+    p0 = np.clip(p0, problem.lower, problem.upper)
+    free = np.ones(p0.size, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    z_full = problem.to_internal(p0)
+    lower, upper = (problem.to_internal(b)[free] for b in (problem.lower, problem.upper))
+    cache: dict = {"states": states}
+
+    def evaluate(z_free: np.ndarray):
+        if cache.get("z") is not None and np.array_equal(cache["z"], z_free):
+            return cache["rho"], cache["jac"]
+        z = z_full.copy()
+        z[free] = z_free
+        p = problem.to_natural(z)
+        r, jac, new_states = problem.evaluate(p, cache["states"])
+        cache.update(z=np.array(z_free), states=new_states, r=r)
+        cache["rho"] = problem.whiten(r)
+        cache["jac"] = problem.whiten(jac)[:, free] * problem.natural_derivative(z)[free]
+        return cache["rho"], cache["jac"]
+
+    evaluations, success, status = 0, True, "no free parameters"
+    z_free = z_full[free]
+    if free.any():
+        try:
+            result = least_squares(
+                lambda z: evaluate(z)[0],
+                np.clip(z_free, lower, upper),
+                jac=lambda z: evaluate(z)[1],
+                bounds=(lower, upper),
+                method="trf",
+                ftol=tolerance,
+                xtol=tolerance,
+                gtol=tolerance,
+                max_nfev=max_evaluations,
+                x_scale=1.0,
+            )
+            z_free, success, status = result.x, result.status > 0, result.message
+            evaluations = result.nfev
+        except EquilibriumError as error:
+            success, status = False, f"failed: {error}"
+    z = z_full.copy()
+    z[free] = z_free
+    p = problem.to_natural(z)
+    r, jac, final_states, state_jacobians = problem.evaluate_full(p, cache["states"])
+    return EffectFit(
+        problem=problem,
+        p=p,
+        free=free,
+        states=final_states,
+        residual=r,
+        whitened=problem.whiten(r),
+        jacobian=problem.whiten(jac),
+        success=bool(success),
+        status=str(status),
+        evaluations=int(evaluations),
+        wall_time_s=time.perf_counter() - begin,
+        state_jacobians=state_jacobians,
+    )

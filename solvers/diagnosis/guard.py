@@ -1,0 +1,136 @@
+"""The overfitting guard: does an added effect predict a left-out load case better?
+
+The folds are the contact points when the cases press on two or more of them
+(all forces at one contact are left out together: the model must predict the
+response at a point it has not seen), else the single load cases. For every
+fold h in turn, both the previous model and the model with the new effect are
+fitted to the other cases, and then predict fold h with their shared
+parameters fixed. Per-capture nuisance parameters of fold h (rigid motion,
+measurement scale) cannot be predicted; they are fitted to fold h alone, and
+since each such parameter lowers a pure-noise chi^2 by 1 on average, their
+number is charged:
+
+    improvement = sum_h (chi^2_before,h - chi^2_after,h) - (n_after - n_before),
+
+with chi^2_h = |W_h r_h|^2 / sigma^2 of the prediction and n the number of
+nuisance parameters fitted to the left-out cases. The effect passes when the
+improvement is positive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from solvers.diagnosis.fit import EffectFit, fit
+
+
+@dataclass
+class PredictionCheck:
+    """Left-out prediction of every load case, before and after adding an effect."""
+
+    held_out: list[list[int]]
+    chi2_before: list[float]
+    chi2_after: list[float]
+    nuisance_before: int
+    nuisance_after: int
+
+    @property
+    def improvement(self) -> float:
+        """Drop of the summed prediction chi^2, less the extra nuisance parameters."""
+        drop = float(np.sum(self.chi2_before) - np.sum(self.chi2_after))
+        return drop - (self.nuisance_after - self.nuisance_before)
+
+    @property
+    def improves(self) -> bool:
+        """True when the new model predicts the left-out cases better."""
+        return self.improvement > 0.0
+
+    def reason(self) -> str:
+        """One line for reports."""
+        return (
+            f"left-out prediction chi2 {np.sum(self.chi2_before):.1f} -> "
+            f"{np.sum(self.chi2_after):.1f} ({self.nuisance_after - self.nuisance_before} "
+            f"nuisance parameters charged): {'better' if self.improves else 'not better'}"
+        )
+
+    def record(self) -> dict:
+        """As in diagnosis.json."""
+        return {
+            "held_out": self.held_out,
+            "chi2_before": self.chi2_before,
+            "chi2_after": self.chi2_after,
+            "nuisance_before": self.nuisance_before,
+            "nuisance_after": self.nuisance_after,
+            "improvement": self.improvement,
+            "improves": self.improves,
+        }
+
+
+def _mapped(source_labels, source_p, target) -> tuple[np.ndarray, np.ndarray]:
+    """p of ``target`` from a fit with other labels; unknown entries start at 0, free."""
+    known = dict(zip(source_labels, source_p))
+    start = target.start()
+    free = np.ones(len(target.labels), dtype=bool)
+    for i, label in enumerate(target.labels):
+        if label in known:
+            start[i] = known[label]
+            free[i] = False
+    return start, free
+
+
+def folds(problem) -> list[list[int]]:
+    """Positions left out together: those sharing a contact point, or single cases."""
+    groups: dict = {}
+    for position in problem.positions:
+        uv = getattr(problem.loads[problem.indices[position]], "uv", None)
+        key = position if uv is None else tuple(np.round(np.asarray(uv, dtype=float), 6))
+        groups.setdefault(key, []).append(position)
+    if len(groups) >= 2:
+        return list(groups.values())
+    return [[position] for position in problem.positions]
+
+
+def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, int]:
+    """chi^2 of the prediction of base cases ``held`` after fitting the other cases.
+
+    ``held`` is one position or a list of them. Returns the chi^2 and the number
+    of nuisance parameters fitted to the held cases.
+    """
+    held = [held] if np.isscalar(held) else list(held)
+    problem = model_fit.problem
+    train = [k for k in problem.positions if k not in held]
+    train_problem = problem.with_effects(problem.effects, positions=train)
+    start, _ = _mapped(problem.labels, model_fit.p, train_problem)
+    trained = fit(train_problem, start)
+    test_problem = problem.with_effects(problem.effects, positions=held)
+    start, free = _mapped(train_problem.labels, trained.p, test_problem)
+    if free.any():
+        predicted = fit(test_problem, start, free)
+        rho = predicted.whitened
+    else:
+        r, _, _ = test_problem.evaluate(start)
+        rho = test_problem.whiten(r)
+    return float(rho @ rho) / sigma**2, int(free.sum())
+
+
+def prediction_check(
+    previous: EffectFit, new: EffectFit, sigma: float, cache: dict | None = None
+) -> PredictionCheck:
+    """Leave-one-fold-out comparison of ``previous`` and ``new`` (see module docstring)."""
+    cache = {} if cache is None else cache
+    held_out, before, after = [], [], []
+    n_before = n_after = 0
+    for held in folds(new.problem):
+        key = (tuple(e.name for e in previous.problem.effects), tuple(held))
+        if key not in cache:
+            cache[key] = predict_left_out(previous, held, sigma)
+        chi2_before, nuisance = cache[key]
+        chi2_after, nuisance_after = predict_left_out(new, held, sigma)
+        held_out.append([int(new.problem.indices[k]) for k in held])
+        before.append(chi2_before)
+        after.append(chi2_after)
+        n_before += nuisance
+        n_after += nuisance_after
+    return PredictionCheck(held_out, before, after, n_before, n_after)

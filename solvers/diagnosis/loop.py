@@ -1,0 +1,312 @@
+"""The discrepancy loop: residual -> candidate effect -> refit (DESIGN.md, issue 6).
+
+1. Fit the base model (nested, whitened least squares; ``solvers.diagnosis.fit``).
+2. Test the residual against the noise: chi^2 of |W r|^2 / sigma^2, where
+   W^-2 = I + P P^T carries the rest-marker noise that all load cases share.
+3. Score-test every candidate effect at theta = 0 (``solvers.diagnosis.stats``): one
+   linearisation each, no refit.
+4. Take the most significant candidate (Bonferroni over the candidates left),
+   refit with it, and keep it if the refit keeps the parameters the model
+   already had off their bounds (``BOUND_MARGIN``), the BIC improves and,
+   with two or more load cases, it predicts a left-out case better
+   (``solvers.diagnosis.guard``); else try the next significant one. Repeat until no
+   candidate is significant, none is accepted, or ``max_effects``
+   are in (optionally also stop as soon as the residual is consistent with
+   the noise, ``stop_when_consistent``).
+5. ``unexplained`` is true when the final residual is still significant.
+
+``Diagnosis.document()`` is ``diagnosis.json`` (schema ``dvs-diagnosis/1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solvers.diagnosis.fit import EffectFit, fit
+from solvers.diagnosis.guard import PredictionCheck, prediction_check
+from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.stats import (
+    ResidualTest,
+    ScoreTest,
+    bic,
+    residual_test,
+    robust_sigma,
+    score_test,
+)
+from solvers.problem import InverseProblem
+from symbolic.effects.library import EFFECT_NAMES, effect_library
+from symbolic.model import PARAMETERS
+
+SCHEMA = "dvs-diagnosis/1"
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """Choices of the loop.
+
+    Attributes
+    ----------
+    level : float
+        Significance level of the residual test and (family-wise, Bonferroni)
+        of the score tests of one round.
+    max_effects : int
+        Most effects added.
+    candidates : tuple of str
+        The library searched (default all effects).
+    cross_validate : bool
+        Require a better prediction of left-out load cases (needs >= 2 cases).
+    stop_when_consistent : bool
+        Stop as soon as the residual is consistent with the noise. Off by
+        default: the omnibus chi^2 over ~460 degrees of freedom has little power
+        against an effect of a few parameters, which its score test (protected
+        by the Bonferroni level) still finds.
+    max_attempts : int
+        Most significant candidates refitted per round before giving up.
+    """
+
+    level: float = 0.01
+    max_effects: int = 3
+    candidates: tuple[str, ...] = EFFECT_NAMES
+    cross_validate: bool = True
+    stop_when_consistent: bool = False
+    max_attempts: int = 3
+
+    def __post_init__(self) -> None:
+        if not 0 < self.level < 1:
+            raise ValueError(f"level must lie in (0, 1), got {self.level}")
+        unknown = set(self.candidates) - set(EFFECT_NAMES)
+        if unknown:
+            raise ValueError(f"unknown candidate effects {sorted(unknown)}; use {EFFECT_NAMES}")
+
+
+@dataclass
+class Step:
+    """One model of the sequence: the base, then each added effect."""
+
+    effect: str | None
+    fit: EffectFit
+    residual: ResidualTest
+    statistic: float
+    p_value: float
+    bic: float
+    sigma: float
+    scores: list[ScoreTest] = field(default_factory=list)
+    prediction: PredictionCheck | None = None
+
+    def parameters(self) -> dict:
+        """Every parameter of the fit: value, standard error, unit."""
+        problem = self.fit.problem
+        std = self.fit.standard_errors(self.sigma)
+        units = [PARAMETERS[n].unit for n in problem.names]
+        for effect in problem.effects:
+            units += list(effect.units) * (len(problem.positions) if effect.per_case else 1)
+        return {
+            label: {
+                "value": float(value),
+                "std": None if not np.isfinite(s) else float(s),
+                "unit": unit,
+            }
+            for label, value, s, unit in zip(problem.labels, self.fit.p, std, units)
+        }
+
+    def record(self) -> dict:
+        """The step as in diagnosis.json."""
+        rms, largest = self.fit.rms()
+        return {
+            "effect": self.effect,
+            "rms_mm": rms,
+            "statistic": self.statistic,
+            "p_value": self.p_value,
+            "parameters": self.parameters(),
+            "max_residual_mm": largest,
+            "residual_statistic": self.residual.statistic,
+            "residual_dof": self.residual.dof,
+            "residual_p_value": self.residual.p_value,
+            "bic": self.bic,
+            "prediction": None if self.prediction is None else self.prediction.record(),
+            "score_tests": [
+                {
+                    "effect": t.effect,
+                    "statistic": t.statistic,
+                    "dof": t.dof,
+                    "p_value": t.p_value,
+                    "log10_p_value": t.log_p / np.log(10.0),
+                    "note": t.note,
+                }
+                for t in self.scores
+            ],
+        }
+
+
+@dataclass
+class Diagnosis:
+    """The outcome of the loop."""
+
+    steps: list[Step]
+    noise_mm: float
+    noise_source: str
+    noise_rms_mm: float
+    level: float
+    rejected: list[dict] = field(default_factory=list)
+
+    @property
+    def selected(self) -> list[str]:
+        """Effects added, in order."""
+        return [s.effect for s in self.steps if s.effect is not None]
+
+    @property
+    def unexplained(self) -> bool:
+        """True when the final residual is significantly above the noise."""
+        return self.steps[-1].residual.significant(self.level)
+
+    def document(self) -> dict:
+        """diagnosis.json (schema dvs-diagnosis/1, DESIGN.md)."""
+        return {
+            "schema": SCHEMA,
+            "noise_mm": self.noise_mm,
+            "rms_before_mm": self.steps[0].fit.rms()[0],
+            "rms_after_mm": self.steps[-1].fit.rms()[0],
+            "steps": [s.record() for s in self.steps],
+            "selected": self.selected,
+            "unexplained": self.unexplained,
+            "noise_source": self.noise_source,
+            "noise_rms_mm": self.noise_rms_mm,
+            "level": self.level,
+            "rejected": self.rejected,
+        }
+
+
+def _step(effect, current: EffectFit, sigma: float, statistic=None, p_value=None) -> Step:
+    residual = residual_test(current, sigma)
+    return Step(
+        effect=effect,
+        fit=current,
+        residual=residual,
+        statistic=residual.statistic if statistic is None else statistic,
+        p_value=residual.p_value if p_value is None else p_value,
+        bic=bic(current, sigma),
+        sigma=sigma,
+    )
+
+
+BOUND_MARGIN = 0.01
+"""A parameter within this fraction of its internal range from a bound sits on it
+(for alpha, estimated in log space over [0.01, 100] N/mm: within 10 % of a bound)."""
+
+
+def _on_bounds(fit: EffectFit) -> np.ndarray:
+    """Entries of p on (or within ``BOUND_MARGIN`` of) a bound, in internal coordinates."""
+    problem = fit.problem
+    z = problem.to_internal(fit.p)
+    lower, upper = problem.to_internal(problem.lower), problem.to_internal(problem.upper)
+    margin = BOUND_MARGIN * (upper - lower)
+    return (z - lower <= margin) | (upper - z <= margin)
+
+
+def _pushed_to_bounds(current: EffectFit, refit: EffectFit) -> list[str]:
+    """Parameters of the current model that only the refit puts on a bound.
+
+    An effect that explains the residual by driving the model it extends to the
+    edge of its parameter space is standing in for something else (a regular
+    estimate is interior, and the chi^2 gain of a fit against a bound is no
+    evidence for the effect); the loop does not accept it.
+    """
+    before = _on_bounds(current)
+    after = _on_bounds(refit)[: before.size] & current.free
+    return [label for label, b, a in zip(current.problem.labels, before, after) if a and not b]
+
+
+def _refit(current: EffectFit, effect, test: ScoreTest) -> EffectFit:
+    """Fit with one more effect, from the current estimate plus the score step."""
+    problem = current.problem.with_effects(current.problem.effects + [effect])
+    block = problem.slice_of(effect.name)
+    start = np.concatenate([current.p, np.zeros(block.stop - block.start)])
+    start[block] = np.clip(test.step, problem.lower[block], problem.upper[block])
+    refit = fit(problem, start, states=None)
+    if not refit.success:
+        start[block] = 0.0
+        refit = fit(problem, start)
+    return refit
+
+
+def diagnose(
+    base: InverseProblem, loads: list, settings: DiagnosisSettings | None = None, log=None
+) -> Diagnosis:
+    """Run the loop on a base problem.
+
+    Parameters
+    ----------
+    base : InverseProblem
+        The base problem (``experiments.fitting.build_problem``); its active
+        parameters are refitted at every step.
+    loads : list
+        The dataset's declared loads (``experiments.fitting.dataset_loads``).
+    settings : DiagnosisSettings
+        Level, candidates, limits.
+    log : callable, optional
+        Progress lines.
+    """
+    settings = settings or DiagnosisSettings()
+    log = log or (lambda *_: None)
+    library = effect_library(settings.candidates)
+    current = fit(ExtendedProblem(base, loads, []))
+    if base.noise_mm is not None:
+        sigma, source = float(base.noise_mm), "given"
+    else:
+        sigma, source = robust_sigma(current), "estimated (1.4826 median |W r|)"
+    steps = [_step(None, current, sigma)]
+    log(_line(steps[-1]))
+    rejected: list[dict] = []
+    guard_cache: dict = {}
+    while len(steps) - 1 < settings.max_effects:
+        if settings.stop_when_consistent and not steps[-1].residual.significant(settings.level):
+            break
+        active = current.problem.effects
+        remaining = [e for name, e in library.items() if name not in {a.name for a in active}]
+        if not remaining:
+            break
+        tests = [score_test(current, effect, sigma) for effect in remaining]
+        steps[-1].scores = tests
+        threshold = np.log(settings.level / len(remaining))
+        ranked = sorted((t for t in tests if t.log_p < threshold), key=lambda t: t.log_p)
+        log("  score tests: " + ", ".join(f"{t.effect} {t.statistic:.1f}" for t in tests))
+        accepted = None
+        for test in ranked[: settings.max_attempts]:
+            refit = _refit(current, library[test.effect], test)
+            candidate = _step(test.effect, refit, sigma, test.statistic, test.p_value)
+            pushed = _pushed_to_bounds(current, refit)
+            if pushed:
+                reason = f"refit drives {', '.join(pushed)} to a bound"
+                rejected.append({"effect": test.effect, "reason": reason})
+                log(f"  {test.effect} rejected: {reason}")
+                continue
+            if candidate.bic >= steps[-1].bic:
+                rejected.append({"effect": test.effect, "reason": "BIC did not improve"})
+                continue
+            if settings.cross_validate and len(base.cases) >= 2:
+                check = prediction_check(current, refit, sigma, guard_cache)
+                candidate.prediction = check
+                if not check.improves:
+                    rejected.append({"effect": test.effect, "reason": check.reason()})
+                    log(f"  {test.effect} rejected: {check.reason()}")
+                    continue
+            accepted = candidate
+            break
+        if accepted is None:
+            break
+        current = accepted.fit
+        steps.append(accepted)
+        log(_line(accepted))
+    noise_rms = ExtendedProblem(base, loads, []).noise_rms(sigma)
+    return Diagnosis(steps, sigma, source, noise_rms, settings.level, rejected)
+
+
+def _line(step: Step) -> str:
+    rms, _ = step.fit.rms()
+    name = step.effect or "base model"
+    return (
+        f"{name}: rms {rms * 1e3:.1f} um, chi2 {step.residual.statistic:.0f}/{step.residual.dof} "
+        f"(p {step.residual.p_value:.2g}), statistic {step.statistic:.1f}, p {step.p_value:.2g}"
+    )

@@ -1,0 +1,317 @@
+"""An inverse problem extended by effects (MODEL.md eq. 22, 24).
+
+``ExtendedProblem`` wraps a base ``InverseProblem`` and a list of active effects.
+Its unknowns are p = [x; theta] (natural units), and for every load case k it
+solves the extended equilibrium g_k(s, p) = 0 by Newton (sparse LU, as
+``EquilibriumSolver``) and differentiates the observation residual exactly by
+the implicit function theorem,
+
+    dr_k/dp = dr_k/dp|_s - dr_k/ds (dg_k/ds)^-1 dg_k/dp.
+
+The noise model is that of the datasets: every marker coordinate, rest and
+loaded, has standard deviation sigma, and the rest markers are shared by all
+load cases, so Cov(r) = sigma^2 (I + P P^T) (``InverseProblem.rest_noise_map``).
+Residuals and Jacobians are whitened with W = (I + P P^T)^-1/2 (closed form,
+``_noise_model``): rho = W r has covariance sigma^2 I under pure noise.
+
+The base solvers stay untouched; ``solvers.diagnosis.fit.fit`` is the generic
+nested least squares over any subset of p (scipy trf, exact Jacobian).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from solvers.diagnosis.numeric import NumericFunction
+from solvers.equilibrium import EquilibriumError
+from solvers.problem import LOG_PARAMETERS, InverseProblem, LoadCase
+from symbolic.effects.base import CaseData, Effect
+from symbolic.effects.library import ExtendedModel
+
+
+class StateJacobian:
+    """dg/ds of one case (sparse) with its LU factors, computed on first use."""
+
+    def __init__(self, matrix: sp.spmatrix):
+        self.matrix = sp.csc_matrix(matrix)
+        self._lu = None
+
+    def solve(self, right: np.ndarray) -> np.ndarray:
+        """(dg/ds)^-1 right."""
+        if self._lu is None:
+            self._lu = spla.splu(self.matrix)
+        return self._lu.solve(right)
+
+
+def _dense(value) -> np.ndarray:
+    return value.toarray() if sp.issparse(value) else np.asarray(value)
+
+
+def case_data(problem: InverseProblem, loads: list, index: int, position: int) -> CaseData:
+    """The numbers of base case ``position`` (dataset case ``index``) with its load."""
+    case: LoadCase = problem.cases[position]
+    load = loads[index]
+    full = np.asarray(load.generalized(problem.model.volume), dtype=float)
+    f = np.asarray(load.force, dtype=float)
+    return CaseData(
+        index=index,
+        force=case.force,
+        force_vector=f,
+        contact_uv=np.asarray(load.uv, dtype=float),
+        load_row=full @ f / float(f @ f),
+        rows=case.rows,
+        rest_points=case.rest_points,
+        offset=case.offset,
+        weights=case.weights,
+    )
+
+
+def noise_map(cases: list[LoadCase], rest_noise: bool) -> sp.csr_matrix | None:
+    """P mapping rest-marker noise into the stacked residual of ``cases`` (or None)."""
+    if not rest_noise or any(c.marker_index is None for c in cases):
+        return None
+    n_markers = 1 + max(int(c.marker_index.max()) for c in cases)
+    blocks = []
+    for case in cases:
+        n = case.n_observations
+        pick = sp.csr_matrix(
+            (case.weights, (np.arange(n), case.marker_index)), shape=(n, n_markers)
+        )
+        blocks.append(sp.kron(sp.identity(3), pick))
+    return sp.vstack(blocks).tocsr()
+
+
+class ExtendedProblem:
+    """Base inverse problem + active effects over a choice of its load cases.
+
+    Parameters
+    ----------
+    base : InverseProblem
+        The base problem (its active parameters become x; mu and gamma drop out).
+    loads : list
+        The dataset's loads (``PointForce``/``ProbeForce``), one per dataset case.
+    effects : list of Effect
+        Active effects.
+    positions : list of int, optional
+        Which of the base problem's cases to use (default all).
+    indices : list of int, optional
+        Dataset index of every base case (default 0, 1, ...).
+    cache : dict, optional
+        Store shared by problems derived with ``with_effects``: case data, noise
+        model, extended models and their CasADi Functions.
+    """
+
+    def __init__(
+        self,
+        base: InverseProblem,
+        loads,
+        effects: list[Effect],
+        positions=None,
+        indices=None,
+        cache: dict | None = None,
+    ):
+        self.base = base
+        self.loads = loads
+        self.positions = list(range(len(base.cases)) if positions is None else positions)
+        self.indices = list(range(len(base.cases)) if indices is None else indices)
+        self.model = base.model
+        self.names = tuple(n for n, a in zip(base.names, base.active) if a)
+        self.cache = {} if cache is None else cache
+        key = ("model", tuple(id(e) for e in effects), tuple(self.positions))
+        if key not in self.cache:
+            cases = [self._case(k) for k in self.positions]
+            self.cache[key] = ExtendedModel(
+                self.model, self.names, list(effects), cases, self.cache
+            )
+        self.extended = self.cache[key]
+        self._set_bounds()
+        key = ("noise", tuple(self.positions))
+        if key not in self.cache:
+            self.cache[key] = self._noise_model()
+        self.whitening, self.noise_factor = self.cache[key]
+        self.n_residuals = self.whitening.shape[0]
+
+    def _case(self, position: int) -> CaseData:
+        key = ("case", position)
+        if key not in self.cache:
+            self.cache[key] = case_data(self.base, self.loads, self.indices[position], position)
+        return self.cache[key]
+
+    def _noise_model(self) -> tuple[sp.csr_matrix, float]:
+        """W = (I + P P^T)^-1/2 and tr(I + P P^T)/m for the cases in use.
+
+        Every row of P picks one rest-marker coordinate, so N = P^T P is
+        diagonal and W = I - P diag(d) P^T with d_j = (1 - (1 + N_jj)^-1/2) / N_jj
+        (check: W^2 = I - P (I + N)^-1 P^T = (I + P P^T)^-1 by Woodbury).
+        """
+        selected = [self.base.cases[k] for k in self.positions]
+        p_map = noise_map(selected, self.base.rest_noise)
+        m = sum(3 * c.n_observations for c in selected)
+        if p_map is None:
+            return sp.identity(m, format="csr"), 1.0
+        counts = np.asarray(p_map.multiply(p_map).sum(axis=0)).ravel()
+        shrink = np.zeros_like(counts)
+        seen = counts > 0
+        shrink[seen] = (1.0 - 1.0 / np.sqrt(1.0 + counts[seen])) / counts[seen]
+        whitening = sp.identity(m, format="csr") - p_map @ sp.diags(shrink) @ p_map.T
+        return whitening.tocsr(), float(m + counts.sum()) / m
+
+    # ----------------------------------------------------------------- layout
+    @property
+    def effects(self) -> list[Effect]:
+        """Active effects."""
+        return self.extended.effects
+
+    @property
+    def labels(self) -> list[str]:
+        """Names of the entries of p."""
+        return self.extended.labels
+
+    @property
+    def cases(self) -> list[LoadCase]:
+        """The base load cases in use."""
+        return [self.base.cases[k] for k in self.positions]
+
+    def _set_bounds(self) -> None:
+        space = self.base.space
+        lower, upper, scale, log = [], [], [], []
+        for name in self.names:
+            i = space.names.index(name)
+            lower.append(space.lower[i])
+            upper.append(space.upper[i])
+            scale.append(space.linear_scale[i])
+            log.append(name in LOG_PARAMETERS)
+        for effect in self.effects:
+            lo, hi, sc = self.extended.effect_bounds(effect)
+            lower += list(lo)
+            upper += list(hi)
+            scale += list(sc)
+            log += [False] * len(lo)
+        self.lower, self.upper = np.array(lower), np.array(upper)
+        self.scale, self.log = np.array(scale), np.array(log)
+
+    def to_internal(self, p: np.ndarray) -> np.ndarray:
+        """z: log(p) for positive material parameters, p / scale otherwise."""
+        p = np.asarray(p, dtype=float)
+        return np.where(self.log, np.log(np.maximum(p, 1e-300)), p / self.scale)
+
+    def to_natural(self, z: np.ndarray) -> np.ndarray:
+        """p from z."""
+        return np.where(self.log, np.exp(z), z * self.scale)
+
+    def natural_derivative(self, z: np.ndarray) -> np.ndarray:
+        """dp/dz, elementwise."""
+        return np.where(self.log, np.exp(z), self.scale)
+
+    def functions(self, position: int):
+        """The CasADi Functions of the case at ``position`` (``symbolic.effects.CaseFunctions``)."""
+        return self.extended.functions(position)
+
+    def slice_of(self, name: str) -> slice:
+        """Where an effect's parameters sit in p."""
+        return self.extended.slices[name]
+
+    def start(self) -> np.ndarray:
+        """Default p: the base space's start for x, zero for theta."""
+        space = self.base.space
+        x = [space.start[space.names.index(n)] for n in self.names]
+        return np.concatenate([x, np.zeros(len(self.labels) - len(self.names))])
+
+    # ------------------------------------------------------------- evaluation
+    def numeric(self, position: int, name: str) -> NumericFunction:
+        """A Function of the case at ``position`` wrapped for fast numeric calls."""
+        function = getattr(self.functions(position), name)
+        key = ("numeric", id(function))
+        if key not in self.cache:
+            self.cache[key] = (function, NumericFunction(function))
+        return self.cache[key][1]
+
+    def solve_state(self, position: int, p: np.ndarray, start=None, tolerance=1e-10):
+        """Newton on g(s, p) = 0 for one case; returns the state and its ``StateJacobian``.
+
+        The Jacobian returned is the one of the last Newton step, exact for a
+        model linear in s and accurate to the (tiny) last step otherwise.
+        """
+        equilibrium = self.numeric(position, "equilibrium")
+        newton = self.numeric(position, "newton")
+        zero = np.zeros(self.functions(position).n_state)
+        scale = max(float(np.linalg.norm(equilibrium(zero, p)[0])), 1e-300)
+        state = zero if start is None else np.array(start, dtype=float)
+        g = equilibrium(state, p)[0].ravel()
+        jacobian = None
+        for _ in range(40):
+            if np.linalg.norm(g) <= tolerance * scale and jacobian is not None:
+                return state, jacobian
+            jacobian = StateJacobian(newton(state, p)[1])
+            if np.linalg.norm(g) <= tolerance * scale:
+                return state, jacobian
+            step = jacobian.solve(-g)
+            norm, length = np.linalg.norm(g), 1.0
+            for _ in range(30):
+                trial = state + length * step
+                g_trial = equilibrium(trial, p)[0].ravel()
+                if np.linalg.norm(g_trial) < norm:
+                    break
+                length *= 0.5
+            state, g = trial, g_trial
+        raise EquilibriumError(
+            f"extended equilibrium did not converge (|g| = {np.linalg.norm(g):.2e}); "
+            "the effect parameters may be unrealistic"
+        )
+
+    def linearise(self, position: int, p: np.ndarray, state: np.ndarray, jacobian=None):
+        """r and exact dr/dp of one case at a solved state (implicit function theorem)."""
+        if jacobian is None:
+            jacobian = StateJacobian(self.numeric(position, "newton")(state, p)[1])
+        dg_dp, r, dr_ds, dr_dp = self.numeric(position, "sensitivity")(state, p)
+        sensitivity = -jacobian.solve(_dense(dg_dp))
+        total = dr_ds @ sensitivity + _dense(dr_dp)
+        return np.ravel(_dense(r)), total
+
+    def evaluate(self, p: np.ndarray, starts=None):
+        """Stacked raw residual r(p), its Jacobian dr/dp and the solved states."""
+        r, jac, states, _ = self.evaluate_full(p, starts)
+        return r, jac, states
+
+    def evaluate_full(self, p: np.ndarray, starts=None):
+        """As ``evaluate``, plus the sparse dg/ds of every case."""
+        starts = starts or [None] * len(self.positions)
+        residuals, jacobians, states, state_jacobians = [], [], [], []
+        for position in range(len(self.positions)):
+            state, jac = self.solve_state(position, p, starts[position])
+            r, dr = self.linearise(position, p, state, jac)
+            residuals.append(r)
+            jacobians.append(dr)
+            states.append(state)
+            state_jacobians.append(jac)
+        return np.concatenate(residuals), np.vstack(jacobians), states, state_jacobians
+
+    def whiten(self, values: np.ndarray) -> np.ndarray:
+        """W values (vector or matrix)."""
+        return self.whitening @ values
+
+    def point_errors(self, r: np.ndarray) -> list[np.ndarray]:
+        """Per case, the distance of every observed marker from its prediction [mm]."""
+        errors, start = [], 0
+        for case in self.cases:
+            n = case.n_observations
+            block = r[start : start + 3 * n].reshape(3, n).T / case.weights[:, None]
+            errors.append(np.linalg.norm(block, axis=1))
+            start += 3 * n
+        return errors
+
+    def rms(self, r: np.ndarray) -> tuple[float, float]:
+        """RMS and maximum marker distance over all cases [mm]."""
+        every = np.concatenate(self.point_errors(r))
+        return float(np.sqrt(np.mean(every**2))), float(every.max())
+
+    def noise_rms(self, sigma: float) -> float:
+        """Expected RMS marker distance of a pure-noise residual: sigma sqrt(3 tr(Sigma)/m)."""
+        return float(sigma * np.sqrt(3.0 * self.noise_factor))
+
+    def with_effects(self, effects: list[Effect], positions=None) -> ExtendedProblem:
+        """The same base problem with other effects (or cases)."""
+        chosen = self.positions if positions is None else positions
+        return ExtendedProblem(self.base, self.loads, effects, chosen, self.indices, self.cache)

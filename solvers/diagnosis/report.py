@@ -1,0 +1,110 @@
+"""report.md of a diagnosis: residual before/after, every test, the added parameters.
+
+Plain text from ``Diagnosis.document()`` (schema ``dvs-diagnosis/1``) and the
+Diagnosis itself (for the effects' equations); the residual-map figure it
+links to is drawn by ``experiments.diagnosis.diagnose.plot_residuals``.
+"""
+
+from __future__ import annotations
+
+
+def _parameter_lines(record: dict, names) -> list[str]:
+    lines = ["| parameter | value | std | unit |", "|---|---|---|---|"]
+    for label, entry in record["parameters"].items():
+        if names is not None and label.split("[")[0] not in names:
+            continue
+        std = "-" if entry["std"] is None else f"{entry['std']:.3g}"
+        lines.append(f"| {label} | {entry['value']:.4g} | {std} | {entry['unit']} |")
+    return lines
+
+
+def verdict(document: dict) -> str:
+    """One sentence on what the diagnosis concludes, worded so that no stand-in reads as a cause.
+
+    When the residual stays significant the added effects are reported as the library's
+    closest approximations, not as the cause of the discrepancy.
+    """
+    selected = ", ".join(document["selected"])
+    if not document["unexplained"]:
+        if selected:
+            return f"explained: the residual is consistent with noise once {selected} is added"
+        return "consistent with noise: the base model needs nothing added"
+    if selected:
+        return (
+            f"unexplained: even with {selected} added the residual is not noise; these are "
+            "the library's closest approximations, not established causes"
+        )
+    return "unexplained: the residual is not noise and no candidate effect accounts for it"
+
+
+def report(diagnosis, document: dict) -> str:
+    """report.md: residual before/after, each step's test, the added effects' parameters."""
+    steps = document["steps"]
+    first, last = steps[0], steps[-1]
+    lines = [
+        "# Diagnosis: what the base model is missing",
+        "",
+        f"- noise: {document['noise_mm']:.4g} mm per coordinate ({document['noise_source']}); "
+        "a pure-noise residual has an RMS marker distance of "
+        f"{document['noise_rms_mm'] * 1e3:.1f} um",
+        f"- residual RMS {document['rms_before_mm'] * 1e3:.1f} um -> "
+        f"{document['rms_after_mm'] * 1e3:.1f} um; max {first['max_residual_mm'] * 1e3:.1f} um -> "
+        f"{last['max_residual_mm'] * 1e3:.1f} um",
+        f"- selected: {', '.join(document['selected']) or 'nothing'}",
+        f"- unexplained: **{str(document['unexplained']).lower()}** (final chi^2 "
+        f"{last['residual_statistic']:.1f} on {last['residual_dof']} dof, p = "
+        f"{last['residual_p_value']:.3g}, level {document['level']})",
+        f"- verdict: {verdict(document)}",
+        "",
+        "## Steps",
+        "",
+        "| step | effect | RMS [um] | max [um] | statistic | p-value | residual chi^2 / dof "
+        "| residual p | BIC |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for k, step in enumerate(steps):
+        lines.append(
+            f"| {k} | {step['effect'] or 'base model'} | {step['rms_mm'] * 1e3:.1f} | "
+            f"{step['max_residual_mm'] * 1e3:.1f} | {step['statistic']:.1f} | "
+            f"{step['p_value']:.3g} | {step['residual_statistic']:.0f} / {step['residual_dof']} | "
+            f"{step['residual_p_value']:.3g} | {step['bic']:.1f} |"
+        )
+    lines += [
+        "",
+        "The base step's statistic is the residual chi^2; an effect's is the score "
+        "statistic that selected it.",
+        "",
+    ]
+    for k, step in enumerate(steps):
+        if not step["score_tests"]:
+            continue
+        lines += [
+            f"## Score tests at step {k} ({step['effect'] or 'base model'})",
+            "",
+            "| candidate | statistic | dof | p-value | note |",
+            "|---|---|---|---|---|",
+        ]
+        for test in sorted(step["score_tests"], key=lambda t: t["log10_p_value"]):
+            lines.append(
+                f"| {test['effect']} | {test['statistic']:.2f} | {test['dof']} | "
+                f"{test['p_value']:.3g} | {test['note']} |"
+            )
+        lines.append("")
+    for k, step in enumerate(steps[1:], start=1):
+        effect = next(e for e in diagnosis.steps[k].fit.problem.effects if e.name == step["effect"])
+        lines += [f"## Step {k}: {step['effect']}", "", f"Added term: {effect.equation}.", ""]
+        names = set(effect.parameter_names) | set(diagnosis.steps[k].fit.problem.names)
+        lines += _parameter_lines(step, names) + [""]
+        if step["prediction"]:
+            check = step["prediction"]
+            lines.append(
+                f"Left-out prediction chi^2 {sum(check['chi2_before']):.1f} -> "
+                f"{sum(check['chi2_after']):.1f} (improvement {check['improvement']:.1f} "
+                f"after charging nuisance parameters)."
+            )
+            lines.append("")
+    if document["rejected"]:
+        lines += ["## Candidates tried and rejected", ""]
+        lines += [f"- {r['effect']}: {r['reason']}" for r in document["rejected"]] + [""]
+    lines += ["## Residual maps", "", "![marker residuals before and after](residuals.png)", ""]
+    return "\n".join(lines)

@@ -1,0 +1,193 @@
+"""Tests of the diagnosis: residual against noise, score tests, information criterion.
+
+Notation: rho = W r is the whitened residual of a fit (``solvers.diagnosis.problem``),
+with covariance sigma^2 I under pure noise; J = d rho / dp the exact reduced
+Jacobian (implicit function theorem through the equilibrium, eq. 22).
+
+- **Residual test.** T = |rho|^2 / sigma^2 ~ chi^2(m - k) when the model is
+  right (k estimated parameters not on a bound).
+- **Score (Lagrange-multiplier) test** of a candidate effect with parameters phi
+  at phi = 0, without refitting: with the nuisance columns J_N (the fitted
+  parameters) and the candidate columns J_phi,
+
+      A = (I - P_N) J_phi,          P_N = J_N (J_N^T J_N)^-1 J_N^T,
+      T = rho^T A (A^T A)^+ A^T rho / sigma^2 ~ chi^2(rank A).
+
+  A^T A / sigma^2 is the Gauss-Newton information of phi with x profiled out
+  (the Schur complement I_pp - I_pn I_nn^-1 I_np), and A^T rho = J_phi^T rho is the
+  score, because J_N^T rho = 0 at the fit. T is the squared length of the part
+  of the residual that the candidate can explain beyond the fitted parameters.
+  A parameter bounded below by 0 makes the test one-sided: T counts only when
+  the one-step estimate -(A^T A)^+ A^T rho points into the allowed side, and the
+  p-value is 1/2 P(chi^2_1 > T) (chi-bar-squared).
+- **BIC** = |rho|^2/sigma^2 + k log m (known sigma).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import special, stats
+
+from solvers.diagnosis.fit import EffectFit
+from symbolic.effects.base import Effect
+
+CONFOUNDED = 1e-6
+"""A candidate direction shorter than this fraction of itself after projection is confounded."""
+
+
+@dataclass
+class ResidualTest:
+    """chi^2 test of a fit's residual against the noise model."""
+
+    statistic: float
+    dof: int
+    p_value: float
+
+    def significant(self, level: float) -> bool:
+        """True when the residual is significantly larger than the noise."""
+        return self.p_value < level
+
+
+@dataclass
+class ScoreTest:
+    """The score test of one candidate effect at theta = 0.
+
+    Attributes
+    ----------
+    effect : str
+        Candidate name.
+    statistic : float
+        T (dimensionless).
+    dof : int
+        Rank of the profiled candidate directions.
+    p_value, log_p : float
+        P-value and its natural logarithm (for ranking when it underflows).
+    step : numpy.ndarray
+        One Gauss-Newton step for theta from 0 (natural units): a start for the refit.
+    distinct : float
+        Smallest singular value of A over the largest of J_phi (0 = fully confounded).
+    seconds : float
+        Wall time of the test (build + one linearisation).
+    note : str
+        Why the test could not see the effect, if so.
+    """
+
+    effect: str
+    statistic: float
+    dof: int
+    p_value: float
+    log_p: float
+    step: np.ndarray
+    distinct: float
+    seconds: float
+    note: str = ""
+
+
+def residual_test(fit: EffectFit, sigma: float) -> ResidualTest:
+    """T = |rho|^2 / sigma^2 against chi^2(m - k)."""
+    dof = max(fit.whitened.size - int(fit.estimated().sum()), 1)
+    statistic = fit.cost / sigma**2
+    return ResidualTest(float(statistic), int(dof), float(stats.chi2.sf(statistic, dof)))
+
+
+def log_chi2_sf(statistic: float, dof: int) -> float:
+    """log P(chi^2_dof > statistic), finite even where the p-value underflows.
+
+    scipy's ``chi2.logsf`` returns -inf once the p-value drops below about
+    1e-308 (statistics of a few thousand), which would make the strongest
+    candidates tie. There the leading terms of the asymptotic series of the
+    upper incomplete gamma function are used, with s = dof/2, x = statistic/2:
+    log Q(s, x) = (s - 1) log x - x - log Gamma(s) + log(1 + (s - 1)/x + ...).
+    """
+    value = float(stats.chi2.logsf(statistic, dof))
+    return value if np.isfinite(value) else log_chi2_sf_series(statistic, dof)
+
+
+def log_chi2_sf_series(statistic: float, dof: int) -> float:
+    """The asymptotic series of ``log_chi2_sf`` (relative error O((dof/statistic)^3))."""
+    s, x = 0.5 * dof, 0.5 * statistic
+    series = 1.0 + (s - 1.0) / x + (s - 1.0) * (s - 2.0) / x**2
+    return float((s - 1.0) * np.log(x) - x - special.gammaln(s) + np.log(series))
+
+
+def bic(fit: EffectFit, sigma: float) -> float:
+    """Bayesian information criterion with known sigma: chi^2 + k log m."""
+    return fit.cost / sigma**2 + int(fit.estimated().sum()) * np.log(fit.whitened.size)
+
+
+def robust_sigma(fit: EffectFit) -> float:
+    """1.4826 median |rho|: a noise estimate that tolerates a localised misfit [mm]."""
+    return float(1.4826 * np.median(np.abs(fit.whitened)))
+
+
+def candidate_jacobian(fit: EffectFit, candidate: Effect):
+    """The extended problem, p at phi = 0, and the whitened d rho / dp there.
+
+    Costs one sensitivity evaluation and one sparse LU per load case: the state
+    at phi = 0 is the fitted one, and so is dg/ds unless the candidate adds
+    state (its new state starts at 0 and stays there).
+    """
+    problem = fit.problem.with_effects(fit.problem.effects + [candidate])
+    q = len(problem.labels) - len(fit.p)
+    p = np.concatenate([fit.p, np.zeros(q)])
+    jacobians = []
+    for position, state in enumerate(fit.states):
+        n_state = problem.functions(position).n_state
+        state_jacobian = fit.state_jacobians[position] if n_state == state.size else None
+        full = np.concatenate([state, np.zeros(n_state - state.size)])
+        _, jac = problem.linearise(position, p, full, state_jacobian)
+        jacobians.append(jac)
+    return problem, p, problem.whiten(np.vstack(jacobians))
+
+
+def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
+    """Score test of ``candidate`` at the fit (no refit; see the module docstring)."""
+    begin = time.perf_counter()
+    problem, p, jacobian = candidate_jacobian(fit, candidate)
+    block = problem.slice_of(candidate.name)
+    scale = problem.scale[block]
+    nuisance = np.flatnonzero(fit.estimated())
+    z_scale = problem.natural_derivative(problem.to_internal(p))
+    basis = jacobian[:, nuisance] * z_scale[nuisance]
+    direction = jacobian[:, block] * scale
+    if basis.shape[1]:
+        q, _ = np.linalg.qr(basis)
+        projected = direction - q @ (q.T @ direction)
+    else:
+        projected = direction
+    size = np.linalg.norm(direction, 2) if direction.size else 0.0
+    u, singular, vt = np.linalg.svd(projected, full_matrices=False)
+    rank = int(np.sum(singular > CONFOUNDED * max(size, 1e-300)))
+    rho = fit.whitened
+    note = ""
+    if rank == 0:
+        step = np.zeros(len(scale))
+        statistic, dof, log_p = 0.0, max(len(scale), 1), 0.0
+        note = "no influence beyond the fitted parameters (confounded)"
+    else:
+        coefficients = u[:, :rank].T @ rho
+        statistic = float(coefficients @ coefficients) / sigma**2
+        step = -(vt[:rank].T @ (coefficients / singular[:rank])) * scale
+        dof = rank
+        log_p = log_chi2_sf(statistic, dof)
+        lower = np.asarray(candidate.lower, dtype=float)
+        if len(scale) == 1 and lower[0] == 0.0:
+            if step[0] <= 0.0:
+                statistic, log_p, note = 0.0, 0.0, "points to theta < 0 (outside its bound)"
+            else:
+                log_p += np.log(0.5)
+    distinct = float(singular[-1] / size) if size > 0 and singular.size else 0.0
+    return ScoreTest(
+        effect=candidate.name,
+        statistic=float(statistic),
+        dof=int(dof),
+        p_value=float(np.exp(log_p)),
+        log_p=float(log_p),
+        step=np.asarray(step, dtype=float),
+        distinct=distinct,
+        seconds=time.perf_counter() - begin,
+        note=note,
+    )

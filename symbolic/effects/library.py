@@ -1,0 +1,251 @@
+"""The library of candidate effects and their composition with the base model.
+
+Each effect is a named extension of the model with parameters theta that gives
+back the base model exactly at theta = 0 (``symbolic.effects.base``). The
+library, in the order the diagnosis prefers them on ties:
+
+==================== ========================== ==================================
+name                 theta                      module
+==================== ========================== ==================================
+nonlinear_stiffening k0 [1]                     ``stiffening`` (eq. 1)
+heterogeneity        h_u, h_v, h_uv [1]         ``stiffness`` (eq. 18)
+rigid_motion         omega [rad], t [mm]/case   ``measurement`` (eq. 24)
+force_direction      tau_1, tau_2 [1]           ``load`` (eq. 20)
+contact_offset       delta_1, delta_2 [mm]      ``load`` (eq. 20)
+measurement_scale    s [1] per case             ``measurement`` (eq. 24)
+bending              beta [N/mm]                ``stiffness`` (eq. 18)
+base_compliance      c = 1/k_b [mm^3/N]         ``boundary`` (section 2)
+contact_patch        sigma^2 [mm^2]             ``load`` (eq. 20)
+pre_tension          sigma0 [N/mm]              ``stiffness``
+volumetric_coupling  lambda [N/mm^2]            ``stiffness`` (section 4)
+==================== ========================== ==================================
+
+``ExtendedModel`` composes, per load case k, the named CasADi Functions of the
+extended equilibrium g_k(s, p) (eq. 22) and observation residual r_k(s, p)
+(eq. 24), with p = [x; theta_1; ...; theta_E] in natural units and
+s = [vec(B_free - B0_free); vec(extra state)] (columns stacked).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState
+from symbolic.effects.boundary import BaseCompliance
+from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection, load_change
+from symbolic.effects.measurement import MeasurementScale, RigidMotion
+from symbolic.effects.stiffening import NonlinearStiffening
+from symbolic.effects.stiffness import Bending, Heterogeneity, PreTension, VolumetricCoupling
+from symbolic.model import TissueModel
+
+EFFECT_CLASSES: tuple[type[Effect], ...] = (
+    NonlinearStiffening,
+    Heterogeneity,
+    RigidMotion,
+    ForceDirection,
+    ContactOffset,
+    MeasurementScale,
+    Bending,
+    BaseCompliance,
+    ContactPatch,
+    PreTension,
+    VolumetricCoupling,
+)
+EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
+"""Every effect name of DESIGN.md, in the library's order."""
+
+
+def make_effect(name: str) -> Effect:
+    """A fresh effect by name."""
+    for cls in EFFECT_CLASSES:
+        if cls.name == name:
+            return cls()
+    raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_NAMES)}")
+
+
+def effect_library(names=None) -> dict[str, Effect]:
+    """Effects by name (all of them by default), each instantiated once."""
+    return {name: make_effect(name) for name in (EFFECT_NAMES if names is None else names)}
+
+
+class CaseFunctions:
+    """The CasADi Functions of one load case of an extended model, built on first use.
+
+    Attributes
+    ----------
+    equilibrium : casadi.Function
+        (s, p) -> g, the extended equilibrium (eq. 22) [N, and mm^3 for extra rows].
+    newton : casadi.Function
+        (s, p) -> (g, dg/ds): the equilibrium and its sparse Jacobian.
+    residual : casadi.Function
+        (s, p) -> r, the observation residual W (y(s, p) - Y), columns stacked [mm].
+    sensitivity : casadi.Function
+        (s, p) -> (dg/dp, r, dr/ds, dr/dp) for the implicit-function Jacobian.
+    n_state : int
+        Length of s.
+    """
+
+    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX):
+        self.s, self.p, self.g, self.r = s, p, g, r
+        self.n_state = int(s.numel())
+        self._built: dict[str, ca.Function] = {}
+
+    def _get(self, name: str, outputs, names) -> ca.Function:
+        if name not in self._built:
+            self._built[name] = ca.Function(name, [self.s, self.p], outputs(), ["s", "p"], names)
+        return self._built[name]
+
+    @property
+    def equilibrium(self) -> ca.Function:
+        return self._get("g", lambda: [self.g], ["g"])
+
+    @property
+    def newton(self) -> ca.Function:
+        return self._get("newton", lambda: [self.g, ca.jacobian(self.g, self.s)], ["g", "dg_ds"])
+
+    @property
+    def residual(self) -> ca.Function:
+        return self._get("r", lambda: [self.r], ["r"])
+
+    @property
+    def sensitivity(self) -> ca.Function:
+        s, p, g, r = self.s, self.p, self.g, self.r
+        return self._get(
+            "sensitivity",
+            lambda: [ca.jacobian(g, p), r, ca.jacobian(r, s), ca.jacobian(r, p)],
+            ["dg_dp", "r", "dr_ds", "dr_dp"],
+        )
+
+
+class ExtendedModel:
+    """The base model plus active effects: parameters p = [x; theta].
+
+    Parameters
+    ----------
+    model : TissueModel
+        The base model (no prescribed displacements).
+    names : tuple of str
+        Estimated model parameters x (e.g. the three alpha).
+    effects : list of Effect
+        Active effects, in order (load and observation maps compose in it).
+    cases : list of CaseData
+        The load cases.
+    cache : dict, optional
+        Shared store of built Functions (models with the same effects and case
+        share them).
+    """
+
+    def __init__(
+        self,
+        model: TissueModel,
+        names,
+        effects: list[Effect],
+        cases: list[CaseData],
+        cache: dict | None = None,
+    ):
+        if model.n_constraints:
+            raise ValueError("effects do not support prescribed displacements; drop them first")
+        if len({e.name for e in effects}) != len(effects):
+            raise ValueError("each effect can be active only once")
+        self.model = model
+        self.names = tuple(names)
+        self.effects = list(effects)
+        self.cases = list(cases)
+        indices = [c.index for c in self.cases]
+        self.slices: dict[str, slice] = {}
+        labels = list(self.names)
+        for effect in self.effects:
+            block = effect.labels(indices)
+            self.slices[effect.name] = slice(len(labels), len(labels) + len(block))
+            labels += block
+        self.labels = labels
+        self._functions = {} if cache is None else cache
+
+    @property
+    def n_parameters(self) -> int:
+        """Length of p."""
+        return len(self.labels)
+
+    def effect_bounds(self, effect: Effect) -> tuple[np.ndarray, ...]:
+        """Lower, upper and scale of an effect's block in p."""
+        repeat = len(self.cases) if effect.per_case else 1
+        return tuple(
+            np.tile(np.asarray(v, dtype=float), repeat)
+            for v in (effect.lower, effect.upper, effect.scales)
+        )
+
+    def functions(self, position: int) -> CaseFunctions:
+        """The Functions of the case at ``position`` (built once, shared through ``cache``)."""
+        per_case = any(e.per_case for e in self.effects)
+        key = (
+            "functions",
+            tuple(id(e) for e in self.effects),
+            id(self.cases[position]),
+            position if per_case else 0,
+            tuple(self.labels),
+        )
+        if key not in self._functions:
+            self._functions[key] = self._build(position)
+        return self._functions[key]
+
+    def _build(self, position: int) -> CaseFunctions:
+        model, case = self.model, self.cases[position]
+        n_free = model.n_free
+        extra_sizes = [e.extra_points(model) for e in self.effects]
+        n_state = 3 * (n_free + sum(extra_sizes))
+        s = ca.MX.sym("s", n_state)
+        p = ca.MX.sym("p", self.n_parameters)
+        values = dict(model.parameters)
+        values.update({name: p[i] for i, name in enumerate(self.names)})
+        symbols = CaseSymbols(ca.reshape(s[: 3 * n_free], n_free, 3), values)
+        start = 3 * n_free
+        for effect, size in zip(self.effects, extra_sizes):
+            if size:
+                symbols.extra[effect.name] = ca.reshape(s[start : start + 3 * size], size, 3)
+                start += 3 * size
+        thetas = [effect.block(p[self.slices[effect.name]], position) for effect in self.effects]
+        g = self._equilibrium(case, symbols, thetas)
+        r = self._observation(case, symbols, thetas)
+        return CaseFunctions(s, p, g, r)
+
+    def _base_force(self) -> ca.Function:
+        """K(B; x)(B - B0) of the base model as a Function of (Delta, x) (built once)."""
+        key = ("base_force", id(self.model), self.names)
+        if key not in self._functions:
+            x, values = self.model.symbolic_values(self.names)
+            delta = ca.MX.sym("delta", self.model.n_free, 3)
+            force = self.model.elastic_force(delta, values, self.names)
+            self._functions[key] = ca.Function("elastic", [delta, x], [force])
+        return self._functions[key]
+
+    def _equilibrium(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
+        """g = K(B; x) Delta + sum internal forces - F_B(theta), then the extra rows."""
+        model = self.model
+        load = LoadState(np.asarray(case.force_vector, dtype=float))
+        x = ca.vertcat(*[symbols.values[n] for n in self.names])
+        force = self._base_force()(symbols.delta, x) - ca.DM(case.force)
+        extra_rows = []
+        for effect, theta in zip(self.effects, thetas):
+            load = effect.load(model, case, load, theta)
+            term = effect.internal_force(model, symbols, theta)
+            if term is not None:
+                force = force + term
+            rows = effect.extra_residual(model, symbols, theta)
+            if rows is not None:
+                extra_rows.append(ca.vec(rows))
+        change = load_change(model, case, load)
+        if change is not None:
+            force = force - change
+        return ca.vertcat(ca.vec(force), *extra_rows)
+
+    def _observation(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
+        """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``)."""
+        from symbolic.stiffening import to_casadi_sparse
+
+        rest = ca.DM(case.rest_points)
+        predicted = rest + ca.mtimes(to_casadi_sparse(case.rows), symbols.delta)
+        for effect, theta in zip(self.effects, thetas):
+            predicted = effect.observe(self.model, case, predicted, theta)
+        weights = ca.repmat(ca.DM(case.weights), 1, 3)
+        return ca.vec(weights * (predicted - rest + ca.DM(case.offset)))

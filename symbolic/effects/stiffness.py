@@ -1,0 +1,234 @@
+"""Stiffness effects: terms added to the elastic force K(B; x)(B - B0) (MODEL.md eq. 18).
+
+Each is the gradient of an extra energy, so the extended K stays symmetric; all
+vanish at theta = 0 (``nonlinear_stiffening`` lives in ``stiffening``).
+
+- ``heterogeneity``: every alpha_i multiplied by the bilinear field
+  1 + h_u (2u - 1) + h_v (2v - 1) + h_uv (2u - 1)(2v - 1).
+- ``bending``: the rigidity terms beta sum_{i<=j} J_ij^T J_ij of eq. (18).
+- ``pre_tension``: sigma0 integral_skin g^ab (n . J_a)^T (n . J_b) dA, the geometric
+  stiffness of an in-plane pre-stress sigma0 [N/mm] of the skin against rotation
+  of its surface (normal displacement), in the physical metric.
+- ``volumetric_coupling``: lambda integral (div u)^2 dV over the physical volume
+  (Poisson effect): the only effect that couples the x, y, z components.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.basis import FIRST_DERIVATIVES
+from symbolic.effects.base import (
+    CaseSymbols,
+    Effect,
+    apply_stacked,
+    stacked_free_block,
+    surface_rule,
+)
+from symbolic.energy import quadrature, weighted_gram
+from symbolic.model import TissueModel
+from symbolic.stiffening import to_casadi_sparse
+
+ALPHA_TERMS = ("alpha_u", "alpha_v", "alpha_w")
+
+
+def _bilinear_fields():
+    """The shape fields (2u - 1), (2v - 1), (2u - 1)(2v - 1) on parameter points."""
+    return (
+        lambda p: 2.0 * p[:, 0] - 1.0,
+        lambda p: 2.0 * p[:, 1] - 1.0,
+        lambda p: (2.0 * p[:, 0] - 1.0) * (2.0 * p[:, 1] - 1.0),
+    )
+
+
+class Heterogeneity(Effect):
+    """alpha_i(u, v) = alpha_i (1 + h_u (2u-1) + h_v (2v-1) + h_uv (2u-1)(2v-1)), eq. (18).
+
+    K gains sum_j h_j sum_i alpha_i integral f_j J_i^T J_i (``weighted_gram`` with
+    the field f_j). Realistic magnitude 0.5: alpha varies by +-50 % along u and
+    +-25 % along v across the patch (skin thickness and stiffness vary that
+    much across a forehead).
+    """
+
+    name = "heterogeneity"
+    parameter_names = ("h_u", "h_v", "h_uv")
+    units = ("1", "1", "1")
+    scales = (0.1, 0.1, 0.1)
+    lower = (-0.9, -0.9, -0.9)
+    upper = (0.9, 0.9, 0.9)
+    default_magnitude = 0.5
+    magnitude_unit = "1"
+    equation = "alpha_i (1 + h_u (2u-1) + h_v (2v-1) + h_uv (2u-1)(2v-1))"
+
+    def direction(self):
+        return (1.0, -0.5, 0.0)
+
+    def _matrices(self, model: TissueModel) -> dict:
+        def build():
+            fields = dict(model.fields or {})
+            out = {}
+            for term in ALPHA_TERMS:
+                base = fields.get(term)
+                derivative = FIRST_DERIVATIVES[term[-1]]
+                for j, shape in enumerate(_bilinear_fields()):
+
+                    def field(p, shape=shape, base=base):
+                        scale = 1.0 if base is None else (base(p) if callable(base) else base)
+                        return shape(p) * scale
+
+                    gram = weighted_gram(model.volume.basis, derivative, field, name=term)
+                    out[term, j] = to_casadi_sparse(model.free_block(gram))
+            return out
+
+        return self.cached(model, "grams", build)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        matrices = self._matrices(model)
+        force = 0
+        for (term, j), matrix in matrices.items():
+            coefficient = symbols.values[term] * theta[j]
+            force = force + coefficient * ca.mtimes(matrix, symbols.delta)
+        return force
+
+
+class Bending(Effect):
+    """beta [N/mm] times the rigidity terms sum_{i<=j} J_ij^T J_ij of eq. (18).
+
+    Added to the model's own beta (default 0). Realistic magnitude 5e-3 N/mm
+    (the probe then moves about 15 % less).
+    """
+
+    name = "bending"
+    parameter_names = ("beta",)
+    units = ("N/mm",)
+    scales = (1e-3,)
+    lower = (0.0,)
+    upper = (10.0,)
+    default_magnitude = 5e-3
+    magnitude_unit = "N/mm"
+    equation = "beta integral sum_{i<=j} |d_ij V|^2 (eq. 18)"
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        def build():
+            total = sum(m for t, m in model.terms.items() if t.startswith("beta_"))
+            return to_casadi_sparse(model.free_block(total))
+
+        return theta[0] * ca.mtimes(self.cached(model, "K_beta", build), symbols.delta)
+
+
+class PreTension(Effect):
+    """sigma0 [N/mm]: in-plane pre-stress of the skin, a geometric stiffness.
+
+    An isotropic membrane pre-stress sigma0 adds 1/2 sigma0 integral_skin g^ab
+    u_,a . u_,b dA to the energy (a, b in {u, v}; g_ab = V_a . V_b of the rest
+    skin). Split u_,a into its tangential part and its normal part (n . u_,a):
+
+    - the tangential part stiffens in-plane stretching by sigma0, next to the
+      skin's in-plane material stiffness E t (0.1-1 MPa times 1-2 mm, i.e.
+      100-2000 N/mm): a change below 1e-3, dropped;
+    - the normal part is the rotation of the skin's surface element,
+      delta n = -g^ab (n . u_,a) V_b, whose only stiffness in a membrane is the
+      pre-stress: a first-order effect (a drum's T laplacian w).
+
+    So K_sigma = integral_{w=1} g^ab (n . J_a)^T (n . J_b) dA: it acts on the
+    normal component of the displacement through its in-plane gradients and
+    couples x, y, z (3n x 3n, stacked). The base model's alpha terms act on
+    every component alike, so pre-tension is told apart by loads with an
+    in-plane component (a tilted probe). Realistic magnitude 0.05 N/mm (in vivo
+    skin tension, 10-50 kPa times 1-2 mm).
+    """
+
+    name = "pre_tension"
+    parameter_names = ("sigma0",)
+    units = ("N/mm",)
+    scales = (0.01,)
+    lower = (0.0,)
+    upper = (10.0,)
+    default_magnitude = 0.05
+    magnitude_unit = "N/mm"
+    equation = "sigma0 integral_skin g^ab (n . d_a u)(n . d_b u) dA"
+
+    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+        """K_sigma on all control points, (3n, 3n) in stacked order [1]."""
+
+        def build():
+            params, area, du, dv = surface_rule(model, 1.0, model.volume.basis.degrees[0] + 2)
+            metric = np.stack(
+                [
+                    np.stack([np.sum(du * du, 1), np.sum(du * dv, 1)], -1),
+                    np.stack([np.sum(dv * du, 1), np.sum(dv * dv, 1)], -1),
+                ],
+                -2,
+            )
+            inverse = np.linalg.inv(metric)
+            normal = model.volume.outer_normal(params[:, :2])
+            rows = []
+            for derivative in ((1, 0, 0), (0, 1, 0)):
+                j = sp.csr_matrix(model.volume.collocation(params, derivative))
+                rows.append(sp.hstack([sp.diags(normal[:, i]) @ j for i in range(3)]).tocsr())
+            total = sum(
+                rows[a].T @ sp.diags(area * inverse[:, a, b]) @ rows[b]
+                for a in range(2)
+                for b in range(2)
+            )
+            return sp.csr_matrix(0.5 * (total + total.T))
+
+        return self.cached(model, "K_sigma", build)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        block = self.cached(
+            model,
+            "K_sigma_free",
+            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
+        )
+        return theta[0] * apply_stacked(block, symbols.delta)
+
+
+class VolumetricCoupling(Effect):
+    """lambda [N/mm^2]: 1/2 lambda integral (div u)^2 dV over the physical volume.
+
+    With G = [V_u V_v V_w] of the rest shape B0 at a quadrature point,
+    div u = sum_a sum_i (G^-1)_ai (J_a Delta)_i, a row D of length 3n acting on
+    vec(Delta); K_lambda = sum_q w_q |det G_q| D_q^T D_q (3n x 3n) couples the
+    x, y, z components, which eq. (18) does not. Realistic magnitude
+    0.05 N/mm^2 (50 kPa, a few times the through-thickness shear modulus of the
+    phantom, for a nearly incompressible layer).
+    """
+
+    name = "volumetric_coupling"
+    parameter_names = ("lambda",)
+    units = ("N/mm^2",)
+    scales = (0.01,)
+    lower = (0.0,)
+    upper = (100.0,)
+    default_magnitude = 0.05
+    magnitude_unit = "N/mm^2"
+    equation = "lambda integral (div u)^2 dV (physical volume)"
+
+    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+        """K_lambda on all control points, (3n, 3n) in stacked order [mm]."""
+
+        def build():
+            points, weights = quadrature(model.volume.basis)
+            derivatives = [model.volume.collocation(points, d) for d in FIRST_DERIVATIVES.values()]
+            jacobian = np.stack([d @ model.rest for d in derivatives], axis=-1)  # (q, i, a)
+            inverse = np.linalg.inv(jacobian)  # (q, a, i)
+            volume = weights * np.abs(np.linalg.det(jacobian))
+            rows = [
+                sum(sp.diags(inverse[:, a, i]) @ derivatives[a] for a in range(3)) for i in range(3)
+            ]
+            divergence = sp.hstack(rows).tocsr()
+            total = divergence.T @ sp.diags(volume) @ divergence
+            return sp.csr_matrix(0.5 * (total + total.T))
+
+        return self.cached(model, "K_lambda", build)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        block = self.cached(
+            model,
+            "K_lambda_free",
+            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
+        )
+        return theta[0] * apply_stacked(block, symbols.delta)

@@ -1,0 +1,130 @@
+"""The layout: no import cycles, layers that only point down, modules of readable size.
+
+The import graph is read from the source (every ``import`` and ``from ... import``,
+inside functions too), so a cycle hidden behind a local import is still one.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("symbolic", "solvers", "experiments")
+LAYER = {name: rank for rank, name in enumerate(PACKAGES)}
+MAX_LINES = 450
+"""Largest module: lines of code, not counting the module docstring (STYLE.md: ~400)."""
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {
+        _module_name(path): path
+        for package in PACKAGES
+        for path in sorted((ROOT / package).rglob("*.py"))
+    }
+
+
+def _imports(name: str, path: Path, known: set[str]) -> set[str]:
+    """The project modules that ``name`` imports (a submodule when one is named)."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            targets = [
+                f"{base}.{alias.name}" if f"{base}.{alias.name}" in known else base
+                for alias in node.names
+            ]
+        else:
+            continue
+        found |= {t for t in targets if t in known}
+    found.discard(name)
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    modules = _modules()
+    known = set(modules)
+    return {name: _imports(name, path, known) for name, path in modules.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for other in graph[node]:
+            if other not in index:
+                visit(other)
+                low[node] = min(low[node], low[other])
+            elif other in on_stack:
+                low[node] = min(low[node], index[other])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in graph:
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_the_graph_reader_sees_a_cycle_and_relative_imports(tmp_path):
+    """The checker itself: a two-module cycle is found, a chain is not."""
+    assert _cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    graph = _graph()
+    assert "experiments.stereo.cameras" in graph["experiments.stereo.reconstruct"]
+    assert "symbolic.model" in graph["solvers.problem"]
+
+
+def test_there_are_no_import_cycles():
+    cycles = _cycles(_graph())
+    assert not cycles, f"import cycles: {cycles}"
+
+
+def test_layers_only_import_downwards():
+    """symbolic <- solvers <- experiments: nothing imports a layer above its own."""
+    upward = [
+        f"{name} -> {other}"
+        for name, targets in _graph().items()
+        for other in targets
+        if LAYER[other.split(".")[0]] > LAYER[name.split(".")[0]]
+    ]
+    assert not upward, f"imports against the layering: {upward}"
+
+
+@pytest.mark.parametrize("name", sorted(_modules()))
+def test_module_size(name):
+    path = _modules()[name]
+    source = path.read_text()
+    tree = ast.parse(source)
+    docstring = 0
+    first = tree.body[0] if tree.body else None
+    if isinstance(first, ast.Expr) and isinstance(getattr(first, "value", None), ast.Constant):
+        docstring = first.end_lineno - first.lineno + 1
+    lines = len(source.splitlines()) - docstring
+    assert lines <= MAX_LINES, f"{path.relative_to(ROOT)}: {lines} lines; split it at a seam"
