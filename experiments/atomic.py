@@ -93,6 +93,31 @@ def atomic_write(path: PathLike, write: Callable[[IO[bytes]], None]) -> Path:
     return target
 
 
+def atomic_write_by_name(path: PathLike, write: Callable[[Path], None]) -> Path:
+    """Write a file atomically through a writer that only takes a file name (e.g. meshio).
+
+    The writer gets a temporary name beside ``path`` with the same suffix (so that a
+    format taken from the suffix is right); the file is then synced and renamed.
+    """
+    target = Path(path)
+    descriptor, temporary = tempfile.mkstemp(
+        prefix=f".{target.stem}.", suffix=target.suffix, dir=target.parent
+    )
+    os.close(descriptor)
+    try:
+        write(Path(temporary))
+        with open(temporary, "rb+") as handle:
+            os.fsync(handle.fileno())
+        os.chmod(temporary, _target_mode(target))
+        os.replace(temporary, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
+    _fsync_directory(target.parent)
+    return target
+
+
 def atomic_write_bytes(path: PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically and return the path."""
     return atomic_write(path, lambda handle: handle.write(data))

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from experiments.dataset import Dataset
+from experiments.plausibility import dataset_warnings
 from solvers.identifiability import IdentifiabilityReport, analyse
 from solvers.nested import NestedSolver
 from solvers.problem import (
@@ -23,6 +24,7 @@ from solvers.problem import (
 )
 from solvers.result import InverseResult
 from solvers.simultaneous import SimultaneousSolver
+from solvers.verdict import fit_verdict
 from symbolic.loads import PointForce, ProbeForce
 from symbolic.model import BoundaryConditions, TissueModel
 from symbolic.volume import VolumeSpline
@@ -141,13 +143,21 @@ def result_document(
     result: InverseResult,
     report: IdentifiabilityReport,
     settings: FitSettings,
+    warnings=(),
 ) -> dict:
-    """The ``result.json`` document (schema dvs-result/1, DESIGN.md)."""
+    """The ``result.json`` document (schema dvs-result/1, DESIGN.md).
+
+    ``warnings`` are the dataset's plausibility warnings; the verdict's own (a residual
+    far above the noise) are added to them.
+    """
     errors = problem.point_errors(result.states)
     every = np.concatenate(errors)
+    rms = float(np.sqrt(np.mean(every**2)))
+    verdict = fit_verdict(problem, result.states, rms, settings.objective)
     return {
         "schema": "dvs-result/1",
         "method": result.method,
+        "success": bool(result.success),
         "parameters": {
             p.name: {
                 "value": p.value,
@@ -159,7 +169,7 @@ def result_document(
             }
             for p in report.parameters
         },
-        "rms_mm": float(np.sqrt(np.mean(every**2))),
+        "rms_mm": rms,
         "max_residual_mm": float(every.max()),
         "per_load_rms_mm": {
             case.label: float(np.sqrt(np.mean(e**2))) for case, e in zip(problem.cases, errors)
@@ -192,6 +202,8 @@ def result_document(
                 k: v for k, v in problem.model.parameters.items() if k not in problem.names
             },
         },
+        "verdict": verdict.document(),
+        "warnings": [*warnings, *verdict.warnings()],
     }
 
 
@@ -222,7 +234,8 @@ def fit_dataset(
     result = solve(problem, method)
     result.build_time_s += setup
     report = analyse(problem, result.x)
-    return problem, result, report, result_document(problem, result, report, settings)
+    document = result_document(problem, result, report, settings, dataset_warnings(dataset))
+    return problem, result, report, document
 
 
 # ------------------------------------------------------------------------ dvs fit
@@ -253,11 +266,26 @@ def build_parser(prog: str = "python -m experiments.fitting"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitting") -> int:
-    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input."""
+    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
+
+    Plausibility warnings go to stderr, one line each; the verdict is printed last.
+    """
+    import sys
+
     from experiments.dataset import load_dataset
-    from experiments.options import parse_grid, parse_names, run_guarded
+    from experiments.options import (
+        EXIT_NOT_CONVERGED,
+        check_output_dir,
+        parse_grid,
+        parse_names,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
+
+    def warn(lines) -> None:
+        for line in lines:
+            print(f"{prog}: warning: {line}", file=sys.stderr)
 
     def work() -> int:
         objective = "control_points" if args.method == "paper" else "markers"
@@ -266,18 +294,28 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
             grid=parse_grid(args.grid),
             objective=args.objective or objective,
         )
+        check_output_dir(args.out)
         dataset = load_dataset(args.dataset)
-        print(
-            f"fitting {args.dataset} ({dataset.n_loads} load cases) with the {args.method} method"
-        )
+        early = dataset_warnings(dataset)
+        warn(early)
+        print(f"fitting {args.dataset} ({dataset.n_loads} load cases), {args.method} method")
         problem, result, report, document = fit_dataset(dataset, settings, args.method)
         write_fit_outputs(args.out, problem, result, document)
         for line in report.summary_lines():
             print("  " + line)
         print(
-            f"  rms {document['rms_mm'] * 1e3:.2f} um; {result.status}; {result.iterations} "
+            f"  rms {document['rms_mm'] * 1e3:.4g} um; {result.status}; {result.iterations} "
             f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
         )
+        if not result.success:
+            print(
+                f"{prog}: error: the solver did not converge ({result.status}); "
+                f"{args.out / 'result.json'} has success: false",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_CONVERGED
+        print(f"  verdict: the fit {document['verdict']['summary']}")
+        warn(document["warnings"][len(early) :])
         return 0
 
     return run_guarded(prog, work)

@@ -17,6 +17,9 @@ from experiments.dataset import DatasetError
 EXIT_BAD_INPUT = 2
 """Exit code for input the user can fix (an option, a path, a dataset)."""
 
+EXIT_NOT_CONVERGED = 3
+"""Exit code when a solver did not converge (the JSON then says ``success: false``)."""
+
 EXIT_INTERRUPTED = 130
 """Exit code after Ctrl-C (128 + SIGINT)."""
 

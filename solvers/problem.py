@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.noise import rest_noise_map
 from symbolic.model import PARAMETERS, TissueModel
 
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
@@ -357,22 +358,13 @@ class InverseProblem:
             errors.append(case.force_rows @ lam - np.asarray(case.force_target))
         return errors
 
-    def rest_noise_map(self) -> np.ndarray | None:
+    def rest_noise_map(self) -> sp.csr_matrix | None:
         """P, mapping rest-marker coordinate noise into every residual, or None.
 
-        The residual covariance is sigma^2 (I + P P^T) when ``rest_noise`` holds.
+        The residual covariance is sigma^2 (I + P P^T) when ``rest_noise`` holds
+        (``solvers.noise``).
         """
-        if not self.rest_noise or any(c.marker_index is None for c in self.cases):
-            return None
-        n_markers = 1 + max(int(c.marker_index.max()) for c in self.cases)
-        blocks = []
-        for case in self.cases:
-            n = case.n_observations
-            pick = sp.csr_matrix(
-                (case.weights, (np.arange(n), case.marker_index)), shape=(n, n_markers)
-            )
-            blocks.append(sp.kron(sp.identity(3), pick))
-        return sp.vstack(blocks).tocsr()
+        return rest_noise_map(self.cases, self.rest_noise)
 
     def point_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
         """Per case, the distance |S B - Y| of every observed point [mm] (unweighted)."""

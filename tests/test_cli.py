@@ -92,3 +92,79 @@ def test_bad_arguments_exit_2_with_one_line(
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and fragment in err
     assert not (tmp_path / "x").exists()
+
+
+# ------------------------------------------------------------------------ the verdict
+def _variant(dataset_file, tmp_path, name, change) -> str:
+    arrays = dict(np.load(dataset_file))
+    change(arrays)
+    path = tmp_path / f"{name}.npz"
+    np.savez(path, **arrays)
+    return str(path)
+
+
+def test_fit_of_clean_data_says_it_explains_them(dataset_file, tmp_path, capsys):
+    assert main(["fit", str(dataset_file), "--out", str(tmp_path / "fit")]) == 0
+    captured = capsys.readouterr()
+    assert "verdict: the fit explains the data" in captured.out
+    assert "warning" not in captured.err
+    verdict = json.loads((tmp_path / "fit" / "result.json").read_text())["verdict"]
+    assert verdict["explains_data"] is True and verdict["p_value"] >= verdict["level"]
+    assert 0.5 < verdict["chi2"] / verdict["dof"] < 1.5
+
+
+def test_fit_with_swapped_surfaces_exits_0_but_says_it_does_not_explain_the_data(
+    dataset_file, tmp_path, capsys
+):
+    """The swapped dataset fits (Solve_Succeeded) at ~100x the noise: the verdict says
+    so, and the forces, seen from the swapped surfaces, pull the skin outward."""
+
+    def swap(arrays):
+        arrays["outer_rest"], arrays["inner_rest"] = arrays["inner_rest"], arrays["outer_rest"]
+
+    path = _variant(dataset_file, tmp_path, "swapped", swap)
+    assert main(["fit", path, "--out", str(tmp_path / "fit")]) == 0
+    captured = capsys.readouterr()
+    assert "does NOT explain the data" in captured.out
+    assert "pulls the skin outward" in captured.err and "Traceback" not in captured.err
+    document = json.loads((tmp_path / "fit" / "result.json").read_text())
+    assert document["success"] is True
+    assert document["verdict"]["explains_data"] is False
+    assert document["verdict"]["rms_mm"] > 30 * document["verdict"]["noise_rms_mm"]
+    assert any("outward" in w for w in document["warnings"])
+    assert any("noise alone" in w for w in document["warnings"])
+
+
+def test_fit_that_does_not_converge_exits_3_with_success_false(dataset_file, tmp_path, capsys):
+    def huge(arrays):
+        arrays["forces"] = arrays["forces"] * 1e30
+
+    path = _variant(dataset_file, tmp_path, "huge", huge)
+    code, err = exit_code_and_stderr(main, ["fit", path, "--out", str(tmp_path / "fit")], capsys)
+    assert code == 3
+    lines = err.strip().splitlines()
+    assert any("outside the 0.001-5 N" in line for line in lines)
+    assert lines[-1].startswith("dvs fit: error: the solver did not converge")
+    assert json.loads((tmp_path / "fit" / "result.json").read_text())["success"] is False
+
+
+def test_the_verdict_statistic_is_the_diagnosis_residual_test(dataset_file):
+    """Two code paths, one statistic: at the same parameters, the verdict's chi^2 equals
+    the diagnosis's residual test (the same whitening of the rest-marker noise)."""
+    from experiments.dataset import load_dataset
+    from experiments.diagnosis.diagnose import BASE_NAMES
+    from experiments.fitting import FitSettings, build_problem, dataset_loads
+    from solvers.diagnosis.fit import fit
+    from solvers.diagnosis.problem import ExtendedProblem
+    from solvers.diagnosis.stats import residual_test
+    from solvers.verdict import fit_verdict
+
+    dataset = load_dataset(dataset_file)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    current = fit(problem)
+    _, _, states = problem.evaluate(current.p)
+    verdict = fit_verdict(base, states, problem.rms(current.residual)[0])
+    expected = residual_test(current, dataset.noise_mm)
+    assert verdict.statistic == pytest.approx(expected.statistic, rel=1e-9)
+    assert verdict.dof == expected.dof and verdict.explains

@@ -34,9 +34,10 @@ from experiments.phantom.simulate import simulate_with_effects
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.guard import folds
 from solvers.diagnosis.loop import SCHEMA, DiagnosisSettings
-from solvers.diagnosis.problem import ExtendedProblem, noise_map
+from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.report import verdict
 from solvers.diagnosis.stats import log_chi2_sf, log_chi2_sf_series, score_test
+from solvers.noise import rest_noise_map
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 
 SEED = 1
@@ -89,7 +90,7 @@ def test_whitening_inverts_the_rest_noise_covariance():
     dataset = simulate_with_effects({}, seed=0)
     base = build_problem(dataset, FitSettings(names=BASE_NAMES))
     problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
-    p_map = noise_map(base.cases, True).toarray()
+    p_map = rest_noise_map(base.cases, True).toarray()
     covariance = np.eye(p_map.shape[0]) + p_map @ p_map.T
     whitening = problem.whitening.toarray()
     np.testing.assert_allclose(

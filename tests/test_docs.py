@@ -120,3 +120,15 @@ def test_the_api_overview_example_runs():
     exec(compile(example, "docs/api.md", "exec"), namespace)
     assert namespace["result"].success
     assert np.allclose(namespace["result"].x, namespace["check"].x, rtol=1e-6)
+
+
+def test_the_guide_paraview_example_runs(tmp_path, monkeypatch):
+    """docs/guide.md's VTU snippet, after the API overview's fit."""
+    pytest.importorskip("meshio")
+    monkeypatch.chdir(tmp_path)
+    api = (DOCS / "api.md").read_text().split("```python\n", 1)[1].split("```", 1)[0]
+    guide = (DOCS / "guide.md").read_text()
+    snippet = guide.split("## 5. Look at it in ParaView", 1)[1].split("```python\n", 1)[1]
+    namespace: dict = {}
+    exec(compile(api + snippet.split("```", 1)[0], "docs/guide.md", "exec"), namespace)
+    assert (tmp_path / "deformed.vtu").stat().st_size > 1000

@@ -10,9 +10,9 @@ the implicit function theorem,
 
 The noise model is that of the datasets: every marker coordinate, rest and
 loaded, has standard deviation sigma, and the rest markers are shared by all
-load cases, so Cov(r) = sigma^2 (I + P P^T) (``InverseProblem.rest_noise_map``).
-Residuals and Jacobians are whitened with W = (I + P P^T)^-1/2 (closed form,
-``_noise_model``): rho = W r has covariance sigma^2 I under pure noise.
+load cases, so Cov(r) = sigma^2 (I + P P^T). Residuals and Jacobians are whitened
+with W = (I + P P^T)^-1/2 (closed form, ``solvers.noise``): rho = W r has
+covariance sigma^2 I under pure noise.
 
 The base solvers stay untouched; ``solvers.diagnosis.fit.fit`` is the generic
 nested least squares over any subset of p (scipy trf, exact Jacobian).
@@ -26,6 +26,7 @@ import scipy.sparse.linalg as spla
 
 from solvers.diagnosis.numeric import NumericFunction
 from solvers.equilibrium import EquilibriumError
+from solvers.noise import Whitening, rest_noise_map
 from solvers.problem import LOG_PARAMETERS, InverseProblem, LoadCase
 from symbolic.effects.base import CaseData, Effect
 from symbolic.effects.library import ExtendedModel
@@ -66,21 +67,6 @@ def case_data(problem: InverseProblem, loads: list, index: int, position: int) -
         offset=case.offset,
         weights=case.weights,
     )
-
-
-def noise_map(cases: list[LoadCase], rest_noise: bool) -> sp.csr_matrix | None:
-    """P mapping rest-marker noise into the stacked residual of ``cases`` (or None)."""
-    if not rest_noise or any(c.marker_index is None for c in cases):
-        return None
-    n_markers = 1 + max(int(c.marker_index.max()) for c in cases)
-    blocks = []
-    for case in cases:
-        n = case.n_observations
-        pick = sp.csr_matrix(
-            (case.weights, (np.arange(n), case.marker_index)), shape=(n, n_markers)
-        )
-        blocks.append(sp.kron(sp.identity(3), pick))
-    return sp.vstack(blocks).tocsr()
 
 
 class ExtendedProblem:
@@ -130,7 +116,8 @@ class ExtendedProblem:
         key = ("noise", tuple(self.positions))
         if key not in self.cache:
             self.cache[key] = self._noise_model()
-        self.whitening, self.noise_factor = self.cache[key]
+        self.noise_model = self.cache[key]
+        self.whitening = self.noise_model.matrix
         self.n_residuals = self.whitening.shape[0]
 
     def _case(self, position: int) -> CaseData:
@@ -139,24 +126,11 @@ class ExtendedProblem:
             self.cache[key] = case_data(self.base, self.loads, self.indices[position], position)
         return self.cache[key]
 
-    def _noise_model(self) -> tuple[sp.csr_matrix, float]:
-        """W = (I + P P^T)^-1/2 and tr(I + P P^T)/m for the cases in use.
-
-        Every row of P picks one rest-marker coordinate, so N = P^T P is
-        diagonal and W = I - P diag(d) P^T with d_j = (1 - (1 + N_jj)^-1/2) / N_jj
-        (check: W^2 = I - P (I + N)^-1 P^T = (I + P P^T)^-1 by Woodbury).
-        """
+    def _noise_model(self) -> Whitening:
+        """The whitening of the cases in use (``solvers.noise``)."""
         selected = [self.base.cases[k] for k in self.positions]
-        p_map = noise_map(selected, self.base.rest_noise)
-        m = sum(3 * c.n_observations for c in selected)
-        if p_map is None:
-            return sp.identity(m, format="csr"), 1.0
-        counts = np.asarray(p_map.multiply(p_map).sum(axis=0)).ravel()
-        shrink = np.zeros_like(counts)
-        seen = counts > 0
-        shrink[seen] = (1.0 - 1.0 / np.sqrt(1.0 + counts[seen])) / counts[seen]
-        whitening = sp.identity(m, format="csr") - p_map @ sp.diags(shrink) @ p_map.T
-        return whitening.tocsr(), float(m + counts.sum()) / m
+        n = sum(3 * c.n_observations for c in selected)
+        return Whitening.of(rest_noise_map(selected, self.base.rest_noise), n)
 
     # ----------------------------------------------------------------- layout
     @property
@@ -309,7 +283,7 @@ class ExtendedProblem:
 
     def noise_rms(self, sigma: float) -> float:
         """Expected RMS marker distance of a pure-noise residual: sigma sqrt(3 tr(Sigma)/m)."""
-        return float(sigma * np.sqrt(3.0 * self.noise_factor))
+        return self.noise_model.noise_rms(sigma)
 
     def with_effects(self, effects: list[Effect], positions=None) -> ExtendedProblem:
         """The same base problem with other effects (or cases)."""

@@ -1,0 +1,85 @@
+"""The noise model of a dataset's marker residual, and its whitening (MODEL.md eq. 24).
+
+Every marker coordinate, rest and loaded, is measured with standard deviation sigma.
+The rest markers define the geometry and are shared by all load cases, so the
+residual r = W (S B - Y) of the cases has
+
+    Cov(r) = sigma^2 (D + P P^T),
+
+with D = diag(w^2) (the loaded noise; w = 1 for datasets) and P the map of the
+rest-marker noise into every residual (``rest_noise_map``). With unit weights the
+whitening is closed form: every row of P picks one rest-marker coordinate, so
+N = P^T P is diagonal and
+
+    W = (I + P P^T)^-1/2 = I - P diag(d) P^T,   d_j = (1 - (1 + N_jj)^-1/2) / N_jj
+
+(W^2 = I - P (I + N)^-1 P^T = (I + P P^T)^-1 by Woodbury). Under pure noise
+rho = W r has covariance sigma^2 I, and |rho|^2 / sigma^2 ~ chi^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def rest_noise_map(cases, rest_noise: bool = True) -> sp.csr_matrix | None:
+    """P, mapping rest-marker coordinate noise into the stacked residual of ``cases``.
+
+    Parameters
+    ----------
+    cases : list of LoadCase
+        Cases with ``marker_index`` (which rest marker each observation is) and weights.
+    rest_noise : bool
+        False when the rest geometry is exact (then there is no P).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix or None
+        (sum of 3 n_obs, 3 n_markers), or None without rest noise.
+    """
+    if not rest_noise or any(c.marker_index is None for c in cases):
+        return None
+    n_markers = 1 + max(int(c.marker_index.max()) for c in cases)
+    blocks = []
+    for case in cases:
+        n = case.n_observations
+        pick = sp.csr_matrix(
+            (case.weights, (np.arange(n), case.marker_index)), shape=(n, n_markers)
+        )
+        blocks.append(sp.kron(sp.identity(3), pick))
+    return sp.vstack(blocks).tocsr()
+
+
+@dataclass(frozen=True)
+class Whitening:
+    """W = (I + P P^T)^-1/2 of ``n`` residuals, and tr(I + P P^T) / n.
+
+    Attributes
+    ----------
+    matrix : scipy.sparse.csr_matrix
+        W, (n, n).
+    trace_factor : float
+        tr(I + P P^T) / n: the mean variance of one residual over sigma^2.
+    """
+
+    matrix: sp.csr_matrix
+    trace_factor: float
+
+    @classmethod
+    def of(cls, p_map: sp.spmatrix | None, n: int) -> Whitening:
+        """The whitening of ``n`` residuals with rest-noise map ``p_map`` (None: W = I)."""
+        if p_map is None:
+            return cls(sp.identity(n, format="csr"), 1.0)
+        counts = np.asarray(p_map.multiply(p_map).sum(axis=0)).ravel()
+        shrink = np.zeros_like(counts)
+        seen = counts > 0
+        shrink[seen] = (1.0 - 1.0 / np.sqrt(1.0 + counts[seen])) / counts[seen]
+        matrix = sp.identity(n, format="csr") - p_map @ sp.diags(shrink) @ p_map.T
+        return cls(matrix.tocsr(), float(n + counts.sum()) / n)
+
+    def noise_rms(self, sigma: float) -> float:
+        """Expected RMS marker distance of a pure-noise residual: sigma sqrt(3 tr / n) [mm]."""
+        return float(sigma * np.sqrt(3.0 * self.trace_factor))
