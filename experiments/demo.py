@@ -284,19 +284,21 @@ def run(out: Path) -> int:
 
 def build_parser(prog: str = "python -m experiments.demo"):
     """The options of ``dvs demo``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "The main job: the paper, end to end, on the phantom.")
-    parser.add_argument("--out", type=Path, default=Path("demo-output"), help="output directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("demo-output"), help="output directory"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.demo") -> int:
     """``dvs demo [--out DIR]``."""
-    from experiments.options import run_guarded
+    from experiments.options import check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)
-    return run_guarded(prog, lambda: run(args.out))
+    return run_guarded(prog, lambda: run(check_output_dir(args.out)))
 
 
 if __name__ == "__main__":

@@ -239,14 +239,37 @@ def fit_dataset(
 
 
 # ------------------------------------------------------------------------ dvs fit
+MAX_LAYERS = 12
+"""Most control-point layers through the thickness (``--grid``'s third number)."""
+
+MAX_CONTROL_POINTS = 66 * 66 * 6
+"""Most control points of a fit (about 8 times the 33 x 33 x 4 grid of the benchmarks)."""
+
+
+def check_grid(grid: tuple[int, int, int], degrees, text: str, option: str = "--grid"):
+    """A control grid the degrees allow (>= degree + 1 each) and the machine can afford."""
+    from experiments.options import UsageError
+
+    least = tuple(d + 1 for d in degrees)
+    if any(g < m for g, m in zip(grid, least)):
+        raise UsageError(
+            f"{option} {text}: degrees {tuple(degrees)} need at least "
+            f"{'x'.join(map(str, least))} control points"
+        )
+    if grid[2] > MAX_LAYERS or grid[0] * grid[1] * grid[2] > MAX_CONTROL_POINTS:
+        raise UsageError(
+            f"{option} {text}: at most {MAX_LAYERS} layers and {MAX_CONTROL_POINTS} control points"
+        )
+    return grid
+
+
 def build_parser(prog: str = "python -m experiments.fitting"):
     """The options of ``dvs fit`` (docs/cli.md)."""
-    from pathlib import Path
 
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
-    parser.add_argument("dataset", type=Path, help="dataset v1 (.npz)")
+    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
     parser.add_argument(
         "--method",
         choices=("simultaneous", "nested", "paper"),
@@ -261,7 +284,7 @@ def build_parser(prog: str = "python -m experiments.fitting"):
         default=None,
         help="what is compared (default: markers; control_points for --method paper)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
     return parser
 
 
@@ -291,7 +314,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
         objective = "control_points" if args.method == "paper" else "markers"
         settings = FitSettings(
             names=parse_names(args.params),
-            grid=parse_grid(args.grid),
+            grid=check_grid(parse_grid(args.grid), FitSettings().degrees, args.grid),
             objective=args.objective or objective,
         )
         check_output_dir(args.out)

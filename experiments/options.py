@@ -35,12 +35,15 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-class _DefaultsFormatter(argparse.HelpFormatter):
-    """Help that ends each option's line with its default, when it has a useful one."""
+class _DefaultsFormatter(argparse.RawDescriptionHelpFormatter):
+    """Help that ends each option's line with its default, when it has a useful one
+    (description and epilog are kept as written)."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
-        empty = action.default in (None, "", False, []) or action.default is argparse.SUPPRESS
+        default = action.default
+        empty = default is None or default is False or default is argparse.SUPPRESS
+        empty = empty or (isinstance(default, (str, list)) and not default)
         if action.required or empty or "%(default)" in text or not action.option_strings:
             return text
         return f"{text} (default: %(default)s)"
@@ -111,7 +114,50 @@ def parse_numbers(text: str, option: str, kind=float) -> tuple:
         raise UsageError(f"{option} takes a comma list of numbers, got {text!r}") from None
 
 
-def check_output_dir(path, option: str = "--out"):
+def check_seed(seed: int, option: str = "--seed") -> int:
+    """A random seed numpy accepts: 0 to 2^32 - 1."""
+    if not 0 <= seed < 2**32:
+        raise UsageError(f"{option} must be an integer from 0 to 2^32 - 1, got {seed}")
+    return seed
+
+
+def _writable(directory, option: str, path) -> None:
+    """Probe ``directory`` with a temporary file (``os.access`` says yes to root)."""
+    import tempfile
+
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise UsageError(
+            f"{option} {path}: cannot write in {directory} ({reason}); choose another place"
+        ) from None
+
+
+def check_output_file(path, suffix: str | None = None, option: str = "--out"):
+    """Check, before any work, that ``path`` can be written as a file (nothing is created).
+
+    Raises
+    ------
+    UsageError
+        When ``path`` is empty, has the wrong suffix, is a directory, or its folder
+        cannot be made or written.
+    """
+    from pathlib import Path
+
+    if path is None or str(path) == "":
+        raise UsageError(f"{option} needs a file name")
+    path = Path(path)
+    if suffix is not None and path.suffix != suffix:
+        raise UsageError(f"{option} must name a {suffix} file, got {path}")
+    if path.is_dir():
+        raise UsageError(f"{option} {path} is a directory; name a file")
+    check_output_dir(path.parent, option, shown=path)
+    return path
+
+
+def check_output_dir(path, option: str = "--out", shown=None):
     """Check, before any work, that ``path`` can become a writable output directory.
 
     Nothing is created: the directory is made when the first output is written, so a
@@ -122,19 +168,27 @@ def check_output_dir(path, option: str = "--out"):
     UsageError
         When ``path`` is empty, an existing file, below a file, or not writable.
     """
-    import os
     from pathlib import Path
 
     if path is None or str(path) == "":
         raise UsageError(f"{option} needs a directory name")
     path = Path(path)
+    shown = path if shown is None else shown
     if path.exists() and not path.is_dir():
-        raise UsageError(f"{option} {path} is an existing file; name a directory")
-    ancestor = path
+        raise UsageError(f"{option} {shown}: {path} is an existing file; name a directory")
+    ancestor = path.absolute()
     while not ancestor.exists():
         ancestor = ancestor.parent
     if not ancestor.is_dir():
-        raise UsageError(f"{option} {path}: {ancestor} is a file, not a directory")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise UsageError(f"{option} {path}: {ancestor} is not writable; choose another place")
+        raise UsageError(f"{option} {shown}: {ancestor} is a file, not a directory")
+    _writable(ancestor, option, shown)
     return path
+
+
+def path_argument(text: str):
+    """argparse ``type`` of a path option: a non-empty name (``Path('')`` would mean '.')."""
+    from pathlib import Path
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("needs a path, got an empty name")
+    return Path(text)

@@ -297,8 +297,29 @@ def test_detection_study_stays_inside_each_effects_bounds():
 
     # heterogeneity's h_u = 0.5 x factor must stay within its bound 0.9
     assert admissible("heterogeneity", 1.5) and not admissible("heterogeneity", 2.0)
-    assert admissible("contact_patch", 8.0)  # a 48 mm radius is inside its 100 mm bound
+    # contact_patch's theta is sigma^2 = (r / 2)^2 <= 100 mm^2: radii up to 20 mm
+    assert admissible("contact_patch", 3.0) and not admissible("contact_patch", 4.0)
     assert all(admissible(name, 1.0) for name in EFFECT_NAMES)
+
+
+@pytest.mark.parametrize("name", EFFECT_NAMES)
+def test_magnitude_range_is_where_the_true_parameters_meet_the_bounds(name):
+    """At both ends of ``magnitude_range`` the true parameters touch a bound, and just
+    beyond they leave it (the range that ``dvs simulate --effect`` accepts)."""
+    effect = make_effect(name)
+    low, high = effect.magnitude_range(10)
+    lower = np.resize(np.asarray(effect.lower, float), effect.true_parameters(1.0, 10).size)
+    upper = np.resize(np.asarray(effect.upper, float), lower.size)
+
+    def inside(m):
+        theta = effect.true_parameters(m, 10)
+        return bool(np.all(theta >= lower - 1e-12) and np.all(theta <= upper + 1e-12))
+
+    assert low <= effect.default_magnitude <= high
+    ends = ((low, -1.0), (high, 1.0)) if name != "contact_patch" else ((high, 1.0),)
+    for end, step in ends:  # contact_patch's magnitude is a radius: r >= 0 by definition
+        if np.isfinite(end):
+            assert inside(end) and not inside(end + step * 1e-6 * max(abs(end), 1.0))
 
 
 def test_detection_criteria_are_the_acceptance_criteria():

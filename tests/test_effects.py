@@ -260,7 +260,8 @@ def test_parse_effect_specs():
         (["gravity"], "unknown effect"),
         (["bending=abc"], "must be a number"),
         (["bending", "bending=1"], "twice"),
-        (["bending=nan"], "finite"),
+        (["bending=nan"], "takes 0 to 10"),
+        (["heterogeneity=5"], "takes -0.9 to 0.9"),
     ):
         with pytest.raises(ValueError, match=match):
             parse_effect_specs(bad)

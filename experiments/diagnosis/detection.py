@@ -24,8 +24,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-
 from experiments.diagnosis.diagnose import diagnose_dataset
 from experiments.phantom.designs import DESIGNS, design_options
 from experiments.phantom.simulate import simulate_with_effects
@@ -42,18 +40,10 @@ BEFORE_RATIO = 2.0
 
 
 def admissible(name: str, factor: float) -> bool:
-    """True while factor x the realistic magnitude stays inside the effect's bounds.
-
-    contact_patch's magnitude is a probe radius, compared with its upper bound.
-    """
+    """True while factor x the realistic magnitude stays inside the effect's bounds."""
     effect = make_effect(name)
-    magnitude = factor * effect.default_magnitude
-    theta = (
-        np.array([magnitude]) if name == "contact_patch" else effect.true_parameters(magnitude, 1)
-    )
-    lower = np.resize(np.asarray(effect.lower, dtype=float), theta.size)
-    upper = np.resize(np.asarray(effect.upper, dtype=float), theta.size)
-    return bool(np.all(theta >= lower) and np.all(theta <= upper))
+    low, high = effect.magnitude_range(1)
+    return bool(low <= factor * effect.default_magnitude <= high)
 
 
 def criteria(document: dict, name: str) -> dict:
@@ -146,7 +136,7 @@ def print_table(results: list[dict], log=print) -> None:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
     """The options of ``dvs detection``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--effects", default="", help="comma list; default every effect")
@@ -155,14 +145,22 @@ def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
     parser.add_argument(
         "--factors", default=",".join(f"{f:g}" for f in FACTORS), help="multiples, e.g. 1,2,4"
     )
-    parser.add_argument("--out", type=Path, default=Path("detection-output"), help="directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("detection-output"), help="directory"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.detection"):
     """``dvs detection [--effects a,b] [--factors 1,2,4] --out DIR``: detection.json."""
     from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, parse_numbers, run_guarded
+    from experiments.options import (
+        UsageError,
+        check_output_dir,
+        check_seed,
+        parse_numbers,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
@@ -174,8 +172,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         unknown = sorted(set(names) - set(EFFECT_NAMES))
         if unknown:
             raise UsageError(f"--effects: unknown {unknown}; choose from {', '.join(EFFECT_NAMES)}")
-        if args.seed < 0:
-            raise UsageError(f"--seed must be >= 0, got {args.seed}")
+        check_seed(args.seed)
         out = check_output_dir(args.out)
         results = [detection_limit(n, args.seed, args.design, factors) for n in names]
         print_table(results)

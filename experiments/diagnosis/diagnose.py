@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from experiments.dataset import Dataset, load_dataset
+from experiments.diagnosis.design import design_note
 from solvers.diagnosis.report import report, verdict
 
 BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
@@ -51,15 +52,26 @@ def run(dataset_or_path, out: Path, log=print, settings=None) -> dict:
     diagnosis = diagnose_dataset(dataset, settings, log=lambda line: log("  " + line))
     document = diagnosis.document()
     document["wall_time_s"] = time.perf_counter() - begin
+    document["design"] = design_note(dataset)
     out.mkdir(parents=True, exist_ok=True)
     plot_residuals(diagnosis, out / "residuals.png")
     atomic_write_json(out / "diagnosis.json", document)
-    atomic_write_text(out / "report.md", report(diagnosis, document))
+    text = report(diagnosis, document) + f"\n## The design\n\n{_design_text(document)}\n"
+    atomic_write_text(out / "report.md", text)
     log(
         f"rms {document['rms_before_mm'] * 1e3:.1f} -> {document['rms_after_mm'] * 1e3:.1f} um; "
         f"{verdict(document)} -> {out / 'diagnosis.json'}"
     )
+    log(f"note: {document['design']['note']}")
     return document
+
+
+def _design_text(document: dict) -> str:
+    design = document["design"]
+    return (
+        f"{design['loads']} loads at {design['contacts']} distinct contact(s), "
+        f"{design['tilted_loads']} tilted from the normal: {design['note']}."
+    )
 
 
 def plot_residuals(diagnosis, path: Path) -> None:
@@ -90,11 +102,11 @@ def plot_residuals(diagnosis, path: Path) -> None:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     """The options of ``dvs diagnose``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Find what the base model is missing (writes diagnosis.json).")
-    parser.add_argument("dataset", type=Path, help="dataset v1 (.npz)")
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
     parser.add_argument("--max-effects", type=int, default=3, help="most effects added (0-11)")
     return parser

@@ -27,7 +27,6 @@ Run as ``python -m experiments.diagnosis.outoflibrary --out FILE.npz``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -272,10 +271,10 @@ def simulate_slab(
 
 def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """The options of ``dvs outoflibrary``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True, help="output .npz file")
+    parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
     parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
     parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     return parser
@@ -283,15 +282,15 @@ def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """``dvs outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
-    from experiments.options import UsageError, run_guarded
+    from experiments.options import UsageError, check_output_file, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if args.out.suffix != ".npz":
-            raise UsageError(f"--out must name a .npz file, got {args.out}")
-        if not 0 <= args.noise < np.inf or args.seed < 0:
-            raise UsageError("--noise must be a finite number >= 0 mm and --seed >= 0")
+        if not 0 <= args.noise <= 1:
+            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_seed(args.seed)
+        check_output_file(args.out, ".npz")
         print("solving the linear-elastic FE slab under every load", flush=True)
         dataset = simulate_slab(noise_mm=args.noise, seed=args.seed)
         args.out.parent.mkdir(parents=True, exist_ok=True)

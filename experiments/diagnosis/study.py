@@ -118,7 +118,7 @@ def benchmark(effects: dict[str, float] | None = None, repeat: int = 3, log=prin
 
 def build_parser(prog: str = "python -m experiments.diagnosis.study"):
     """The options of ``dvs study``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Every effect alone over several seeds, diagnosed.")
     parser.add_argument("--seeds", default="1,2,3,4", help="comma list of seeds (>= 0)")
@@ -127,14 +127,20 @@ def build_parser(prog: str = "python -m experiments.diagnosis.study"):
         "--effects", default="", help="only these (comma list, 'none' too); default every effect"
     )
     parser.add_argument("--benchmark", action="store_true", help="time the score tests instead")
-    parser.add_argument("--out", type=Path, default=Path("study-output"), help="directory")
+    parser.add_argument("--out", type=path_argument, default=Path("study-output"), help="directory")
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.study"):
     """``dvs study --out DIR``: study.json (or benchmark.json with ``--benchmark``)."""
     from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, parse_numbers, run_guarded
+    from experiments.options import (
+        UsageError,
+        check_output_dir,
+        check_seed,
+        parse_numbers,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
@@ -142,10 +148,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         seeds = parse_numbers(args.seeds, "--seeds", int)
         names = tuple(n.strip() for n in args.effects.split(",") if n.strip()) or None
         unknown = set(names or ()) - set(EFFECT_NAMES) - {"none"}
-        if not seeds or min(seeds) < 0 or unknown:
+        if not seeds or unknown:
             raise UsageError(
-                f"--seeds takes integers >= 0 and --effects names from {', '.join(EFFECT_NAMES)}"
+                f"--seeds takes integers and --effects names from {', '.join(EFFECT_NAMES)}"
             )
+        for seed in seeds:
+            check_seed(seed, "--seeds")
         out = check_output_dir(args.out)
         if args.benchmark:
             document, name = benchmark(), "benchmark.json"

@@ -415,10 +415,12 @@ def coverage_study(seeds=range(20), noise_mm=0.02, log=print) -> dict:
 
 def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
     """The options of ``dvs dynamic``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("dynamic-output"), help="directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("dynamic-output"), help="directory"
+    )
     parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
     parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     parser.add_argument(
@@ -432,13 +434,14 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.inverse"):
     """``dvs dynamic --out DIR``: dynamic.json and dynamic.png."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 <= args.noise < np.inf or args.seed < 0:
-            raise UsageError("--noise must be a finite number >= 0 mm and --seed >= 0")
+        if not 0 <= args.noise <= 1:
+            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_seed(args.seed)
         if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 1000:
             raise UsageError("--substeps must lie in 1-100 and --coverage in 0-1000")
         out = check_output_dir(args.out)

@@ -226,10 +226,12 @@ def benchmark(repeats: int = 3, log=print) -> list[dict]:
 
 def build_parser(prog: str = "python -m experiments.dynamics.transient"):
     """The options of ``dvs transient``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("transient-output"), help="directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("transient-output"), help="directory"
+    )
     parser.add_argument("--k0", type=float, default=DEFAULT_K0, help="stiffening, 0-1000")
     parser.add_argument("--mu", type=float, default=None, help="mass density [t] (> 0)")
     parser.add_argument("--bench", action="store_true", help="print the timing table too")

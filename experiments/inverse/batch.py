@@ -100,7 +100,7 @@ def coverage_summary(results: list[dict], truth: dict) -> dict:
 
 def build_parser(prog: str = "python -m experiments.inverse.batch"):
     """The options of ``dvs batch``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Batch studies on dask.distributed.")
     parser.add_argument(
@@ -109,7 +109,7 @@ def build_parser(prog: str = "python -m experiments.inverse.batch"):
     parser.add_argument("--count", type=int, default=20, help="draws or starts (1-10000)")
     parser.add_argument("--workers", type=int, default=2, help="local workers (1-64)")
     parser.add_argument("--scheduler", default=None, help="address of a dask scheduler")
-    parser.add_argument("--out", type=Path, default=None, help="also write DIR/batch.json")
+    parser.add_argument("--out", type=path_argument, default=None, help="also write DIR/batch.json")
     return parser
 
 

@@ -16,7 +16,6 @@ import resource
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -32,8 +31,6 @@ from symbolic.model import BoundaryConditions, TissueModel
 from symbolic.volume import VolumeSpline
 
 GRIDS = ((9, 9, 2), (17, 17, 3), (33, 33, 4))
-MAX_CONTROL_POINTS = 66 * 66 * 6
-"""The largest inverse grid accepted (about 8 times the 33 x 33 x 4 grid's points)."""
 REPEATS = 5
 """Repeated solves per method (median reported), besides the first, timed one; only
 where a solve takes under 5 s (the paper-faithful method and the 33 x 33 x 4 grid are
@@ -285,7 +282,7 @@ def print_targets(forward: list[ForwardTiming], results: dict) -> None:
 
 def build_parser(prog: str = "python -m experiments.inverse.bench"):
     """The options of ``dvs bench``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--k0", type=float, default=0.0, help="stiffening for the forward runs")
@@ -297,18 +294,21 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
     )
     parser.add_argument("--grids", default="9x9x2,17x17x3,33x33x4", help="inverse grids")
     parser.add_argument("--methods", default="simultaneous,nested", help="inverse methods")
-    parser.add_argument("--out", type=Path, default=None, help="also write DIR/bench.json")
+    parser.add_argument("--out", type=path_argument, default=None, help="also write DIR/bench.json")
     return parser
 
 
 def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
-    from experiments.options import UsageError, parse_grid
+    """Comma list of control grids, each one ``dvs fit --grid`` would accept."""
+    from experiments.fitting import FitSettings, check_grid
+    from experiments.options import parse_grid
 
-    grids = [parse_grid(g.strip(), option) for g in text.split(",") if g.strip()]
-    for grid in grids:
-        if grid[0] * grid[1] * grid[2] > MAX_CONTROL_POINTS:
-            raise UsageError(f"{option}: {grid} has more than {MAX_CONTROL_POINTS} control points")
-    return grids
+    degrees = FitSettings().degrees
+    return [
+        check_grid(parse_grid(g.strip(), option), degrees, g.strip(), option)
+        for g in text.split(",")
+        if g.strip()
+    ]
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.bench") -> int:

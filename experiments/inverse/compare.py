@@ -33,6 +33,9 @@ METHODS = {
 }
 ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 
+MAX_STARTS = 1000
+"""Most multi-start points accepted on the command line."""
+
 
 def log_uniform_starts(problem: InverseProblem, count: int, seed: int = 0) -> np.ndarray:
     """``count`` start points, log-uniform within the bounds (natural units)."""
@@ -172,11 +175,15 @@ def run(dataset, out: Path, starts: int = 20, paper_starts: int = 5, truth=None,
 
 def build_parser(prog: str = "python -m experiments.inverse.compare"):
     """The options of ``dvs compare``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Simultaneous vs nested vs paper-faithful, multi-start.")
     parser.add_argument(
-        "dataset", type=Path, nargs="?", default=None, help="dataset v1 (.npz); default: phantom"
+        "dataset",
+        type=path_argument,
+        nargs="?",
+        default=None,
+        help="dataset v1 (.npz); default: phantom",
     )
     parser.add_argument("--starts", type=int, default=20, help="multi-start points")
     parser.add_argument(
@@ -185,21 +192,26 @@ def build_parser(prog: str = "python -m experiments.inverse.compare"):
         default=3,
         help="multi-start points for the (slow) paper-faithful method",
     )
-    parser.add_argument("--out", type=Path, default=Path("compare-output"), help="directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("compare-output"), help="directory"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
     """``dvs compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
-    from experiments.options import UsageError, run_guarded
+    from experiments.options import UsageError, check_output_dir, run_guarded
     from experiments.phantom.forehead import TRUE_PARAMETERS
     from experiments.phantom.simulate import simulate
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if args.starts < 1 or args.paper_starts < 0:
-            raise UsageError("--starts must be >= 1 and --paper-starts >= 0")
+        if not 1 <= args.starts <= MAX_STARTS or not 0 <= args.paper_starts <= MAX_STARTS:
+            raise UsageError(
+                f"--starts must lie in 1-{MAX_STARTS} and --paper-starts in 0-{MAX_STARTS}"
+            )
+        check_output_dir(args.out)
         dataset = args.dataset or simulate()
         truth = None if args.dataset else TRUE_PARAMETERS
         print(table(run(dataset, args.out, args.starts, args.paper_starts, truth)))

@@ -131,10 +131,10 @@ def run(out: Path, noise_mm: float = 0.02, seed: int = 0, log=print, dataset=Non
 
 def build_parser(prog: str = "python -m experiments.inverse.paper"):
     """The options of ``dvs paper``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "The paper's Table 1: two data sets, separately and jointly.")
-    parser.add_argument("--out", type=Path, default=Path("paper-output"), help="directory")
+    parser.add_argument("--out", type=path_argument, default=Path("paper-output"), help="directory")
     parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
     parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     return parser
@@ -142,13 +142,15 @@ def build_parser(prog: str = "python -m experiments.inverse.paper"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.paper"):
     """``dvs paper --out DIR``: table1.md and paper.json."""
-    from experiments.options import UsageError, run_guarded
+    from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not (0 <= args.noise < float("inf")) or args.seed < 0:
-            raise UsageError("--noise must be a finite number >= 0 mm and --seed >= 0")
+        if not 0 <= args.noise <= 1:
+            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_seed(args.seed)
+        check_output_dir(args.out)
         print(f"fitting data sets 1, 2 and both (noise {args.noise} mm, seed {args.seed})")
         print(run(args.out, args.noise, args.seed)["markdown"])
         return 0

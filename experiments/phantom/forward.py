@@ -57,10 +57,12 @@ def run(out: Path, force: float = 0.25, k0: float = 0.0, log=print) -> dict:
 
 def build_parser(prog: str = "python -m experiments.phantom.forward"):
     """The options of ``dvs forward``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Forward solve of the forehead phantom under a probe force.")
-    parser.add_argument("--out", type=Path, default=Path("forward-output"), help="directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("forward-output"), help="directory"
+    )
     parser.add_argument("--force", type=float, default=0.25, help="probe force, 0-5 [N]")
     parser.add_argument("--k0", type=float, default=0.0, help="stiffening parameter, 0-1000")
     return parser

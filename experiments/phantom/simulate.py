@@ -15,7 +15,6 @@ NAME[=VALUE]``), on the paper's design or the diagnosis design
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -28,7 +27,7 @@ from experiments.phantom.forehead import (
     marker_uv,
     probe_loads,
 )
-from solvers.equilibrium import EquilibriumSolver
+from solvers.equilibrium import EquilibriumError, EquilibriumSolver
 from solvers.problem import InverseProblem, ParameterSpace, observation_case
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 from symbolic.loads import ProbeForce
@@ -166,13 +165,21 @@ def simulate(
     )
 
 
-def parse_effect_specs(specs) -> dict[str, float]:
+def parse_effect_specs(specs, n_cases: int = 2) -> dict[str, float]:
     """``["rigid_motion=0.05", "bending"]`` -> {name: magnitude} (defaults for bare names).
+
+    Parameters
+    ----------
+    specs : list of str
+        ``NAME`` or ``NAME=VALUE``.
+    n_cases : int
+        Load cases of the design (per-case effects' ranges depend on it).
 
     Raises
     ------
     ValueError
-        For an unknown name, a repeated name or a value that is not a finite number.
+        For an unknown name, a repeated name, a value that is not a finite number, or a
+        magnitude outside the effect's own bounds (``Effect.magnitude_range``).
     """
     effects: dict[str, float] = {}
     for spec in specs or []:
@@ -182,17 +189,34 @@ def parse_effect_specs(specs) -> dict[str, float]:
             raise ValueError(f"unknown effect {name!r}; choose from {', '.join(EFFECT_NAMES)}")
         if name in effects:
             raise ValueError(f"effect {name} given twice")
-        if value.strip():
-            try:
-                magnitude = float(value)
-            except ValueError:
-                raise ValueError(f"--effect {spec!r}: the value must be a number") from None
-            if not np.isfinite(magnitude):
-                raise ValueError(f"--effect {spec!r}: the value must be finite")
-        else:
-            magnitude = make_effect(name).default_magnitude
+        effect = make_effect(name)
+        if not value.strip():
+            effects[name] = effect.default_magnitude
+            continue
+        try:
+            magnitude = float(value)
+        except ValueError:
+            raise ValueError(f"--effect {spec!r}: the value must be a number") from None
+        low, high = effect.magnitude_range(n_cases)
+        if not low <= magnitude <= high:
+            unit = "" if effect.magnitude_unit in ("", "1") else f" {effect.magnitude_unit}"
+            raise ValueError(
+                f"--effect {spec!r}: {name} takes {low:.4g} to {high:.4g}{unit} "
+                f"(realistic: {effect.default_magnitude:g})"
+            )
         effects[name] = magnitude
     return effects
+
+
+def effect_table(n_cases: int = 2) -> str:
+    """Every effect's realistic magnitude and admissible range, for ``--help``."""
+    lines = []
+    for name in EFFECT_NAMES:
+        effect = make_effect(name)
+        low, high = effect.magnitude_range(n_cases)
+        unit = "" if effect.magnitude_unit in ("", "1") else f" {effect.magnitude_unit}"
+        lines.append(f"  {name}={effect.default_magnitude:g}  ({low:.3g} to {high:.3g}{unit})")
+    return "\n".join(lines)
 
 
 def _truth_states(truth, loads, uv, effects: dict[str, float]) -> list[np.ndarray]:
@@ -278,9 +302,13 @@ def simulate_with_effects(
 # ------------------------------------------------------------------- dvs simulate
 def build_parser(prog: str = "python -m experiments.phantom.simulate"):
     """The options of ``dvs simulate``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Write a synthetic dataset from the forehead phantom.")
+    parser.epilog = (
+        "effects: a bare --effect NAME uses the realistic magnitude; the range is the\n"
+        "effect's own bounds (paper design):\n" + effect_table()
+    )
     parser.add_argument(
         "--effect",
         action="append",
@@ -290,28 +318,33 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
         "realistic magnitude, docs/diagnosis.md)",
     )
     parser.add_argument("--design", choices=DESIGNS, default="paper", help="where to press")
-    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
-    parser.add_argument("--seed", type=int, default=0, help="random seed")
-    parser.add_argument("--out", type=Path, required=True, help="output .npz file")
+    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm], 0-1")
+    parser.add_argument("--seed", type=int, default=0, help="random seed, 0 to 2^32 - 1")
+    parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.simulate"):
     """``dvs simulate [--effect NAME[=VALUE] ...] --out FILE.npz``."""
     from experiments.dataset import save_dataset
-    from experiments.options import UsageError, run_guarded
+    from experiments.options import UsageError, check_output_file, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 <= args.noise < np.inf:
-            raise UsageError(f"--noise must be a finite number >= 0 mm, got {args.noise}")
-        if args.out.suffix != ".npz":
-            raise UsageError(f"--out must name a .npz file, got {args.out}")
+        if not 0 <= args.noise <= 1:
+            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_seed(args.seed)
+        check_output_file(args.out, ".npz")
         options = design_options(args.design)
-        dataset = simulate_with_effects(
-            parse_effect_specs(args.effect), noise_mm=args.noise, seed=args.seed, **options
-        )
+        n_cases = len(options.get("contacts", [None])) * len(PhantomSettings().forces)
+        effects = parse_effect_specs(args.effect, n_cases)
+        try:
+            dataset = simulate_with_effects(effects, noise_mm=args.noise, seed=args.seed, **options)
+        except EquilibriumError:
+            raise UsageError(
+                f"the phantom has no equilibrium with {effects}; lower the effect magnitudes"
+            ) from None
         args.out.parent.mkdir(parents=True, exist_ok=True)
         save_dataset(args.out, dataset)
         print(

@@ -23,7 +23,6 @@ Run ``python -m experiments.realskin.checks [--check edges,slip,two-sided]`` (ab
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 
@@ -154,12 +153,14 @@ def line(result: dict) -> str:
 
 def build_parser(prog: str = "python -m experiments.realskin.checks"):
     """The options of ``dvs realskin-checks``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--check", default=",".join(CHECKS), help="comma list")
     parser.add_argument("--verbose", action="store_true", help="print the loop's log")
-    parser.add_argument("--out", type=Path, default=None, help="also write DIR/checks.json")
+    parser.add_argument(
+        "--out", type=path_argument, default=None, help="also write DIR/checks.json"
+    )
     return parser
 
 

@@ -18,8 +18,6 @@ Run ``python -m experiments.realskin.strain [--case keloid] [--frames 14,42,70,8
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from experiments.realskin.data import SkinCase, load_case
@@ -131,20 +129,22 @@ def figure(case: SkinCase, frames, path, window: int = 4, pads=None) -> None:
 
 def build_parser(prog: str = "python -m experiments.realskin.strain"):
     """The options of ``dvs realskin-strain``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
         "--case", choices=("healthy", "keloid"), default="keloid", help="which measurement"
     )
     parser.add_argument("--frames", default="14,42,70,84", help="comma list of DIC frames")
-    parser.add_argument("--figure", type=Path, default=None, help="write the figure (PNG) here")
+    parser.add_argument(
+        "--figure", type=path_argument, default=None, help="write the figure (PNG) here"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.strain") -> int:
     """``dvs realskin-strain [--case healthy] [--frames 14,42]``; exit 2 on bad input."""
-    from experiments.options import UsageError, parse_numbers, run_guarded
+    from experiments.options import UsageError, check_output_file, parse_numbers, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
@@ -152,8 +152,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.reals
         frames = list(parse_numbers(args.frames, "--frames", int))
         if not frames:
             raise UsageError(f"--frames takes a comma list of integers, got {args.frames!r}")
-        if args.figure is not None and args.figure.suffix != ".png":
-            raise UsageError(f"--figure must name a .png file, got {args.figure}")
+        if args.figure is not None:
+            check_output_file(args.figure, ".png", "--figure")
         case = load_case(args.case)
         edges = SEGMENTS_MM if args.case == "keloid" else quarters(case)
         print(table(case, frames, edges))

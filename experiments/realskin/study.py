@@ -194,10 +194,12 @@ def run(
 
 def build_parser(prog: str = "python -m experiments.realskin"):
     """The options of ``dvs realskin``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("realskin-output"), help="directory")
+    parser.add_argument(
+        "--out", type=path_argument, default=Path("realskin-output"), help="directory"
+    )
     parser.add_argument(
         "--boundary", choices=("inner", "lateral"), default="inner", help="what is held fixed"
     )

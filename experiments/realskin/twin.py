@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -289,7 +288,7 @@ def _numbers(text: str, kind, what: str) -> list:
 
 def build_parser(prog: str = "python -m experiments.realskin.twin"):
     """The options of ``dvs realskin-twin``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--ratios", default="3.5,23", help="stiffness ratios of the keloid")
@@ -305,7 +304,7 @@ def build_parser(prog: str = "python -m experiments.realskin.twin"):
         help="the twin's material outside the keloid",
     )
     parser.add_argument("--verbose", action="store_true", help="print the loop's log")
-    parser.add_argument("--out", type=Path, default=None, help="also write DIR/twin.json")
+    parser.add_argument("--out", type=path_argument, default=None, help="also write DIR/twin.json")
     return parser
 
 

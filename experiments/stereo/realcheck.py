@@ -254,11 +254,11 @@ def make_figure(artefacts: dict, path: Path, scale: float = 0.25) -> None:
 
 def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
     """The options of ``dvs realcheck``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--data", type=Path, default=None, help="shared data directory")
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
+    parser.add_argument("--data", type=path_argument, default=None, help="shared data directory")
     return parser
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -363,23 +362,24 @@ def reconstruct(
 
 def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
     """The options of ``dvs reconstruct``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Reconstruct a dataset from the images of an experiment.")
-    parser.add_argument("folder", type=Path, help="experiment folder (docs/stereo.md)")
-    parser.add_argument("--out", type=Path, required=True, help="dataset file to write (.npz)")
+    parser.add_argument("folder", type=path_argument, help="experiment folder (docs/stereo.md)")
+    parser.add_argument(
+        "--out", type=path_argument, required=True, help="dataset file to write (.npz)"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.reconstruct"):
     """``dvs reconstruct FOLDER --out FILE.npz``; exit 2 with one line on bad input."""
-    from experiments.options import UsageError, run_guarded
+    from experiments.options import check_output_file, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if args.out.suffix != ".npz":
-            raise UsageError(f"--out must name a .npz file, got {args.out}")
+        check_output_file(args.out, ".npz")
         try:
             rec = reconstruct(args.folder, progress=lambda m: print(m, file=sys.stderr))
         except cv2.error as error:

@@ -402,10 +402,10 @@ def write_synthetic_experiment(
 
 def build_parser(prog: str = "python -m experiments.stereo.render"):
     """The options of ``dvs render``."""
-    from experiments.options import make_parser
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Render a synthetic forehead experiment for dvs reconstruct.")
-    parser.add_argument("folder", type=Path, help="experiment folder to write")
+    parser.add_argument("folder", type=path_argument, help="experiment folder to write")
     parser.add_argument("--scale", type=float, default=1.0, help="sensor binning, 0.1-2")
     parser.add_argument("--boards", type=int, default=12, help="board poses, 3-50")
     parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
@@ -414,13 +414,14 @@ def build_parser(prog: str = "python -m experiments.stereo.render"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.render"):
     """``dvs render FOLDER [--scale S] [--boards N] [--seed N]``."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0.1 <= args.scale <= 2 or not 3 <= args.boards <= 50 or args.seed < 0:
-            raise UsageError("--scale must lie in [0.1, 2], --boards in 3-50 and --seed >= 0")
+        if not 0.1 <= args.scale <= 2 or not 3 <= args.boards <= 50:
+            raise UsageError("--scale must lie in [0.1, 2] and --boards in 3-50")
+        check_seed(args.seed)
         check_output_dir(args.folder, "FOLDER")
         print(f"rendering {args.boards} board poses and the experiment into {args.folder}")
         rig = RigSettings(scale=args.scale)

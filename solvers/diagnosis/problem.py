@@ -180,7 +180,7 @@ class ExtendedProblem:
         return np.where(self.log, np.exp(z), self.scale)
 
     def functions(self, position: int):
-        """The CasADi Functions of the case at ``position`` (``symbolic.effects.library.CaseFunctions``)."""
+        """The CasADi Functions of the case at ``position`` (``library.CaseFunctions``)."""
         return self.extended.functions(position)
 
     def slice_of(self, name: str) -> slice:

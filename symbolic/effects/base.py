@@ -180,6 +180,23 @@ class Effect:
         blocks = [magnitude * direction * self.case_factor(k) for k in range(n_cases)]
         return np.concatenate(blocks if self.per_case else blocks[:1])
 
+    def magnitude_range(self, n_cases: int = 1) -> tuple[float, float]:
+        """Magnitudes whose ``true_parameters`` stay within ``lower`` and ``upper``.
+
+        theta is linear in the magnitude (``true_parameters(1)`` is its slope), so each
+        component bounds the magnitude on one side or both.
+        """
+        slope = self.true_parameters(1.0, n_cases)
+        lower = np.resize(np.asarray(self.lower, dtype=float), slope.size)
+        upper = np.resize(np.asarray(self.upper, dtype=float), slope.size)
+        low, high = -np.inf, np.inf
+        for d, lo, hi in zip(slope, lower, upper):
+            if d > 0:
+                low, high = max(low, lo / d), min(high, hi / d)
+            elif d < 0:
+                low, high = max(low, hi / d), min(high, lo / d)
+        return float(low), float(high)
+
     def direction(self) -> tuple[float, ...]:
         """Unit pattern of theta that a scalar magnitude scales."""
         return (1.0,) * self.dim

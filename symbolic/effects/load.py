@@ -163,6 +163,10 @@ class ContactPatch(Effect):
     def true_parameters(self, magnitude: float, n_cases: int) -> np.ndarray:
         return np.array([(0.5 * magnitude) ** 2])
 
+    def magnitude_range(self, n_cases: int = 1) -> tuple[float, float]:
+        """Probe radii r >= 0 with sigma^2 = (r / 2)^2 within the bounds [mm]."""
+        return float(2.0 * np.sqrt(self.lower[0])), float(2.0 * np.sqrt(self.upper[0]))
+
     def load(self, model: TissueModel, case: CaseData, load: LoadState, theta) -> LoadState:
         variance = theta[0] if load.variance is None else load.variance + theta[0]
         return LoadState(load.force_vector, load.uv_shift, variance)

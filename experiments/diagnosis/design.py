@@ -1,0 +1,62 @@
+"""Which effects a dataset's design can separate from alpha, as measured.
+
+The diagnosis can only find what the experiment lets it see. On the paper's design
+(loads at one contact, along the normal) the cases are nearly proportional and a
+refit of alpha absorbs four physical effects; on the diagnosis design (five contacts,
+a tilted load) only ``base_compliance`` stays hidden (docs/diagnosis.md, "The
+experiment design of the diagnosis" and "Measured results"; ``dvs study --design
+paper`` and ``dvs study``). ``design_note`` reads a dataset's contacts and force
+directions and says which of these limits applies.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from experiments.dataset import Dataset, median_marker_spacing
+from experiments.plausibility import outward_normals
+
+HIDDEN_ANYWHERE = ("base_compliance",)
+"""Effects not selected on any design tried (absorbed by alpha_w)."""
+
+HIDDEN_ON_ONE_CONTACT = ("heterogeneity", "bending", "pre_tension", *HIDDEN_ANYWHERE)
+"""Effects not selected first with loads at one contact along the normal (seed 1)."""
+
+TILT_DEG = 5.0
+"""A load more than this far from the inward normal counts as tilted [deg]."""
+
+
+def design_summary(dataset: Dataset) -> dict:
+    """Loads, distinct contacts (a marker spacing apart) and tilted loads of a dataset."""
+    spacing = median_marker_spacing(dataset.outer_rest)
+    distinct: list[np.ndarray] = []
+    for contact in dataset.contacts:
+        if all(np.linalg.norm(contact - c) > spacing for c in distinct):
+            distinct.append(contact)
+    normals = outward_normals(dataset)
+    markers = dataset.outer_rest.reshape(-1, 3)
+    tilted = 0
+    for force, contact in zip(dataset.forces, dataset.contacts):
+        normal = normals[int(np.argmin(np.linalg.norm(markers - contact, axis=1)))]
+        cosine = -float(force @ normal) / max(float(np.linalg.norm(force)), 1e-300)
+        tilted += bool(cosine < np.cos(np.radians(TILT_DEG)))
+    return {"loads": dataset.n_loads, "contacts": len(distinct), "tilted_loads": tilted}
+
+
+def design_note(dataset: Dataset) -> dict:
+    """The design's summary, the effects it cannot separate from alpha, and one line."""
+    summary = design_summary(dataset)
+    if summary["contacts"] == 1 and summary["tilted_loads"] == 0:
+        hidden = HIDDEN_ON_ONE_CONTACT
+        line = (
+            "with every load at one contact along the normal, the design cannot separate "
+            f"{', '.join(hidden)} from alpha (a refit absorbs them); press at several "
+            "contacts and tilt a load (dvs simulate --design diagnosis; docs/diagnosis.md)"
+        )
+    else:
+        hidden = HIDDEN_ANYWHERE
+        line = (
+            f"{', '.join(hidden)} is absorbed by alpha_w on every design tried; the others "
+            "can be told apart when large enough (docs/diagnosis.md, detection limits)"
+        )
+    return {**summary, "cannot_separate": list(hidden), "note": line}

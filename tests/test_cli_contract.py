@@ -1,0 +1,204 @@
+"""The command-line contract, on every dvs subcommand, in fresh processes.
+
+A bad output path or an option outside its documented range gives exit 2, one line on
+stderr that names it, no traceback and no file written, before any work starts: an
+expensive command fails no slower than its own ``--help`` plus a second.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from experiments.cli import COMMANDS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+DIRECTORY_OUTPUT = {
+    "demo": [],
+    "fit": ["{data}"],
+    "compare": [],
+    "diagnose": ["{data}"],
+    "transient": [],
+    "paper": [],
+    "bench": [],
+    "batch": [],
+    "forward": [],
+    "dynamic": [],
+    "study": [],
+    "detection": [],
+    "realskin": [],
+    "realskin-twin": [],
+    "realskin-checks": [],
+    "realcheck": ["--data", "{tmp}"],
+}
+"""Commands whose ``--out`` is a directory, with the other arguments they need."""
+
+FILE_OUTPUT = {
+    "simulate": ("--out", ".npz", []),
+    "reconstruct": ("--out", ".npz", ["{tmp}"]),
+    "outoflibrary": ("--out", ".npz", []),
+    "realskin-strain": ("--figure", ".png", []),
+}
+"""Commands that write one file: (option, suffix, other arguments)."""
+
+NO_OUTPUT = {"realskin-data"}
+"""Commands that only print."""
+
+EXPENSIVE = ("demo", "compare", "study", "detection", "realskin", "bench")
+
+
+def _unwritable(tmp: Path) -> Path:
+    """A directory no one may write in: /sys for root (chmod does not stop root)."""
+    if os.geteuid() == 0:
+        return Path("/sys")
+    folder = tmp / "locked"
+    folder.mkdir()
+    folder.chmod(0o555)
+    return folder
+
+
+def _run(argv: list[str], cwd: Path) -> tuple[int, str, float]:
+    begin = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "experiments.cli", *argv],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"},
+    )
+    return done.returncode, done.stderr, time.perf_counter() - begin
+
+
+def _fill(args: list[str], data: Path, tmp: Path) -> list[str]:
+    return [a.replace("{data}", str(data)).replace("{tmp}", str(tmp)) for a in args]
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory):
+    """A scratch folder with a file in it, a dataset and an unwritable directory."""
+    tmp = tmp_path_factory.mktemp("contract")
+    (tmp / "afile").write_text("not a directory")
+    data = tmp / "data.npz"
+    subprocess.run(
+        [sys.executable, "-m", "experiments.cli", "simulate", "--out", str(data)],
+        cwd=tmp,
+        check=True,
+        capture_output=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    return tmp, data, _unwritable(tmp)
+
+
+def _bad_path_cases(tmp: Path, data: Path, locked: Path) -> list[tuple[str, list[str]]]:
+    cases = []
+    for name, args in DIRECTORY_OUTPUT.items():
+        base = [name, *_fill(args, data, tmp), "--out"]
+        cases += [
+            (f"{name}: existing file", [*base, str(tmp / "afile")]),
+            (f"{name}: file as parent", [*base, str(tmp / "afile" / "sub")]),
+            (f"{name}: unwritable", [*base, str(locked / "dvs-out")]),
+        ]
+    for name, (option, suffix, args) in FILE_OUTPUT.items():
+        base = [name, *_fill(args, data, tmp), option]
+        cases += [
+            (f"{name}: a directory", [*base, str(tmp)]),
+            (f"{name}: file as parent", [*base, str(tmp / "afile" / f"x{suffix}")]),
+            (f"{name}: unwritable", [*base, str(locked / f"x{suffix}")]),
+        ]
+    cases.append(("render: file as parent", ["render", str(tmp / "afile" / "run")]))
+    cases.append(("render: unwritable", ["render", str(locked / "run")]))
+    return cases
+
+
+OUT_OF_RANGE = [
+    (["simulate", "--effect", "heterogeneity=5", "--out", "x.npz"], "heterogeneity"),
+    (["simulate", "--effect", "bending=1e6", "--out", "x.npz"], "bending"),
+    (["simulate", "--effect", "nonlinear_stiffening=-5", "--out", "x.npz"], "nonlinear"),
+    (["simulate", "--noise", "nan", "--out", "x.npz"], "--noise"),
+    (["simulate", "--seed", "-1", "--out", "x.npz"], "--seed"),
+    (["simulate", "--out", "x.txt"], ".npz"),
+    (["fit", "{data}", "--grid", "2x2x2", "--out", "o"], "--grid"),
+    (["fit", "{data}", "--grid", "9x9x100", "--out", "o"], "--grid"),
+    (["fit", "{data}", "--params", ",", "--out", "o"], "--params"),
+    (["compare", "--starts", "100000", "--out", "o"], "--starts"),
+    (["diagnose", "{data}", "--level", "2", "--out", "o"], "--level"),
+    (["transient", "--k0", "-1", "--out", "o"], "--k0"),
+    (["paper", "--noise", "-1", "--out", "o"], "--noise"),
+    (["bench", "--grids", "2x2x2"], "--grids"),
+    (["bench", "--methods", "magic"], "--methods"),
+    (["batch", "--count", "0"], "--count"),
+    (["forward", "--force", "100", "--out", "o"], "--force"),
+    (["dynamic", "--substeps", "0", "--out", "o"], "--substeps"),
+    (["study", "--seeds", "-1", "--out", "o"], "--seeds"),
+    (["detection", "--factors", "0", "--out", "o"], "--factors"),
+    (["outoflibrary", "--noise", "5", "--out", "x.npz"], "--noise"),
+    (["realskin", "--grid", "1", "1", "--out", "o"], "--grid"),
+    (["realskin-twin", "--ratios", "-1"], "--ratios"),
+    (["realskin-checks", "--check", "nope"], "--check"),
+    (["realskin-strain", "--frames", "x"], "--frames"),
+    (["realskin-data", "--case", "nope"], "--case"),
+    (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
+    (["render", "run", "--scale", "100"], "--scale"),
+    (["demo", "--out", ""], "--out"),
+    (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
+]
+
+
+def _assert_contract(label: str, code: int, err: str, before: set, after: set) -> None:
+    assert code == 2, f"{label}: exit {code}: {err}"
+    assert len(err.strip().splitlines()) == 1, f"{label}: {err}"
+    assert "Traceback" not in err, f"{label}: {err}"
+    assert after == before, f"{label}: wrote {sorted(after - before)}"
+
+
+def _listing(tmp: Path) -> set:
+    return {str(p.relative_to(tmp)) for p in tmp.rglob("*")}
+
+
+def test_every_command_is_covered():
+    covered = set(DIRECTORY_OUTPUT) | set(FILE_OUTPUT) | NO_OUTPUT | {"render"}
+    assert covered == set(COMMANDS)
+    assert {argv[0] for argv, _ in OUT_OF_RANGE} == set(COMMANDS)
+
+
+def test_bad_output_paths_exit_2_with_one_line_and_write_nothing(places):
+    tmp, data, locked = places
+    cases = _bad_path_cases(tmp, data, locked)
+    before = _listing(tmp)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        results = list(pool.map(lambda case: _run(case[1], tmp), cases))
+    for (label, argv), (code, err, _) in zip(cases, results):
+        _assert_contract(label, code, err, before, _listing(tmp))
+        assert any(part in err for part in (argv[-1], Path(argv[-1]).name)), f"{label}: {err}"
+
+
+def test_out_of_range_options_exit_2_naming_the_option(places):
+    tmp, data, _ = places
+    before = _listing(tmp)
+    cases = [(_fill(argv, data, tmp), fragment) for argv, fragment in OUT_OF_RANGE]
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        results = list(pool.map(lambda case: _run(case[0], tmp), cases))
+    for (argv, fragment), (code, err, _) in zip(cases, results):
+        label = " ".join(argv)
+        _assert_contract(label, code, err, before, _listing(tmp))
+        assert fragment in err, f"{label}: {err}"
+
+
+@pytest.mark.parametrize("name", EXPENSIVE)
+def test_an_expensive_command_fails_before_any_work(name, places):
+    """Bad output path: no slower than the command's own --help plus a second."""
+    tmp, data, _ = places
+    _, _, help_time = _run([name, "--help"], tmp)
+    argv = [name, *_fill(DIRECTORY_OUTPUT[name], data, tmp), "--out", str(tmp / "afile")]
+    code, _, elapsed = _run(argv, tmp)
+    assert code == 2
+    assert elapsed < help_time + 1.0, f"{name}: {elapsed:.2f} s against --help {help_time:.2f} s"
