@@ -168,3 +168,32 @@ def test_the_verdict_statistic_is_the_diagnosis_residual_test(dataset_file):
     expected = residual_test(current, dataset.noise_mm)
     assert verdict.statistic == pytest.approx(expected.statistic, rel=1e-9)
     assert verdict.dof == expected.dof and verdict.explains
+
+
+def test_simulated_stiffening_on_the_diagnosis_design_is_diagnosed(tmp_path, capsys):
+    """dvs simulate --design diagnosis --effect nonlinear_stiffening, then dvs diagnose:
+    stiffening is selected, and the report notes what this design cannot separate."""
+    data = tmp_path / "stiff.npz"
+    argv = ["simulate", "--design", "diagnosis", "--effect", "nonlinear_stiffening"]
+    assert main([*argv, "--out", str(data)]) == 0
+    assert main(["diagnose", str(data), "--out", str(tmp_path / "diag")]) == 0
+    document = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert document["selected"][:1] == ["nonlinear_stiffening"]
+    assert document["design"]["contacts"] == 5 and document["design"]["tilted_loads"] == 5
+    assert document["design"]["cannot_separate"] == ["base_compliance"]
+    assert "base_compliance" in (tmp_path / "diag" / "report.md").read_text()
+    assert "note:" in capsys.readouterr().out
+
+
+def test_the_papers_design_is_noted_as_unable_to_separate_four_effects(dataset_file):
+    from experiments.dataset import load_dataset
+    from experiments.diagnosis.design import design_note
+
+    note = design_note(load_dataset(dataset_file))
+    assert (note["loads"], note["contacts"], note["tilted_loads"]) == (2, 1, 0)
+    assert set(note["cannot_separate"]) == {
+        "heterogeneity",
+        "bending",
+        "pre_tension",
+        "base_compliance",
+    }
