@@ -15,7 +15,7 @@ from importlib import metadata
 from experiments.options import OneLineParser
 
 CORE = {
-    "demo": ("experiments.demo", "run the main job on the embedded forehead phantom"),
+    "demo": ("experiments.demo.run", "run the main job on the embedded forehead phantom"),
     "simulate": ("experiments.phantom.simulate", "write a synthetic dataset from the phantom"),
     "fit": ("experiments.fitting", "estimate parameters from a dataset, with a verdict"),
     "compare": ("experiments.inverse.compare", "simultaneous vs nested vs paper-faithful"),

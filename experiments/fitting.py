@@ -127,12 +127,15 @@ def loaded_control_points(model: TissueModel, uv: np.ndarray, observed: np.ndarr
 SOLVERS = {"simultaneous": SimultaneousSolver, "nested": NestedSolver}
 
 
-def solve(problem: InverseProblem, method: str = "simultaneous") -> InverseResult:
-    """Solve with one method by name ("simultaneous", "nested" or "paper")."""
+def solve(problem: InverseProblem, method: str = "simultaneous", log=None) -> InverseResult:
+    """Solve with one method by name ("simultaneous", "nested" or "paper").
+
+    ``log`` receives progress lines of the slow paper-faithful method.
+    """
     if method == "paper":
         from solvers.nested import PaperNestedSolver
 
-        return PaperNestedSolver(problem).solve()
+        return PaperNestedSolver(problem, log=log).solve()
     if method not in SOLVERS:
         raise ValueError(f"unknown method {method!r}; use simultaneous, nested or paper")
     return SOLVERS[method](problem).solve()
@@ -224,14 +227,20 @@ def write_fit_outputs(out, problem, result, document) -> None:
 
 
 def fit_dataset(
-    dataset: Dataset, settings: FitSettings | None = None, method: str = "simultaneous"
+    dataset: Dataset,
+    settings: FitSettings | None = None,
+    method: str = "simultaneous",
+    log=None,
 ) -> tuple[InverseProblem, InverseResult, IdentifiabilityReport, dict]:
-    """Build, solve, analyse; returns the pieces and the result.json document."""
+    """Build, solve, analyse; returns the pieces and the result.json document.
+
+    ``log`` receives progress lines of the slow paper-faithful method.
+    """
     settings = settings or FitSettings()
     start = time.perf_counter()
     problem = build_problem(dataset, settings)
     setup = time.perf_counter() - start
-    result = solve(problem, method)
+    result = solve(problem, method, log)
     result.build_time_s += setup
     report = analyse(problem, result.x)
     document = result_document(problem, result, report, settings, dataset_warnings(dataset))
@@ -301,6 +310,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
         check_output_dir,
         parse_grid,
         parse_names,
+        plural,
         run_guarded,
     )
 
@@ -321,8 +331,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
         dataset = load_dataset(args.dataset)
         early = dataset_warnings(dataset)
         warn(early)
-        print(f"fitting {args.dataset} ({dataset.n_loads} load cases), {args.method} method")
-        problem, result, report, document = fit_dataset(dataset, settings, args.method)
+        cases = plural(dataset.n_loads, "load case")
+        print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
+        progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
+        problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
         write_fit_outputs(args.out, problem, result, document)
         for line in report.summary_lines():
             print("  " + line)
@@ -337,7 +349,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
                 file=sys.stderr,
             )
             return EXIT_NOT_CONVERGED
-        print(f"  verdict: the fit {document['verdict']['summary']}")
+        print(f"  verdict: {document['verdict']['summary']}")
         warn(document["warnings"][len(early) :])
         return 0
 

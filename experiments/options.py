@@ -84,6 +84,11 @@ def run_guarded(prog: str, work: Callable[[], int | None]) -> int:
         return EXIT_INTERRUPTED
 
 
+def plural(count: int, noun: str) -> str:
+    """'1 load case', '2 load cases'."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def parse_grid(text: str, option: str = "--grid") -> tuple[int, int, int]:
     """'9x9x2' -> (9, 9, 2): three integers >= 2."""
     try:

@@ -96,10 +96,14 @@ def plot_residual_maps(problem, states, path, title: str = "") -> None:
     """
     errors = problem.point_errors(states)
     count = len(problem.cases)
-    fig, axes = plt.subplots(1, count, figsize=(4.6 * count, 4.0), squeeze=False)
+    fig, axes = plt.subplots(
+        1, count, figsize=(4.8 * count, 4.2), squeeze=False, layout="constrained"
+    )
     top = max(float(e.max()) for e in errors) * 1e3 or 1.0
     for ax, case, error in zip(axes[0], problem.cases, errors):
         image = residual_panel(ax, case, error, top)
+    for ax in axes[0][1:]:
+        ax.set_ylabel("")
     fig.colorbar(image, ax=axes[0].tolist(), label="marker residual [um]")
     if title:
         fig.suptitle(title)
@@ -107,26 +111,41 @@ def plot_residual_maps(problem, states, path, title: str = "") -> None:
     plt.close(fig)
 
 
+def _row_near_contact(case, measured: np.ndarray) -> np.ndarray:
+    """Mask of the markers in the row (along x) through the largest measured displacement."""
+    center_y = case.rest_points[np.argmax(np.linalg.norm(measured, axis=1)), 1]
+    spacing = np.ptp(case.rest_points[:, 1]) / max(np.sqrt(len(case.rest_points)) - 1, 1)
+    return np.abs(case.rest_points[:, 1] - center_y) < 0.25 * spacing
+
+
 def plot_fitted_section(problem, states, path) -> None:
-    """Measured and fitted marker displacement along the marker row nearest the contact."""
+    """Measured marker displacement along the marker row through the dent, and the fitted
+    skin along the same line (the spline, sampled densely: its tip lies between markers)."""
+    model = problem.model
     fig, axes = plt.subplots(
-        1, len(problem.cases), figsize=(4.6 * len(problem.cases), 3.6), squeeze=False
+        1, len(problem.cases), figsize=(4.8 * len(problem.cases), 3.8), squeeze=False
     )
-    free = problem.model.free
     for ax, case, state in zip(axes[0], problem.cases, states):
-        delta = state[: 3 * len(free)].reshape(3, -1).T
-        fitted = case.rows @ delta
-        measured = fitted - (case.rows @ delta + case.offset)
-        center_y = case.rest_points[np.argmax(np.linalg.norm(measured, axis=1)), 1]
-        row = (
-            np.abs(case.rest_points[:, 1] - center_y)
-            < 1e-6 + 0.25 * np.ptp(case.rest_points[:, 1]) / 8
-        )
+        delta = state[: 3 * model.n_free].reshape(3, -1).T
+        measured = -case.offset  # Y - S B0
+        row = _row_near_contact(case, measured)
         order = np.argsort(case.rest_points[row, 0])
-        x = case.rest_points[row, 0][order]
-        ax.plot(x, measured[row, 2][order], "o", label="measured")
-        ax.plot(x, fitted[row, 2][order], "-", label="fitted")
-        ax.set(xlabel="x [mm]", ylabel="z displacement [mm]", title=case.label)
+        uv, _ = model.volume.project_to_outer(case.rest_points[row])
+        u = np.linspace(uv[:, 0].min(), uv[:, 0].max(), 400)
+        dense = model.volume.collocation(
+            model.volume.outer_params(np.column_stack([u, np.full(u.size, np.median(uv[:, 1]))]))
+        )
+        rest = dense @ model.rest
+        moved = dense @ model.full_positions(delta)
+        ax.plot(case.rest_points[row, 0][order], measured[row, 2][order], "o", label="measured")
+        ax.plot(rest[:, 0], moved[:, 2] - rest[:, 2], "-", label="fitted skin")
+        low = float(np.min(moved[:, 2] - rest[:, 2]))
+        ax.axhline(low, color="0.7", lw=0.8, ls=":")
+        ax.set(
+            xlabel="x [mm]",
+            ylabel="z displacement [mm]",
+            title=f"{case.label}: fitted dent {low:.3f} mm",
+        )
         ax.legend(fontsize=8)
     fig.tight_layout()
     atomic_savefig(fig, path, dpi=120)

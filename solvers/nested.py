@@ -153,10 +153,15 @@ def least_squares_fit(
             x_scale=1.0,
             **kwargs,
         )
-        outcome = full(fit.x), fit.status > 0, fit.message, fit.nfev
+        outcome = full(fit.x), fit.status > 0, status_text(fit.message), fit.nfev
     except Exception as error:  # noqa: BLE001  a failed forward solve ends this start
         outcome = z_full, False, f"failed: {error}", 0
     return (*outcome, time.perf_counter() - begin)
+
+
+def status_text(message: str) -> str:
+    """scipy's least_squares message without its backticks and final full stop."""
+    return message.replace("`", "").strip().rstrip(".")
 
 
 class PaperNestedSolver:
@@ -176,12 +181,22 @@ class PaperNestedSolver:
         Steady-state tolerance of each transient (relative residual and kinetic ratio).
     t_max : float
         Longest transient [s].
+    log : callable, optional
+        Called with one line per residual evaluation (each integrates every load case
+        to steady state, so a fit takes seconds to minutes).
     """
 
     name = "paper"
     DYNAMICS = {"mu": 1e-4, "gamma": 15.0}
 
-    def __init__(self, problem: InverseProblem, steady_tol=1e-10, t_max=1e4, max_evaluations=400):
+    def __init__(
+        self,
+        problem: InverseProblem,
+        steady_tol=1e-10,
+        t_max=1e4,
+        max_evaluations=400,
+        log=None,
+    ):
         from solvers.transient.stepping import TransientSolver
 
         start = time.perf_counter()
@@ -193,6 +208,7 @@ class PaperNestedSolver:
         self.transient = TransientSolver(problem.model, problem.names, "generalized_alpha")
         self.build_time = time.perf_counter() - start
         self.forward_solves = 0
+        self.log = log
         self._states: list = [None] * len(problem.cases)
 
     def residual(self, z: np.ndarray) -> np.ndarray:
@@ -208,7 +224,12 @@ class PaperNestedSolver:
             self.forward_solves += 1
             self._states[k] = run.state
             parts.append(problem.case_residual(case, run.state))
-        return np.concatenate(parts)
+        residual = np.concatenate(parts)
+        if self.log is not None:
+            self.log(
+                f"transients {self.forward_solves}: 1/2 |r|^2 = {0.5 * residual @ residual:.6g}"
+            )
+        return residual
 
     def solve(self, start: np.ndarray | None = None) -> InverseResult:
         """lsqnonlin-style solve from ``start`` (natural units; default the space's start)."""
@@ -229,7 +250,7 @@ class PaperNestedSolver:
                 gtol=1e-10,
                 max_nfev=self.max_evaluations,
             )
-            z, success, status, nfev = fit.x, fit.status > 0, fit.message, fit.nfev
+            z, success, status, nfev = fit.x, fit.status > 0, status_text(fit.message), fit.nfev
         except Exception as error:  # noqa: BLE001  a failed transient ends this start
             z, success, status, nfev = z0, False, f"failed: {error}", 0
         elapsed = time.perf_counter() - begin

@@ -94,15 +94,17 @@ def _text(explains: bool, rms: float, noise_rms: float, statistic, dof, log10_p)
     test = f"chi^2 {statistic:.4g} on {dof} dof, {p}"
     if explains:
         noise = f"noise alone {noise_rms * 1e3:.1f} um"
-        return f"explains the data: RMS {rms * 1e3:.1f} um, {noise}; {test}"
+        return f"the fit explains the data: RMS {rms * 1e3:.1f} um, {noise}; {test}"
     if rms > FAR_ABOVE * noise_rms:
         return (
-            f"does NOT explain the data: RMS {rms * 1e3:.4g} um is {rms / noise_rms:.3g}x the "
+            f"the fit does NOT explain the data: RMS {rms * 1e3:.4g} um is {rms / noise_rms:.3g}x "
+            "the "
             f"{noise_rms * 1e3:.1f} um of noise alone ({test}); the model misses something "
             "(try dvs diagnose) or the data are not what they claim"
         )
     return (
-        f"does not explain the data: RMS {rms * 1e3:.1f} um against {noise_rms * 1e3:.1f} um "
+        f"the fit does not explain the data: RMS {rms * 1e3:.1f} um against "
+        f"{noise_rms * 1e3:.1f} um "
         f"of noise alone ({test}); try dvs diagnose"
     )
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from experiments.dataset import Dataset, load_dataset
 from experiments.diagnosis.design import design_note
+from experiments.options import plural
 from solvers.diagnosis.report import report, verdict
 
 BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
@@ -45,7 +46,7 @@ def run(dataset_or_path, out: Path, log=print, settings=None) -> dict:
         dataset = load_dataset(dataset_or_path)
     out = Path(out)
     log(
-        f"diagnosing {dataset.n_loads} load cases, {dataset.outer_rest.shape[0]}x"
+        f"diagnosing {plural(dataset.n_loads, 'load case')}, {dataset.outer_rest.shape[0]}x"
         f"{dataset.outer_rest.shape[1]} markers"
     )
     begin = time.perf_counter()

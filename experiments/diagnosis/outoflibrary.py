@@ -282,7 +282,13 @@ def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """``dvs outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
-    from experiments.options import UsageError, check_output_file, check_seed, run_guarded
+    from experiments.options import (
+        UsageError,
+        check_output_file,
+        check_seed,
+        plural,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
@@ -295,7 +301,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         dataset = simulate_slab(noise_mm=args.noise, seed=args.seed)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         save_dataset(args.out, dataset)
-        print(f"wrote {args.out}: FE slab, {dataset.n_loads} load cases")
+        print(f"wrote {args.out}: FE slab, {plural(dataset.n_loads, 'load case')}")
         return 0
 
     return run_guarded(prog, work)

@@ -125,11 +125,12 @@ def table(rows: dict) -> str:
         if not isinstance(row, dict):
             continue
         error = row.get("max_relative_error")
+        rate = f"{row['success_rate']:.0%} of {row['starts']}" if row["starts"] else "- (no starts)"
         lines.append(
             f"| {name} | {row['iterations']} | {row['forward_solves']} | "
             f"{row['build_time_s']:.3f} | {row['solve_time_s']:.3f} | {row['cost']:.6g} | "
             f"{'' if error is None else f'{error:.2e}'} | "
-            f"{row['success_rate']:.0%} of {row['starts']} |"
+            f"{rate} |"
         )
     text = header + "\n".join(lines) + "\n"
     if "speedup_simultaneous_vs_paper" in rows:

@@ -327,7 +327,13 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.simulate"):
     """``dvs simulate [--effect NAME[=VALUE] ...] --out FILE.npz``."""
     from experiments.dataset import save_dataset
-    from experiments.options import UsageError, check_output_file, check_seed, run_guarded
+    from experiments.options import (
+        UsageError,
+        check_output_file,
+        check_seed,
+        plural,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
@@ -348,7 +354,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.phant
         args.out.parent.mkdir(parents=True, exist_ok=True)
         save_dataset(args.out, dataset)
         print(
-            f"wrote {args.out}: {dataset.n_loads} load cases ({args.design} design), "
+            f"wrote {args.out}: {plural(dataset.n_loads, 'load case')} ({args.design} design), "
             f"{dataset.outer_rest.shape[0]}x{dataset.outer_rest.shape[1]} markers, "
             f"noise {args.noise} mm, seed {args.seed}"
         )
