@@ -41,8 +41,11 @@ class FitSettings:
     ----------
     names : tuple of str
         Estimated parameters.
-    grid, degrees : tuple of int
-        Control grid and degrees of the volume.
+    grid : tuple of int or None
+        Control grid (M, N, L) of the volume; None follows the data: up to 9 control
+        points along u and v, no more than the markers there (``control_grid``), L = 2.
+    degrees : tuple of int
+        Degrees of the volume, lowered where the grid has too few points for them.
     objective : {"markers", "control_points"}
         Compare marker positions (default) or, as the paper did, the control
         points of a spline fitted to the measured loaded skin.
@@ -53,7 +56,7 @@ class FitSettings:
     """
 
     names: tuple[str, ...] = DEFAULT_NAMES
-    grid: tuple[int, int, int] = (9, 9, 2)
+    grid: tuple[int, int, int] | None = None
     degrees: tuple[int, int, int] = (3, 3, 1)
     objective: str = "markers"
     fix_lateral: bool = False
@@ -64,12 +67,42 @@ class FitSettings:
             raise ValueError("objective must be 'markers' or 'control_points'")
 
 
+DEFAULT_GRID = (9, 9, 2)
+"""The paper's control grid, used where the markers allow it."""
+
+
+def control_grid(markers: tuple[int, int], settings: FitSettings) -> tuple[tuple, tuple]:
+    """The control grid and degrees of a fit to a U x V marker grid.
+
+    Without ``settings.grid`` the grid follows the data: min(9, U) x min(9, V) x 2 (a
+    tensor-product fit of U values needs at most U control points). Each degree is at
+    most the grid's points minus one along its direction.
+
+    Raises
+    ------
+    ValueError
+        When a given grid has more control points along u or v than there are markers.
+    """
+    (u_count, v_count), chosen = markers, settings.grid
+    if chosen is None:
+        chosen = (min(DEFAULT_GRID[0], u_count), min(DEFAULT_GRID[1], v_count), DEFAULT_GRID[2])
+    elif chosen[0] > u_count or chosen[1] > v_count:
+        raise ValueError(
+            f"--grid {'x'.join(map(str, chosen))} needs at least {chosen[0]} x {chosen[1]} "
+            f"markers, the dataset has {u_count} x {v_count}; give --grid with at most "
+            f"{u_count}x{v_count} along u and v, or leave --grid out"
+        )
+    degrees = tuple(min(d, g - 1) for d, g in zip(settings.degrees, chosen))
+    return tuple(chosen), degrees
+
+
 def rest_geometry(dataset: Dataset, settings: FitSettings) -> tuple[VolumeSpline, np.ndarray]:
     """Volume fitted to the rest markers and inner surface; markers' (u, v)."""
+    chosen, degrees = control_grid(dataset.marker_shape, settings)
     grid = np.stack([dataset.inner_rest, dataset.outer_rest], axis=2)
-    volume, _ = VolumeSpline.fit(grid, settings.grid[:2] + (2,), settings.degrees[:2] + (1,))
-    if settings.grid[2] != 2:
-        volume = volume.with_layers(settings.grid[2], settings.degrees[2])
+    volume, _ = VolumeSpline.fit(grid, chosen[:2] + (2,), degrees[:2] + (1,))
+    if chosen[2] != 2:
+        volume = volume.with_layers(chosen[2], degrees[2])
     uv, _ = volume.project_to_outer(dataset.outer_rest.reshape(-1, 3))
     return volume, uv
 
@@ -286,7 +319,9 @@ def build_parser(prog: str = "python -m experiments.fitting"):
         help="inverse formulation (docs/inverse.md)",
     )
     parser.add_argument("--params", default=",".join(DEFAULT_NAMES), help="comma list")
-    parser.add_argument("--grid", default="9x9x2", help="control grid MxNxL")
+    parser.add_argument(
+        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
+    )
     parser.add_argument(
         "--objective",
         choices=("markers", "control_points"),
@@ -324,7 +359,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
         objective = "control_points" if args.method == "paper" else "markers"
         settings = FitSettings(
             names=parse_names(args.params),
-            grid=check_grid(parse_grid(args.grid), FitSettings().degrees, args.grid),
+            grid=None
+            if args.grid == "auto"
+            else check_grid(parse_grid(args.grid), FitSettings().degrees, args.grid),
             objective=args.objective or objective,
         )
         check_output_dir(args.out)
@@ -333,6 +370,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitti
         warn(early)
         cases = plural(dataset.n_loads, "load case")
         print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
+        grid, degrees = control_grid(dataset.marker_shape, settings)
+        print(
+            f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
+            f"{dataset.marker_shape[0]} x {dataset.marker_shape[1]} markers"
+        )
         progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
         problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
         write_fit_outputs(args.out, problem, result, document)

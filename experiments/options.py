@@ -17,8 +17,12 @@ from experiments.dataset import DatasetError
 EXIT_BAD_INPUT = 2
 """Exit code for input the user can fix (an option, a path, a dataset)."""
 
+EXIT_INTERNAL = 1
+"""Exit code of an error that is not the input's fault (a bug: please report it)."""
+
 EXIT_NOT_CONVERGED = 3
-"""Exit code when a solver did not converge (the JSON then says ``success: false``)."""
+"""Exit code when a solver did not converge or a computation failed (a JSON written
+then says ``success: false``)."""
 
 EXIT_INTERRUPTED = 130
 """Exit code after Ctrl-C (128 + SIGINT)."""
@@ -65,7 +69,13 @@ USER_ERRORS = (UsageError, DatasetError, ValueError, OSError)
 
 
 def run_guarded(prog: str, work: Callable[[], int | None]) -> int:
-    """Run ``work``; bad input gives one line on stderr and exit 2, Ctrl-C exit 130.
+    """Run ``work`` under the contract: every failure is one line on stderr.
+
+    Bad input (``USER_ERRORS``) exits 2; a failed computation (``RuntimeError``: a solver
+    without equilibrium, a failed transient, CasADi) exits 3; anything else is a bug and
+    exits 1 (``DVS_DEBUG=1`` re-raises it with its traceback); Ctrl-C exits 130. Python
+    warnings of the libraries are silenced (``DVS_DEBUG=1`` shows them): the command's
+    own warnings are one-line messages.
 
     Parameters
     ----------
@@ -74,14 +84,34 @@ def run_guarded(prog: str, work: Callable[[], int | None]) -> int:
     work : callable
         The command's body; returns an exit code (None means 0).
     """
+    import os
+    import warnings
+
     try:
-        return int(work() or 0)
+        with warnings.catch_warnings():
+            if not os.environ.get("DVS_DEBUG"):  # library warnings would break the one line
+                warnings.simplefilter("ignore")
+            return int(work() or 0)
     except USER_ERRORS as error:
         print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except RuntimeError as error:  # solver failures: EquilibriumError, TransientError, CasADi
+        if os.environ.get("DVS_DEBUG"):
+            raise
+        print(f"{prog}: error: the computation failed: {one_line(error)}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    except Exception as error:  # noqa: BLE001  the contract: never a traceback
+        if os.environ.get("DVS_DEBUG"):
+            raise
+        print(
+            f"{prog}: internal error: {type(error).__name__}: {one_line(error)} "
+            "(please report it; DVS_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
 
 
 def plural(count: int, noun: str) -> str:
@@ -111,12 +141,21 @@ def parse_names(text: str, option: str = "--params") -> tuple[str, ...]:
     return names
 
 
+MAX_LIST = 100
+"""Most entries of a comma-list option (seeds, factors, ratios, frames)."""
+
+
 def parse_numbers(text: str, option: str, kind=float) -> tuple:
-    """'1,2,3' -> (1, 2, 3) of ``kind``; an empty string gives ()."""
+    """'1,2,3' -> (1, 2, 3) of ``kind``: finite, at most ``MAX_LIST``; '' gives ()."""
+    import math
+
     try:
-        return tuple(kind(v) for v in text.split(",") if v.strip())
+        values = tuple(kind(v) for v in text.split(",") if v.strip())
     except ValueError:
         raise UsageError(f"{option} takes a comma list of numbers, got {text!r}") from None
+    if len(values) > MAX_LIST or not all(math.isfinite(v) for v in values):
+        raise UsageError(f"{option} takes at most {MAX_LIST} finite numbers, got {text!r}")
+    return values
 
 
 def check_seed(seed: int, option: str = "--seed") -> int:

@@ -135,16 +135,34 @@ def test_fit_with_swapped_surfaces_exits_0_but_says_it_does_not_explain_the_data
     assert any("noise alone" in w for w in document["warnings"])
 
 
-def test_fit_that_does_not_converge_exits_3_with_success_false(dataset_file, tmp_path, capsys):
+def test_absurd_forces_are_refused_before_any_work(dataset_file, tmp_path, capsys):
     def huge(arrays):
         arrays["forces"] = arrays["forces"] * 1e30
 
     path = _variant(dataset_file, tmp_path, "huge", huge)
     code, err = exit_code_and_stderr(main, ["fit", path, "--out", str(tmp_path / "fit")], capsys)
+    assert code == 2 and "forces" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "fit").exists()
+
+
+def test_fit_that_does_not_converge_exits_3_with_success_false(
+    dataset_file, tmp_path, capsys, monkeypatch
+):
+    """A solver that stops without converging: result.json says so and the exit is 3."""
+    from dataclasses import replace
+
+    from solvers.simultaneous import SimultaneousSolver
+
+    solve = SimultaneousSolver.solve
+
+    def failing(self, *args, **kwargs):
+        return replace(solve(self, *args, **kwargs), success=False, status="Maximum_Iterations")
+
+    monkeypatch.setattr(SimultaneousSolver, "solve", failing)
+    argv = ["fit", str(dataset_file), "--out", str(tmp_path / "fit")]
+    code, err = exit_code_and_stderr(main, argv, capsys)
     assert code == 3
-    lines = err.strip().splitlines()
-    assert any("outside the 0.001-5 N" in line for line in lines)
-    assert lines[-1].startswith("dvs fit: error: the solver did not converge")
+    assert err.strip().splitlines()[-1].startswith("dvs fit: error: the solver did not converge")
     assert json.loads((tmp_path / "fit" / "result.json").read_text())["success"] is False
 
 

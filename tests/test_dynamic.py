@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from experiments.dynamics import inverse as dynamic
-from experiments.dynamics.inverse import (
+from experiments.dynamics.trajectories import (
+    DEFAULT_FRAMES,
     DYNAMIC_NAMES,
     DYNAMIC_PHANTOM,
     DYNAMIC_TRUTH,
@@ -55,7 +56,7 @@ def short_noisy():
 
 
 def test_the_scheme_is_newmark_average_acceleration_with_fixed_steps():
-    problem = exact_problem(dynamic.DEFAULT_FRAMES[:10], 2)
+    problem = exact_problem(DEFAULT_FRAMES[:10], 2)
     run = TrapezoidalScheme(problem.model, (), problem.grid).run(
         problem.cases[0].loads(problem.grid.nodes), []
     )
@@ -82,7 +83,7 @@ def test_forward_sensitivities_are_the_derivatives_of_the_discrete_scheme():
 
 
 def test_noise_free_trajectories_recover_the_truth_nested():
-    problem = exact_problem(dynamic.DEFAULT_FRAMES, 2)
+    problem = exact_problem(DEFAULT_FRAMES, 2)
     result = DynamicNestedSolver(problem).solve()
     assert result.success
     assert np.allclose(result.x, TRUTH, rtol=1e-4, atol=0)

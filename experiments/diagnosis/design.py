@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.dataset import Dataset, median_marker_spacing
+from experiments.dataset import Dataset
 from experiments.plausibility import outward_normals
+from experiments.validation import median_marker_spacing
 
 HIDDEN_ANYWHERE = ("base_compliance",)
 """Effects not selected on any design tried (absorbed by alpha_w)."""
@@ -22,8 +23,8 @@ HIDDEN_ANYWHERE = ("base_compliance",)
 HIDDEN_ON_ONE_CONTACT = ("heterogeneity", "bending", "pre_tension", *HIDDEN_ANYWHERE)
 """Effects not selected first with loads at one contact along the normal (seed 1)."""
 
-TILT_DEG = 5.0
-"""A load more than this far from the inward normal counts as tilted [deg]."""
+TILT_DEG = 10.0
+"""A load more than this far from the inward normal (at the nearest marker) is tilted [deg]."""
 
 
 def design_summary(dataset: Dataset) -> dict:

@@ -21,17 +21,20 @@ BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
 """The base model's estimated parameters (static data cannot see mu and gamma)."""
 
 
-def diagnose_dataset(dataset: Dataset, settings=None, log=None):
-    """Build the base problem of a dataset and run the loop; returns the Diagnosis."""
+def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None):
+    """Build the base problem of a dataset and run the loop; returns the Diagnosis.
+
+    ``grid`` is the control grid (M, N, L); None follows the data (``control_grid``).
+    """
     from experiments.fitting import FitSettings, build_problem, dataset_loads
     from solvers.diagnosis.loop import diagnose
 
-    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES, grid=grid))
     loads = dataset_loads(dataset, base.model.volume)
     return diagnose(base, loads, settings, log)
 
 
-def run(dataset_or_path, out: Path, log=print, settings=None) -> dict:
+def run(dataset_or_path, out: Path, log=print, settings=None, grid=None) -> dict:
     """Diagnose a dataset (object or ``.npz`` path); write diagnosis.json, report.md, figures.
 
     Returns
@@ -50,7 +53,7 @@ def run(dataset_or_path, out: Path, log=print, settings=None) -> dict:
         f"{dataset.outer_rest.shape[1]} markers"
     )
     begin = time.perf_counter()
-    diagnosis = diagnose_dataset(dataset, settings, log=lambda line: log("  " + line))
+    diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), grid)
     document = diagnosis.document()
     document["wall_time_s"] = time.perf_counter() - begin
     document["design"] = design_note(dataset)
@@ -108,6 +111,9 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     parser = make_parser(prog, "Find what the base model is missing (writes diagnosis.json).")
     parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
+    parser.add_argument(
+        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
+    )
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
     parser.add_argument("--max-effects", type=int, default=3, help="most effects added (0-11)")
     return parser
@@ -115,7 +121,16 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.diagnose"):
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    import sys
+
+    from experiments.fitting import FitSettings, check_grid
+    from experiments.options import (
+        EXIT_NOT_CONVERGED,
+        UsageError,
+        check_output_dir,
+        parse_grid,
+        run_guarded,
+    )
     from solvers.diagnosis.loop import DiagnosisSettings
 
     args = build_parser(prog).parse_args(argv)
@@ -123,9 +138,19 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
     def work() -> int:
         if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= 11:
             raise UsageError("--level must lie in (0, 0.5] and --max-effects in 0-11")
+        grid = None
+        if args.grid != "auto":
+            grid = check_grid(parse_grid(args.grid), FitSettings().degrees, args.grid)
         check_output_dir(args.out)
         settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
-        run(args.dataset, args.out, settings=settings)
+        document = run(args.dataset, args.out, settings=settings, grid=grid)
+        if not document["success"]:
+            print(
+                f"{prog}: error: a fit of the diagnosis did not converge; "
+                f"{args.out / 'diagnosis.json'} has success: false",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_CONVERGED
         return 0
 
     return run_guarded(prog, work)

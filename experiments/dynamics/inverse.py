@@ -20,7 +20,6 @@ Run ``python -m experiments.dynamics.inverse --out DIR``.
 from __future__ import annotations
 
 import time
-from functools import lru_cache
 from pathlib import Path
 
 import matplotlib
@@ -31,207 +30,20 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from experiments.atomic import atomic_savefig, atomic_write_json  # noqa: E402
-from experiments.dataset import Dataset  # noqa: E402
-from experiments.fitting import FitSettings, build_problem, dataset_loads, rest_geometry  # noqa: E402
-from experiments.phantom.forehead import (  # noqa: E402
-    TRUE_PARAMETERS,
-    PhantomSettings,
-    forehead_model,
-    marker_uv,
-    probe_loads,
+from experiments.dynamics.trajectories import (  # noqa: E402
+    DEFAULT_SUBSTEPS,
+    DYNAMIC_NAMES,
+    DYNAMIC_TRUTH,
+    build_dynamic_problem,
+    simulate_dynamic,
 )
+from experiments.fitting import FitSettings, build_problem  # noqa: E402
 from solvers.dynamic.identifiability import analyse_dynamic, contrast, contrast_table  # noqa: E402
 from solvers.dynamic.nested import DynamicNestedSolver  # noqa: E402
-from solvers.dynamic.problem import DynamicProblem, TimeGrid, step_profile, trajectory_case  # noqa: E402
-from solvers.dynamic.scheme import TrapezoidalScheme  # noqa: E402
+from solvers.dynamic.problem import DynamicProblem  # noqa: E402
 from solvers.dynamic.simultaneous import DynamicSimultaneousSolver  # noqa: E402
-from solvers.equilibrium import EquilibriumSolver  # noqa: E402
 from solvers.identifiability import analyse  # noqa: E402
-from solvers.problem import ParameterSpace  # noqa: E402
 from solvers.simultaneous import SimultaneousSolver  # noqa: E402
-from solvers.transient.loads import Load, ramp_load  # noqa: E402
-from solvers.transient.sundials import integrate_casadi  # noqa: E402
-from symbolic.model import BoundaryConditions, TissueModel  # noqa: E402
-
-DYNAMIC_TRUTH = {**TRUE_PARAMETERS, "gamma": 0.1}
-"""Truth of the dynamic experiment: the phantom's, with gamma near critical damping."""
-DYNAMIC_PHANTOM = PhantomSettings(forces=(0.25,))
-"""One probe load of 0.25 N (in the linear model a second force adds no new shape)."""
-DEFAULT_FRAMES = 1e-3 * np.arange(1, 41)
-"""Frame times [s]: 1 kHz for 40 ms after the load onset."""
-DEFAULT_SUBSTEPS = 2
-"""Scheme steps per frame interval (0.5 ms): bias below 0.5 standard errors."""
-DYNAMIC_NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")
-"""Estimated parameters."""
-RAMP_KEY = "load_ramp_s"
-"""Dataset ``extra`` key of the load's rise time [s] (absent: a step at t = 0)."""
-
-
-def _profile(ramp_s: float | None):
-    return step_profile if not ramp_s else ramp_load(np.zeros((1, 3)), ramp_s).profile
-
-
-def truth_trajectories(
-    model: TissueModel, force: np.ndarray, frames, integrator="cvodes", substeps=8, ramp_s=None
-) -> np.ndarray:
-    """Displacements B_free - B0_free at the frames from rest, (T, n_free, 3) [mm].
-
-    ``integrator`` "cvodes": SUNDIALS BDF at rtol 1e-10 (independent of the fit's
-    scheme); "scheme": the trapezoidal scheme with ``substeps`` per frame interval.
-    """
-    frames = np.asarray(frames, dtype=float)
-    profile = _profile(ramp_s)
-    if integrator == "cvodes":
-        times = frames if frames[0] == 0 else np.concatenate([[0.0], frames])
-        path = integrate_casadi(model, Load(force, profile), times, rtol=1e-10, atol=1e-12)
-        return path[-frames.size :]
-    if integrator != "scheme":
-        raise ValueError(f"integrator must be 'cvodes' or 'scheme', got {integrator!r}")
-    grid = TimeGrid(frames, substeps)
-    scale = np.array([float(profile(t)) for t in grid.nodes])
-    loads = scale[:, None] * np.asarray(force).T.reshape(-1)[None, :]
-    run = TrapezoidalScheme(model, (), grid).run(loads, [])
-    states = run.displacements[grid.frame_nodes]
-    return states.reshape(frames.size, 3, -1).transpose(0, 2, 1)
-
-
-def simulate_dynamic(
-    noise_mm: float = 0.02,
-    seed: int = 0,
-    times=None,
-    *,
-    parameters: dict | None = None,
-    phantom: PhantomSettings | None = None,
-    integrator: str = "cvodes",
-    substeps: int = 8,
-    ramp_s: float | None = None,
-    missing_fraction: float = 0.0,
-    occlusion_radius_mm: float = 2.0,
-) -> Dataset:
-    """A dataset v1 with marker trajectories of the phantom under a probe load from rest.
-
-    Parameters
-    ----------
-    noise_mm : float
-        Standard deviation of every marker coordinate [mm]: rest markers, every frame
-        and the steady-state capture (``outer_loaded``) each get their own noise.
-    seed : int
-        Random seed.
-    times : array_like, optional
-        Frame times [s] (default ``DEFAULT_FRAMES``, 1 kHz for 40 ms).
-    parameters : dict, optional
-        Truth (default ``DYNAMIC_TRUTH``).
-    phantom : PhantomSettings, optional
-        Geometry, markers and forces (default ``DYNAMIC_PHANTOM``, one 0.25 N load).
-    integrator : {"cvodes", "scheme"}
-        How the truth is integrated (see ``truth_trajectories``).
-    substeps : int
-        Steps per frame interval of the "scheme" integrator.
-    ramp_s : float, optional
-        Rise time of the load [s] (stored as ``extra["load_ramp_s"]``); default a step.
-    missing_fraction : float
-        Fraction of markers lost at random in each frame.
-    occlusion_radius_mm : float
-        Markers closer than this to the contact are hidden in every frame [mm].
-    """
-    phantom = phantom or DYNAMIC_PHANTOM
-    frames = DEFAULT_FRAMES if times is None else np.asarray(times, dtype=float)
-    values = tuple(sorted((parameters or DYNAMIC_TRUTH).items()))
-    clean = _clean_measurement(phantom, values, tuple(frames), integrator, substeps, ramp_s)
-    rng = np.random.default_rng(seed)
-    shape = phantom.markers
-    rest = clean["rest"]
-    series, loaded = [], []
-    for path, steady, contact in zip(clean["series"], clean["steady"], clean["contacts"]):
-        hidden = np.linalg.norm(rest - contact, axis=1) < occlusion_radius_mm
-        moved = path + rng.normal(0.0, noise_mm, path.shape)
-        steady = steady + rng.normal(0.0, noise_mm, steady.shape)
-        moved[:, hidden] = np.nan
-        moved[rng.random(moved.shape[:2]) < missing_fraction] = np.nan
-        steady[hidden] = np.nan
-        series.append(moved.reshape((frames.size, *shape, 3)))
-        loaded.append(steady.reshape((*shape, 3)))
-    return Dataset(
-        outer_rest=(rest + rng.normal(0.0, noise_mm, rest.shape)).reshape((*shape, 3)),
-        inner_rest=clean["inner"].reshape((*shape, 3)),
-        forces=clean["forces"],
-        contacts=clean["contacts"],
-        outer_loaded=np.stack(loaded),
-        noise_mm=float(noise_mm),
-        probe_radius=np.full(len(clean["forces"]), phantom.probe_radius),
-        times=frames,
-        outer_series=np.stack(series),
-        extra={} if not ramp_s else {RAMP_KEY: np.array(float(ramp_s))},
-    )
-
-
-@lru_cache(maxsize=8)
-def _clean_measurement(phantom, parameters, frames, integrator, substeps, ramp_s) -> dict:
-    """Noise-free markers of the truth: rest, trajectories, steady state (cached)."""
-    frames = np.array(frames)
-    truth = forehead_model(phantom, dict(parameters))
-    uv = marker_uv(phantom)
-    rows = truth.volume.collocation(truth.volume.outer_params(uv))
-    rest = rows @ truth.rest
-    loads = probe_loads(truth, phantom)
-    series, steady, contacts = [], [], []
-    for load in loads:
-        force = truth.generalized_force(load)
-        path = truth_trajectories(truth, force, frames, integrator, substeps, ramp_s)
-        series.append(rest[None] + np.einsum("mn,tnc->tmc", rows[:, truth.free].toarray(), path))
-        steady.append(rows @ EquilibriumSolver(truth).solve(force).positions)
-        contacts.append(truth.volume.evaluate(truth.volume.outer_params(load.uv[None]))[0])
-    inner = truth.volume.collocation(np.column_stack([uv, np.zeros(len(uv))])) @ truth.rest
-    return {
-        "rest": rest,
-        "inner": inner,
-        "series": series,
-        "steady": steady,
-        "contacts": np.array(contacts),
-        "forces": np.array([load.force for load in loads]),
-    }
-
-
-def build_dynamic_problem(
-    dataset: Dataset,
-    names=DYNAMIC_NAMES,
-    substeps: int = DEFAULT_SUBSTEPS,
-    cases: list[int] | None = None,
-    start: dict | None = None,
-    settings: FitSettings | None = None,
-) -> DynamicProblem:
-    """The dynamic inverse problem of a dataset's trajectories (geometry as ``fitting``).
-
-    The load is a step at t = 0 unless ``extra["load_ramp_s"]`` gives a rise time.
-    """
-    if dataset.times is None or dataset.outer_series is None:
-        raise ValueError(
-            "the dataset has no trajectories (times, outer_series); "
-            "simulate one with experiments.dynamics.inverse.simulate_dynamic"
-        )
-    settings = settings or FitSettings(names=tuple(names))
-    volume, uv = rest_geometry(dataset, settings)
-    boundary = BoundaryConditions(fix_lateral=settings.fix_lateral)
-    model = TissueModel(volume, dict(settings.fixed or {}), boundary)
-    loads = dataset_loads(dataset, volume)
-    ramp = dataset.extra.get(RAMP_KEY)
-    profile = _profile(None if ramp is None else float(ramp))
-    frames = dataset.times.size
-    problem_cases = [
-        trajectory_case(
-            model,
-            loads[k],
-            dataset.outer_series[k].reshape(frames, -1, 3),
-            uv,
-            profile,
-            label=f"{np.linalg.norm(dataset.forces[k]):.3g} N",
-        )
-        for k in (range(dataset.n_loads) if cases is None else cases)
-    ]
-    space = ParameterSpace.create(tuple(names), start)
-    return DynamicProblem(
-        model, problem_cases, space, dataset.times, substeps, dataset.noise_mm, rest_noise=True
-    )
 
 
 def _parameter_rows(report, truth: dict) -> dict:
@@ -289,7 +101,9 @@ def run(
     log("[5/5] identifiability, figure, summary")
     report = analyse_dynamic(problem, nested.x)
     rows = contrast(static_report, report)
+    solved = [static_result, *results.values()]
     summary = {
+        "success": all(bool(r.success) for r in solved),
         "truth": DYNAMIC_TRUTH,
         "data": {
             "noise_mm": noise_mm,
@@ -428,13 +242,21 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
     )
     parser.add_argument("--no-simultaneous", action="store_true", help="skip the IPOPT NLP")
     parser.add_argument("--bias", action="store_true", help="also the integrator-bias study")
-    parser.add_argument("--coverage", type=int, default=0, help="seeds for a coverage study")
+    parser.add_argument("--coverage", type=int, default=0, help="seeds for a coverage study, 0-100")
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.inverse"):
     """``dvs dynamic --out DIR``: dynamic.json and dynamic.png."""
-    from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
+    import sys
+
+    from experiments.options import (
+        EXIT_NOT_CONVERGED,
+        UsageError,
+        check_output_dir,
+        check_seed,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
@@ -442,8 +264,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynam
         if not 0 <= args.noise <= 1:
             raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
         check_seed(args.seed)
-        if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 1000:
-            raise UsageError("--substeps must lie in 1-100 and --coverage in 0-1000")
+        if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 100:
+            raise UsageError("--substeps must lie in 1-100 and --coverage in 0-100")
         out = check_output_dir(args.out)
         summary = run(
             out,
@@ -458,6 +280,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynam
             summary["coverage"] = coverage_study(range(args.coverage), args.noise)
         if args.bias or args.coverage:
             atomic_write_json(out / "dynamic.json", summary)
+        if not summary["success"]:
+            print(
+                f"{prog}: error: a solver did not converge; {out / 'dynamic.json'} has "
+                "success: false",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_CONVERGED
         return 0
 
     return run_guarded(prog, work)

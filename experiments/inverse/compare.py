@@ -82,6 +82,7 @@ def compare(
             "cost": result.cost,
             "estimate": result.as_dict(),
             "status": result.status,
+            "success": bool(result.success),
         }
         if truth:
             row["max_relative_error"] = max(
@@ -105,6 +106,7 @@ def compare(
         row["success_rate"] = float(np.mean(hits)) if hits else float("nan")
         row["starts"] = len(hits)
         del row["multistart"]
+    rows["success"] = all(row["success"] for row in rows.values() if isinstance(row, dict))
     if "simultaneous" in rows and "paper" in rows:
         sim, paper = rows["simultaneous"], rows["paper"]
         total = sim["build_time_s"] + sim["solve_time_s"]
@@ -201,7 +203,9 @@ def build_parser(prog: str = "python -m experiments.inverse.compare"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
     """``dvs compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    import sys
+
+    from experiments.options import EXIT_NOT_CONVERGED, UsageError, check_output_dir, run_guarded
     from experiments.phantom.forehead import TRUE_PARAMETERS
     from experiments.phantom.simulate import simulate
 
@@ -215,7 +219,16 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
         check_output_dir(args.out)
         dataset = args.dataset or simulate()
         truth = None if args.dataset else TRUE_PARAMETERS
-        print(table(run(dataset, args.out, args.starts, args.paper_starts, truth)))
+        rows = run(dataset, args.out, args.starts, args.paper_starts, truth)
+        print(table(rows))
+        if not rows["success"]:
+            failed = [n for n, r in rows.items() if isinstance(r, dict) and not r["success"]]
+            print(
+                f"{prog}: error: {', '.join(failed)} did not converge from the paper's start; "
+                f"{args.out / 'compare.json'} has success: false",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_CONVERGED
         return 0
 
     return run_guarded(prog, work)

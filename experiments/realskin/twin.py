@@ -281,8 +281,8 @@ def _numbers(text: str, kind, what: str) -> list:
         ok, need = all(np.isfinite(v) and v > 0 for v in values), "ratios > 0"
     else:
         ok, need = all(v >= 0 for v in values), "integer seeds >= 0"
-    if not values or not ok:
-        raise ValueError(f"{what} takes a comma list of {need}, got {text!r}")
+    if not values or not ok or len(values) > 20:
+        raise ValueError(f"{what} takes a comma list of 1-20 {need}, got {text!r}")
     return values
 
 

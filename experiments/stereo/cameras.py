@@ -145,6 +145,8 @@ class Camera:
         respect to ``t`` rotated back to the world frame: ``d uv/dX = d uv/dt R``.
         """
         pts = _as_points3d(points3d)
+        if pts.shape[0] == 0:  # OpenCV returns None for no points
+            return np.zeros((0, 2)), np.zeros((0, 2, 3))
         uv, jac = cv2.projectPoints(pts.reshape(-1, 1, 3), self.rvec, self.t, self.K, self.dist)
         d_dt = jac[:, 3:6].reshape(-1, 2, 3)
         return uv.reshape(-1, 2), d_dt @ self.R
@@ -152,6 +154,8 @@ class Camera:
     def undistort_normalized(self, pixels: np.ndarray) -> np.ndarray:
         """Pixels (n, 2) [px] to undistorted normalised coordinates ``x/z, y/z``, (n, 2)."""
         px = np.asarray(pixels, dtype=float).reshape(-1, 1, 2)
+        if px.shape[0] == 0:  # OpenCV returns None for no points
+            return np.zeros((0, 2))
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
         return cv2.undistortPoints(px, self.K, self.dist, criteria=criteria).reshape(-1, 2)
 

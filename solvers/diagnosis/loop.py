@@ -165,6 +165,7 @@ class Diagnosis:
         """diagnosis.json (schema dvs-diagnosis/1, DESIGN.md)."""
         return {
             "schema": SCHEMA,
+            "success": all(bool(s.fit.success) for s in self.steps),
             "noise_mm": self.noise_mm,
             "rms_before_mm": self.steps[0].fit.rms()[0],
             "rms_after_mm": self.steps[-1].fit.rms()[0],
