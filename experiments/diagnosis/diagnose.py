@@ -9,12 +9,14 @@ come from ``experiments.phantom.simulate``; the study of every effect over seeds
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 from experiments.dataset import Dataset, load_dataset
 from experiments.diagnosis.design import design_note
 from experiments.options import plural
+from experiments.plausibility import dataset_warnings
 from solvers.diagnosis.report import report, verdict
 
 BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
@@ -47,6 +49,8 @@ def run(dataset_or_path, out: Path, log=print, settings=None, grid=None) -> dict
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
+    for line in dataset_warnings(dataset):
+        print(f"dvs diagnose: warning: {line}", file=sys.stderr)
     out = Path(out)
     log(
         f"diagnosing {plural(dataset.n_loads, 'load case')}, {dataset.outer_rest.shape[0]}x"
