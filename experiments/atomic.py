@@ -58,6 +58,27 @@ def _fsync_directory(directory: Path) -> None:
             os.close(descriptor)
 
 
+def _replace_with(target: Path, suffix: str, fill: Callable[[int, str], None]) -> Path:
+    """Create a temporary file beside ``target``, let ``fill`` write and sync it, rename it.
+
+    ``fill(descriptor, name)`` owns the open descriptor. On any failure the temporary
+    file is removed and ``target`` is untouched.
+    """
+    descriptor, temporary = tempfile.mkstemp(
+        prefix=f".{target.name}.", suffix=suffix, dir=target.parent
+    )
+    try:
+        fill(descriptor, temporary)
+        os.chmod(temporary, _target_mode(target))
+        os.replace(temporary, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
+    _fsync_directory(target.parent)
+    return target
+
+
 def atomic_write(path: PathLike, write: Callable[[IO[bytes]], None]) -> Path:
     """Write a file atomically through a callback that receives a binary file handle.
 
@@ -73,24 +94,14 @@ def atomic_write(path: PathLike, write: Callable[[IO[bytes]], None]) -> Path:
     pathlib.Path
         The path written.
     """
-    target = Path(path)
-    directory = target.parent
-    descriptor, temporary = tempfile.mkstemp(
-        prefix=f".{target.name}.", suffix=".tmp", dir=directory
-    )
-    try:
+
+    def fill(descriptor: int, name: str) -> None:
         with os.fdopen(descriptor, "wb") as handle:
             write(handle)
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(temporary, _target_mode(target))
-        os.replace(temporary, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        raise
-    _fsync_directory(directory)
-    return target
+
+    return _replace_with(Path(path), ".tmp", fill)
 
 
 def atomic_write_by_name(path: PathLike, write: Callable[[Path], None]) -> Path:
@@ -100,22 +111,14 @@ def atomic_write_by_name(path: PathLike, write: Callable[[Path], None]) -> Path:
     format taken from the suffix is right); the file is then synced and renamed.
     """
     target = Path(path)
-    descriptor, temporary = tempfile.mkstemp(
-        prefix=f".{target.stem}.", suffix=target.suffix, dir=target.parent
-    )
-    os.close(descriptor)
-    try:
-        write(Path(temporary))
-        with open(temporary, "rb+") as handle:
+
+    def fill(descriptor: int, name: str) -> None:
+        os.close(descriptor)
+        write(Path(name))
+        with open(name, "rb+") as handle:
             os.fsync(handle.fileno())
-        os.chmod(temporary, _target_mode(target))
-        os.replace(temporary, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        raise
-    _fsync_directory(target.parent)
-    return target
+
+    return _replace_with(target, target.suffix, fill)
 
 
 def atomic_write_bytes(path: PathLike, data: bytes) -> Path:

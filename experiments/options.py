@@ -53,6 +53,12 @@ class _DefaultsFormatter(argparse.RawDescriptionHelpFormatter):
         return f"{text} (default: %(default)s)"
 
 
+def not_converged(prog: str, what: str, path) -> int:
+    """One line saying that ``what`` did not converge and ``path`` says so; exit 3."""
+    print(f"{prog}: error: {what} did not converge; {path} has success: false", file=sys.stderr)
+    return EXIT_NOT_CONVERGED
+
+
 def make_parser(prog: str, description: str) -> OneLineParser:
     """A one-line-error parser that shows every option's default in ``--help``."""
     return OneLineParser(prog=prog, description=description, formatter_class=_DefaultsFormatter)

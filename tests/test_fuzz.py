@@ -205,29 +205,24 @@ def test_campaign(tmp_path, phantom_arrays, places, capsys):
         label, data = mutation
         counts[("bytes", label, _loads_or_refuses(_write_bytes(tmp_path, data)))] += 1
 
-    @settings(CAMPAIGN, max_examples=120)
-    @given(data=st.data())
-    def fit_cases(data):
-        label, arrays = data.draw(array_mutation(phantom_arrays))
-        try:
-            path = _write_bytes(tmp_path, _saved(arrays))
-        except (ValueError, TypeError):
-            return
-        out = tmp_path / f"out{next(_COUNTER)}"
-        code = check_contract(["fit", str(path), "--out", str(out)], out, seconds=120)
-        counts[("fit", label.split(":")[0], f"exit {code}")] += 1
+    def dataset_cases(command: str, examples: int, seconds: int):
+        """A campaign of ``dvs command`` on mutated phantom datasets."""
 
-    @settings(CAMPAIGN, max_examples=60)
-    @given(data=st.data())
-    def diagnose_cases(data):
-        label, arrays = data.draw(array_mutation(phantom_arrays))
-        try:
-            path = _write_bytes(tmp_path, _saved(arrays))
-        except (ValueError, TypeError):
-            return
-        out = tmp_path / f"out{next(_COUNTER)}"
-        code = check_contract(["diagnose", str(path), "--out", str(out)], out, seconds=300)
-        counts[("diagnose", label.split(":")[0], f"exit {code}")] += 1
+        @settings(CAMPAIGN, max_examples=examples)
+        @given(data=st.data())
+        def cases(data):
+            label, arrays = data.draw(array_mutation(phantom_arrays))
+            try:
+                path = _write_bytes(tmp_path, _saved(arrays))
+            except (ValueError, TypeError):
+                return
+            out = tmp_path / f"out{next(_COUNTER)}"
+            code = check_contract([command, str(path), "--out", str(out)], out, seconds)
+            counts[(command, label.split(":")[0], f"exit {code}")] += 1
+
+        return cases
+
+    fit_cases, diagnose_cases = dataset_cases("fit", 120, 120), dataset_cases("diagnose", 60, 300)
 
     @settings(CAMPAIGN, max_examples=120)
     @given(data=st.data())

@@ -125,13 +125,12 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.diagnose"):
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
-    import sys
 
     from experiments.fitting import FitSettings, check_grid
     from experiments.options import (
-        EXIT_NOT_CONVERGED,
         UsageError,
         check_output_dir,
+        not_converged,
         parse_grid,
         run_guarded,
     )
@@ -149,12 +148,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
         document = run(args.dataset, args.out, settings=settings, grid=grid)
         if not document["success"]:
-            print(
-                f"{prog}: error: a fit of the diagnosis did not converge; "
-                f"{args.out / 'diagnosis.json'} has success: false",
-                file=sys.stderr,
-            )
-            return EXIT_NOT_CONVERGED
+            return not_converged(prog, "a fit of the diagnosis", args.out / "diagnosis.json")
         return 0
 
     return run_guarded(prog, work)

@@ -248,13 +248,12 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.inverse"):
     """``dvs dynamic --out DIR``: dynamic.json and dynamic.png."""
-    import sys
 
     from experiments.options import (
-        EXIT_NOT_CONVERGED,
         UsageError,
         check_output_dir,
         check_seed,
+        not_converged,
         run_guarded,
     )
 
@@ -281,12 +280,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynam
         if args.bias or args.coverage:
             atomic_write_json(out / "dynamic.json", summary)
         if not summary["success"]:
-            print(
-                f"{prog}: error: a solver did not converge; {out / 'dynamic.json'} has "
-                "success: false",
-                file=sys.stderr,
-            )
-            return EXIT_NOT_CONVERGED
+            return not_converged(prog, "a solver", out / "dynamic.json")
         return 0
 
     return run_guarded(prog, work)

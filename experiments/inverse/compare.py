@@ -203,9 +203,8 @@ def build_parser(prog: str = "python -m experiments.inverse.compare"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
     """``dvs compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
-    import sys
 
-    from experiments.options import EXIT_NOT_CONVERGED, UsageError, check_output_dir, run_guarded
+    from experiments.options import UsageError, check_output_dir, not_converged, run_guarded
     from experiments.phantom.forehead import TRUE_PARAMETERS
     from experiments.phantom.simulate import simulate
 
@@ -223,12 +222,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
         print(table(rows))
         if not rows["success"]:
             failed = [n for n, r in rows.items() if isinstance(r, dict) and not r["success"]]
-            print(
-                f"{prog}: error: {', '.join(failed)} did not converge from the paper's start; "
-                f"{args.out / 'compare.json'} has success: false",
-                file=sys.stderr,
-            )
-            return EXIT_NOT_CONVERGED
+            what = f"{', '.join(failed)} from the paper's start"
+            return not_converged(prog, what, args.out / "compare.json")
         return 0
 
     return run_guarded(prog, work)
