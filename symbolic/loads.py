@@ -82,14 +82,23 @@ class ProbeForce:
             raise ValueError(f"probe radius must be > 0 mm, got {self.radius!r}")
 
     def generalized(self, volume: VolumeSpline) -> np.ndarray:
-        """F_B = sum_q J(p_q)^T f g_q A_q / sum_q g_q A_q, shape (n, 3) [N]."""
+        """F_B = sum_q J(p_q)^T f g_q A_q / sum_q g_q A_q, shape (n, 3) [N].
+
+        A patch too narrow for the surface quadrature to resolve (fewer than four
+        points carry weight; the quadrature has at most 60 points per knot span) is the
+        point force it tends to.
+        """
         uv0 = _contact_uv(volume, self.uv, self.point)
         center = volume.evaluate(volume.outer_params(uv0[None]))[0]
         sigma = 0.5 * self.radius
         params, area = surface_quadrature(volume, spacing=sigma / 3.0)
         positions = volume.evaluate(params)
-        gauss = np.exp(-np.sum((positions - center) ** 2, axis=1) / (2.0 * sigma**2)) * area
+        with np.errstate(over="ignore", under="ignore", divide="ignore"):
+            exponent = np.sum((positions - center) ** 2, axis=1) / (2.0 * sigma**2)
+            gauss = np.exp(-exponent) * area
         keep = gauss > 1e-14 * gauss.max()
+        if np.count_nonzero(keep) < 4:
+            return PointForce(self.force, uv=uv0).generalized(volume)
         weights = gauss[keep] / gauss[keep].sum()
         collocation = volume.collocation(params[keep])
         return np.asarray(collocation.T @ (weights[:, None] * self.force[None, :]))
@@ -107,7 +116,8 @@ def surface_quadrature(volume: VolumeSpline, spacing: float) -> tuple[np.ndarray
         mid = np.column_stack([0.5 * np.ones(3), 0.5 * np.ones(3), np.ones(3)])
         mid[:, axis] = [0.0, 0.5, 1.0]
         length = np.linalg.norm(np.diff(volume.evaluate(mid), axis=0), axis=1).sum()
-        per_span = int(np.clip(np.ceil(length / (len(ends) - 1) / spacing), basis.degree + 1, 60))
+        span = length / (len(ends) - 1)
+        per_span = int(np.clip(np.ceil(span / max(spacing, 1e-9 * span)), basis.degree + 1, 60))
         rules.append(gauss_rule(basis, per_span))
     (u, wu), (v, wv) = rules
     uu, vv = np.meshgrid(u, v, indexing="ij")

@@ -124,6 +124,21 @@ def test_absurd_values_are_refused_naming_the_key(phantom, capsys, name, change,
     assert not (phantom.parent / "o").exists()
 
 
+def test_a_vanishing_probe_radius_is_a_point_force(phantom, tmp_path, capsys):
+    """Found by the campaign: probe_radius 1e-308 mm made the Gaussian patch empty."""
+    path = _written(
+        phantom, "tiny.npz", lambda a: a.__setitem__("probe_radius", np.full(2, 1e-308))
+    )
+    assert main(["fit", path, "--out", str(tmp_path / "fit")]) == 0
+    point = _written(phantom, "point.npz", lambda a: a.__setitem__("probe_radius", np.zeros(2)))
+    assert main(["fit", point, "--out", str(tmp_path / "point")]) == 0
+    values = [
+        json.loads((tmp_path / name / "result.json").read_text())["parameters"]["alpha_u"]["value"]
+        for name in ("fit", "point")
+    ]
+    assert values[0] == pytest.approx(values[1], rel=1e-9)
+
+
 def test_geometry_scaled_by_1e150_is_refused_by_diagnose(phantom, capsys):
     def scale(arrays):
         for key in ("outer_rest", "inner_rest", "contacts", "outer_loaded"):
