@@ -12,7 +12,6 @@ frame and offsets the rest grid by ``thickness_mm`` along its inward normal.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import cv2
@@ -381,7 +380,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.stere
     def work() -> int:
         check_output_file(args.out, ".npz")
         try:
-            rec = reconstruct(args.folder, progress=lambda m: print(m, file=sys.stderr))
+            rec = reconstruct(args.folder, progress=lambda m: print(m, flush=True))
         except cv2.error as error:
             raise ValueError(" ".join(str(error).split())) from None
         args.out.parent.mkdir(parents=True, exist_ok=True)
