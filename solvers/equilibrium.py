@@ -1,9 +1,11 @@
 """Static forward solve of K(B; x)(B - B0) = F_B by Newton's method (MODEL.md eq. 22).
 
 The residual and its sparse Jacobian come from CasADi; each Newton step is one
-sparse LU solve (SuperLU through scipy). A backtracking line search on |g|
-guards the nonlinear model; near the solution full steps give quadratic
-convergence.
+sparse LU solve (SuperLU through scipy, symmetric minimum-degree ordering). A
+backtracking line search on |g| guards the nonlinear model; near the solution full
+steps give quadratic convergence. The linear model (k0 = 0) is solved in one step on
+its scalar block instead (``solvers.componentwise``), without building any CasADi
+Function.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.componentwise import ORDERING, ScalarSystem
 from symbolic.model import TissueModel
 
 
@@ -136,6 +139,14 @@ class EquilibriumSolver:
         self.model = model
         self.names = tuple(names)
         self.settings = settings or NewtonSettings()
+        self.linear = model.is_linear(self.names)
+        self.scalar = None
+        if model.componentwise and self.linear:
+            model.symbolic_values(self.names)  # the names' checks, one message for all paths
+            self.scalar = ScalarSystem(model, self.names)
+            self.n_state = 3 * (model.n_free + model.n_constraints)
+            self._cache: tuple | None = None
+            return
         g = model.state_residual(self.names) if residual is None else residual
         s, x, force, prescribed = g.mx_in()
         value = g(s, x, force, prescribed)
@@ -149,8 +160,7 @@ class EquilibriumSolver:
         )
         self._jacobian = SparseEvaluator(self.jacobian)
         self.n_state = g.size1_in(0)
-        self.linear = model.is_linear(self.names)
-        self._cache: tuple | None = None
+        self._cache = None
 
     def _x(self, x) -> np.ndarray:
         x = np.asarray([] if x is None else x, dtype=float).reshape(-1)
@@ -180,6 +190,8 @@ class EquilibriumSolver:
         x = self._x(x)
         rows = self.model._constraint_rows.shape[1]
         prescribed = np.zeros((rows, 3)) if prescribed is None else np.asarray(prescribed, float)
+        if self.scalar is not None:
+            return self._solve_scalar(np.asarray(force, dtype=float), x, prescribed)
         args = (x, np.asarray(force, dtype=float), prescribed)
         state = np.zeros(self.n_state) if start is None else np.array(start, dtype=float)
         scale = float(np.linalg.norm(self.residual(np.zeros(self.n_state), *args).full()))
@@ -214,13 +226,40 @@ class EquilibriumSolver:
             factor=factor,
         )
 
+    def _solve_scalar(self, force: np.ndarray, x: np.ndarray, prescribed: np.ndarray):
+        """The linear model: one solve on the scalar block, factorised once per x."""
+        if self._cache is None or not np.array_equal(self._cache.x, x):
+            self._cache = self.scalar.factor(x)
+        factor = self._cache
+        state = self.scalar.state(factor, force, prescribed)
+        right = np.vstack([force, self.scalar.reduce @ prescribed])
+        n = self.model.n_free
+        blocks = np.vstack([state[: 3 * n].reshape(3, n).T, state[3 * n :].reshape(3, -1).T])
+        scale = float(np.linalg.norm(right)) or 1.0
+        residual = float(np.linalg.norm(factor.stiffness @ blocks - right)) / scale
+        if not residual <= self.settings.tolerance:
+            raise EquilibriumError(
+                f"the linear system is singular or ill-conditioned (relative residual "
+                f"{residual:.2e}); check the boundary conditions and parameters"
+            )
+        delta = state[: 3 * n].reshape(3, -1).T
+        return Equilibrium(
+            positions=self.model.full_positions(delta),
+            state=state,
+            multipliers=state[3 * n :].reshape(3, -1).T,
+            iterations=1,
+            residual_history=[1.0, residual],
+            jacobian=None,
+            factor=factor,
+        )
+
     def _factorized(self, state: np.ndarray, args: tuple):
         """dg/ds and its LU; for the linear model cached per x (shared by load cases)."""
         x = args[0]
         if self.linear and self._cache is not None and np.array_equal(self._cache[0], x):
             return self._cache[1], self._cache[2]
         jacobian = self._jacobian(state, *args)
-        factor = spla.splu(jacobian)
+        factor = spla.splu(jacobian, **ORDERING)
         if self.linear:
             self._cache = (np.array(x), jacobian, factor)
         return jacobian, factor

@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
+from solvers.componentwise import ScalarSystem
 from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
 from solvers.problem import InverseProblem
 from solvers.result import InverseResult
@@ -44,6 +45,11 @@ def _result(solver, z, residual, success, status, evaluations, elapsed) -> Inver
 class NestedSolver:
     """Reduced-space least squares with exact sensitivities.
 
+    For the linear model (``TissueModel.componentwise``) every evaluation factorises the
+    scalar block A(x) once (``solvers.componentwise``) and solves the three components,
+    every load case and every sensitivity column with it; no CasADi Function is built.
+    Otherwise each case is a Newton solve of the full system (``EquilibriumSolver``).
+
     Parameters
     ----------
     problem : InverseProblem
@@ -66,16 +72,29 @@ class NestedSolver:
         self.method = method
         self.tolerance = tolerance
         self.max_evaluations = max_evaluations
-        self.equilibrium = EquilibriumSolver(problem.model, problem.names, residual=problem.g)
-        s, x, force, prescribed = problem.g.mx_in()
-        self.g_x = ca.Function(
-            "dg_dx", [s, x, force, prescribed], [ca.jacobian(problem.g(s, x, force, prescribed), x)]
-        )
+        model = problem.model
+        self.scalar = None
+        if model.componentwise and model.is_linear(problem.names):
+            self.scalar = ScalarSystem(model, problem.names)
+        else:
+            self.equilibrium = EquilibriumSolver(model, problem.names, residual=problem.g)
+            s, x, force, prescribed = problem.g.mx_in()
+            value = problem.g(s, x, force, prescribed)
+            self.g_x = ca.Function("dg_dx", [s, x, force, prescribed], [ca.jacobian(value, x)])
         self.observation_jacobians = [problem.case_residual_jacobian(c) for c in problem.cases]
         self.build_time = time.perf_counter() - start
         self.forward_solves = 0
         self._states = [None] * len(problem.cases)
         self._cache: tuple | None = None
+
+    def _case(self, k: int, case, x: np.ndarray, factor) -> tuple[np.ndarray, np.ndarray]:
+        """The equilibrium state of one case and its sensitivity ds/dx."""
+        if self.scalar is not None:
+            state = self.scalar.state(factor, case.force, case.prescribed)
+            return state, self.scalar.sensitivity(factor, state)
+        result = self.equilibrium.solve(case.force, x, case.prescribed, self._states[k])
+        g_x = casadi_to_scipy(self.g_x(result.state, x, case.force, case.prescribed))
+        return result.state, -result.factor.solve(g_x.toarray())
 
     def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual r(z) and its exact Jacobian dr/dz."""
@@ -84,19 +103,24 @@ class NestedSolver:
         problem = self.problem
         x = problem.space.to_natural(z)
         dx_dz = problem.space.natural_derivative(z)
+        factor = None if self.scalar is None else self.scalar.factor(x)
         residuals, jacobians = [], []
         for k, case in enumerate(problem.cases):
-            result = self.equilibrium.solve(case.force, x, case.prescribed, self._states[k])
+            state, sensitivity = self._case(k, case, x, factor)
             self.forward_solves += 1
-            self._states[k] = result.state
-            args = (result.state, x, case.force, case.prescribed)
-            g_x = casadi_to_scipy(self.g_x(*args)).toarray()
-            sensitivity = -result.factor.solve(g_x)
-            residuals.append(problem.case_residual(case, result.state))
+            self._states[k] = state
+            residuals.append(problem.case_residual(case, state))
             jacobians.append((self.observation_jacobians[k] @ sensitivity) * dx_dz[None, :])
         r, jac = np.concatenate(residuals), np.vstack(jacobians)
         self._cache = (np.array(z), r, jac)
         return r, jac
+
+    @property
+    def active(self) -> np.ndarray:
+        """Parameters that move the equilibrium (without building g on the fast path)."""
+        if self.scalar is not None:
+            return self.scalar.influential
+        return self.problem.active
 
     def solve(self, start: np.ndarray | None = None) -> InverseResult:
         """Run least_squares from ``start`` (natural units; default: the space's start)."""
@@ -106,7 +130,7 @@ class NestedSolver:
             self.evaluate,
             self.problem.space,
             start,
-            self.problem.active,
+            self.active,
             self.method,
             self.tolerance,
             self.max_evaluations,

@@ -291,12 +291,30 @@ class InverseProblem:
     def __post_init__(self) -> None:
         if not self.cases:
             raise ValueError("an inverse problem needs at least one load case")
-        self.g = self.model.state_residual(self.space.names)
-        self.n_state = self.g.size1_in(0)
-        pattern = self.g.jac_sparsity(0, 1)  # d g / d x
-        touched = set(pattern.get_col())
-        self.active = np.array([i in touched for i in range(len(self.space.names))])
+        self.n_state = 3 * (self.model.n_free + self.model.n_constraints)
+        self._g = None
+        self._active: np.ndarray | None = None
         self._jacobians: dict[int, sp.csr_matrix] = {}
+
+    @property
+    def g(self):
+        """g(s, x, F_B, d), the CasADi residual (``TissueModel.state_residual``), built on
+        first use: the componentwise path of the linear model never needs it."""
+        if self._g is None:
+            self._g = self.model.state_residual(self.space.names)
+        return self._g
+
+    @property
+    def active(self) -> np.ndarray:
+        """Which estimated parameters enter the equilibrium (mu and gamma do not)."""
+        if self._active is None:
+            influence = self.model.influential(self.space.names)
+            if influence is None:
+                pattern = self.g.jac_sparsity(0, 1)  # d g / d x
+                touched = set(pattern.get_col())
+                influence = [i in touched for i in range(len(self.space.names))]
+            self._active = np.asarray(influence, dtype=bool)
+        return self._active
 
     @property
     def inactive_names(self) -> tuple[str, ...]:

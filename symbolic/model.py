@@ -79,6 +79,28 @@ class BoundaryConditions:
         return mask
 
 
+def pattern_entries(pattern: sp.csc_matrix, matrix: sp.spmatrix) -> np.ndarray:
+    """The entries of ``matrix`` at the nonzeros of ``pattern``, in its (CSC) order.
+
+    Every nonzero of ``matrix`` must lie in ``pattern``; positions of ``pattern`` that
+    ``matrix`` does not have get 0.
+    """
+    position = sp.csc_matrix(
+        (np.arange(1, pattern.nnz + 1), pattern.indices, pattern.indptr), shape=pattern.shape
+    )
+    entries = sp.coo_matrix(matrix)
+    keep = entries.data != 0
+    rows, cols, values = entries.row[keep], entries.col[keep], entries.data[keep]
+    data = np.zeros(pattern.nnz)
+    if values.size == 0:
+        return data
+    index = np.asarray(position[rows, cols]).ravel() - 1
+    if np.any(index < 0):
+        raise ValueError("a matrix has entries outside the pattern")
+    np.add.at(data, index, values)
+    return data
+
+
 def check_parameters(values: dict[str, float]) -> dict[str, float]:
     """Merge values over the defaults, rejecting unknown names and bad numbers."""
     unknown = set(values) - set(PARAMETERS)
@@ -220,6 +242,19 @@ class TissueModel:
     def is_linear(self, names: tuple[str, ...] = ()) -> bool:
         """True when K does not depend on B with ``names`` estimated (k0 fixed at 0)."""
         return "k0" not in names and self.is_linear_fixed
+
+    componentwise = True
+    """The linear K acts as I3 (x) A on the free points (``solvers.componentwise``);
+    models that couple the components or add terms of their own set it False."""
+
+    def influential(self, names: tuple[str, ...]) -> np.ndarray | None:
+        """Which of ``names`` enter the equilibrium: stiffness terms' parameters, and k0
+        when it is estimated (the nonlinear model); mu and gamma never. None when a
+        subclass cannot tell without its residual (then it is read from g's sparsity)."""
+        if not self.componentwise:
+            return None
+        touched = {term_parameter(t) for t, k in self.terms.items() if k.nnz}
+        return np.array([n in touched or (n == "k0" and not self.is_linear(names)) for n in names])
 
     def edges(self) -> EdgeSet:
         """The coupled pairs of control points used by the nonlinear K(B) (built once)."""
@@ -364,16 +399,16 @@ class TissueModel:
         dc_t/dx; dg/dF_B = [-I; 0]; dg/dd = [0; -I3 (x) Q].
         """
         x, coefficients, terms = self.linear_terms(names)
-        blocks = [self.free_term(t) for t in terms]
+        blocks = [sp.csc_matrix(self.free_block(self.terms[t])) for t in terms]
         n, m_rows = 3 * self.n_free, 3 * self._constraint_rows.shape[0]
         pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
         pattern.sort_indices()
-        r, c = pattern.nonzero()
-        order = np.lexsort((r, c))
-        r, c = r[order], c[order]
-        unit = sp.csc_matrix(np.column_stack([np.asarray(b[r, c]).ravel() for b in blocks]))
-        sparsity = ca.Sparsity(n, n, pattern.indptr.tolist(), pattern.indices.tolist())
-        stiffness = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
+        unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
+        sparsity = ca.Sparsity(
+            self.n_free, self.n_free, pattern.indptr.tolist(), pattern.indices.tolist()
+        )
+        scalar = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
+        stiffness = ca.diagcat(scalar, scalar, scalar)  # I3 (x) A: vec stacks components
         symbols = self._state_symbols()
         coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
         d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])

@@ -90,6 +90,7 @@ class SkinSlabModel(TissueModel):
     region_extra_points: int = 2
     poisson: float = 0.0
     _fast: dict = field(default_factory=dict, repr=False)
+    componentwise = False  # isotropy, region and Poisson terms: not TissueModel's terms
 
     def __post_init__(self) -> None:
         super().__post_init__()
