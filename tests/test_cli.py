@@ -159,7 +159,7 @@ def test_fit_that_does_not_converge_exits_3_with_success_false(
         return replace(solve(self, *args, **kwargs), success=False, status="Maximum_Iterations")
 
     monkeypatch.setattr(SimultaneousSolver, "solve", failing)
-    argv = ["fit", str(dataset_file), "--out", str(tmp_path / "fit")]
+    argv = ["fit", str(dataset_file), "--method", "simultaneous", "--out", str(tmp_path / "fit")]
     code, err = exit_code_and_stderr(main, argv, capsys)
     assert code == 3
     assert err.strip().splitlines()[-1].startswith("dvs fit: error: the solver did not converge")
