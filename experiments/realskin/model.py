@@ -227,17 +227,21 @@ class SkinSlabModel(TissueModel):
         return ca.Function("g", [state, x, force, prescribed], [g], ["s", "x", "F_B", "d"], ["g"])
 
     def state_residual(self, names: tuple[str, ...] = ()) -> ca.Function:
-        """g(s, x, F_B, d), s = [vec(Delta_free); vec(lam)], with its Jacobian in closed form."""
+        """g(s, x, F_B, d), s = [vec(Delta_free); vec(lam)], with its Jacobian in closed form
+        (built once per model and names: every stage and scan of the study reuses it)."""
         names = tuple(names)
-        function = self._residual(names)
-        return ca.Function(
-            "g",
-            function.mx_in(),
-            function.call(function.mx_in()),
-            ["s", "x", "F_B", "d"],
-            ["g"],
-            {"custom_jacobian": self._jacobian(names), "jac_penalty": 0, "never_inline": True},
-        )
+        key = ("residual", names)
+        if key not in self._fast:
+            function = self._residual(names)
+            self._fast[key] = ca.Function(
+                "g",
+                function.mx_in(),
+                function.call(function.mx_in()),
+                ["s", "x", "F_B", "d"],
+                ["g"],
+                {"custom_jacobian": self._jacobian(names), "jac_penalty": 0, "never_inline": True},
+            )
+        return self._fast[key]
 
     def jacobian_function(self, names: tuple[str, ...]) -> ca.Function:
         """(s, x, F_B, d) -> (dg/ds, dg/dx) in closed form, for a solver's own Newton loop."""
@@ -253,12 +257,19 @@ class SkinSlabModel(TissueModel):
         return self._fast[key]
 
     def _jacobian(self, names: tuple[str, ...]) -> ca.Function:
-        """The custom Jacobian (s, x, F_B, d, out_g) -> dg/ds, dg/dx, dg/dF_B, dg/dd.
+        """The custom Jacobian (s, x, F_B, d, out_g) -> dg/ds, dg/dx, dg/dF_B, dg/dd,
+        built once per model and names.
 
         dg/ds = [[A, I3 (x) C^T], [I3 (x) C, 0]]; A = I3 (x) sum_t c_t K_t for the linear
         model, else -(I3 (x) G)^T W (I3 (x) G) over the edges (``_edge_weights``); its
         nonzeros are a fixed sparse map of [weights; 1]. dg/dx by forward AD (few columns).
         """
+        key = ("custom jacobian", tuple(names))
+        if key not in self._fast:
+            self._fast[key] = self._build_jacobian(tuple(names))
+        return self._fast[key]
+
+    def _build_jacobian(self, names: tuple[str, ...]) -> ca.Function:
         x, values = self.symbolic_values(names)
         symbols = self._state_symbols()
         state, force, prescribed, _ = symbols

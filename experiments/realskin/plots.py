@@ -104,7 +104,13 @@ def plot_residual_maps(
         for col in range(2):
             ax = axes[row, col]
             image = ax.scatter(
-                *reference.T, c=residual[:, col], s=5, cmap="RdBu_r", vmin=-limit, vmax=limit
+                *reference.T,
+                c=residual[:, col],
+                s=5,
+                cmap="RdBu_r",
+                vmin=-limit,
+                vmax=limit,
+                rasterized=True,  # thousands of DIC points: a light PDF twin
             )
             for pad in pads:
                 _rect(ax, pad)

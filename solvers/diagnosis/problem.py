@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.componentwise import ORDERING
 from solvers.diagnosis.numeric import NumericFunction
 from solvers.equilibrium import EquilibriumError
 from solvers.noise import Whitening, rest_noise_map
@@ -42,7 +43,7 @@ class StateJacobian:
     def solve(self, right: np.ndarray) -> np.ndarray:
         """(dg/ds)^-1 right."""
         if self._lu is None:
-            self._lu = spla.splu(self.matrix)
+            self._lu = spla.splu(self.matrix, **ORDERING)
         return self._lu.solve(right)
 
 
