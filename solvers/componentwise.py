@@ -32,7 +32,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from symbolic.model import TissueModel, pattern_entries, term_parameter
+from symbolic.model import TissueModel, term_parameter
+from symbolic.sparse import pattern_entries
 
 ORDERING = {"permc_spec": "MMD_AT_PLUS_A", "options": {"SymmetricMode": True}}
 """SuperLU options of the scalar factorisation: symmetric ordering, diagonal pivots."""

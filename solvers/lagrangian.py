@@ -30,7 +30,7 @@ import casadi as ca
 import scipy.sparse as sp
 
 from solvers.problem import InverseProblem
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 
 def objective_hessians(problem: InverseProblem, scale: float) -> list[sp.csc_matrix]:

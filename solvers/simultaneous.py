@@ -29,7 +29,7 @@ from solvers.equilibrium import EquilibriumSolver
 from solvers.lagrangian import constraint_jacobian, lagrangian_hessian
 from solvers.problem import InverseProblem
 from solvers.result import InverseResult
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,8 @@ import scipy.sparse as sp
 
 from symbolic.energy import STIFFNESS_TERMS, damping_matrix, mass_matrix, stiffness_terms
 from symbolic.loads import PrescribedDisplacement, independent_rows
-from symbolic.stiffening import EdgeSet, StiffeningFunction, quadratic_stiffening, to_casadi_sparse
+from symbolic.sparse import pattern_entries, to_casadi_sparse
+from symbolic.stiffening import EdgeSet, StiffeningFunction, quadratic_stiffening
 from symbolic.volume import VolumeSpline
 
 
@@ -77,28 +78,6 @@ class BoundaryConditions:
             mask[[0, -1], :, :] = True
             mask[:, [0, -1], :] = True
         return mask
-
-
-def pattern_entries(pattern: sp.csc_matrix, matrix: sp.spmatrix) -> np.ndarray:
-    """The entries of ``matrix`` at the nonzeros of ``pattern``, in its (CSC) order.
-
-    Every nonzero of ``matrix`` must lie in ``pattern``; positions of ``pattern`` that
-    ``matrix`` does not have get 0.
-    """
-    position = sp.csc_matrix(
-        (np.arange(1, pattern.nnz + 1), pattern.indices, pattern.indptr), shape=pattern.shape
-    )
-    entries = sp.coo_matrix(matrix)
-    keep = entries.data != 0
-    rows, cols, values = entries.row[keep], entries.col[keep], entries.data[keep]
-    data = np.zeros(pattern.nnz)
-    if values.size == 0:
-        return data
-    index = np.asarray(position[rows, cols]).ravel() - 1
-    if np.any(index < 0):
-        raise ValueError("a matrix has entries outside the pattern")
-    np.add.at(data, index, values)
-    return data
 
 
 def check_parameters(values: dict[str, float]) -> dict[str, float]:

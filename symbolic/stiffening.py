@@ -30,6 +30,8 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from symbolic.sparse import to_casadi_sparse
+
 StiffeningFunction = Callable[[ca.MX, ca.MX], ca.MX]
 """s(eps, k0): a CasADi-compatible function with s(0, k0) = 1."""
 
@@ -42,15 +44,6 @@ def quadratic_stiffening(strain, k0):
 def exponential_stiffening(strain, k0):
     """Alternative s(eps) = exp(k0 eps^2), Fung-like, also 1 at eps = 0."""
     return ca.exp(k0 * strain**2)
-
-
-def to_casadi_sparse(matrix: sp.spmatrix) -> ca.DM:
-    """A scipy sparse matrix as a CasADi sparse DM (structural zeros kept out)."""
-    csc = sp.csc_matrix(matrix)
-    csc.eliminate_zeros()
-    csc.sort_indices()
-    pattern = ca.Sparsity(csc.shape[0], csc.shape[1], csc.indptr.tolist(), csc.indices.tolist())
-    return ca.DM(pattern, csc.data.tolist())
 
 
 @dataclass(frozen=True)

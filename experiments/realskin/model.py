@@ -25,7 +25,7 @@ from solvers.problem import LOG_PARAMETERS, ParameterSpace
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.energy import Field, weighted_gram
 from symbolic.model import PARAMETERS, TissueModel, check_parameters, term_parameter
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 REGION_RATIO = "region_ratio"
 """Name of the stiffness ratio 1 + theta of the second material (inside / outside) [1]."""

@@ -43,7 +43,7 @@ from solvers.dynamic.problem import DynamicProblem
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.result import InverseResult
 from solvers.simultaneous import IpoptSettings
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 DYNAMIC_DEFAULTS = {"ipopt.mumps_pivot_order": 2}
 """IPOPT options added for this NLP (the user's ``IpoptSettings.options`` override them).

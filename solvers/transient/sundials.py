@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from solvers.transient.loads import as_load
 from solvers.transient.stepping import transient_solver
 from symbolic.model import TissueModel
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 
 def integrate_casadi(

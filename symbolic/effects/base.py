@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from symbolic.model import TissueModel, term_parameter
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient, surface_rule
 from symbolic.model import TissueModel
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 
 class BaseCompliance(Effect):

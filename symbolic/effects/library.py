@@ -241,7 +241,7 @@ class ExtendedModel:
 
     def _observation(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
         """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``)."""
-        from symbolic.stiffening import to_casadi_sparse
+        from symbolic.sparse import to_casadi_sparse
 
         rest = ca.DM(case.rest_points)
         predicted = rest + ca.mtimes(to_casadi_sparse(case.rows), symbols.delta)

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 
 from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient
 from symbolic.model import TissueModel
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 
 def _stiffening_parts(stiffening, n_edges: int) -> ca.Function:

@@ -29,7 +29,7 @@ from symbolic.effects.base import (
 )
 from symbolic.energy import quadrature, weighted_gram
 from symbolic.model import TissueModel
-from symbolic.stiffening import to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 
 ALPHA_TERMS = ("alpha_u", "alpha_v", "alpha_w")
 

@@ -1,0 +1,43 @@
+"""Sparse matrices between scipy and CasADi: conversion and entries on a fixed pattern.
+
+The model's numbers live in scipy sparse matrices; CasADi expressions take them as
+sparse DMs (``to_casadi_sparse``). Sums of matrices with coefficients, A = sum_t c_t K_t,
+are assembled on the union pattern from each term's entries there (``pattern_entries``).
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+
+def to_casadi_sparse(matrix: sp.spmatrix) -> ca.DM:
+    """A scipy sparse matrix as a CasADi sparse DM (structural zeros kept out)."""
+    csc = sp.csc_matrix(matrix)
+    csc.eliminate_zeros()
+    csc.sort_indices()
+    pattern = ca.Sparsity(csc.shape[0], csc.shape[1], csc.indptr.tolist(), csc.indices.tolist())
+    return ca.DM(pattern, csc.data.tolist())
+
+
+def pattern_entries(pattern: sp.csc_matrix, matrix: sp.spmatrix) -> np.ndarray:
+    """The entries of ``matrix`` at the nonzeros of ``pattern``, in its (CSC) order.
+
+    Every nonzero of ``matrix`` must lie in ``pattern``; positions of ``pattern`` that
+    ``matrix`` does not have get 0.
+    """
+    position = sp.csc_matrix(
+        (np.arange(1, pattern.nnz + 1), pattern.indices, pattern.indptr), shape=pattern.shape
+    )
+    entries = sp.coo_matrix(matrix)
+    keep = entries.data != 0
+    rows, cols, values = entries.row[keep], entries.col[keep], entries.data[keep]
+    data = np.zeros(pattern.nnz)
+    if values.size == 0:
+        return data
+    index = np.asarray(position[rows, cols]).ravel() - 1
+    if np.any(index < 0):
+        raise ValueError("a matrix has entries outside the pattern")
+    np.add.at(data, index, values)
+    return data
