@@ -17,7 +17,7 @@ from experiments.options import OneLineParser
 CORE = {
     "demo": ("experiments.demo.run", "run the main job on the embedded forehead phantom"),
     "simulate": ("experiments.phantom.simulate", "write a synthetic dataset from the phantom"),
-    "fit": ("experiments.fitting", "estimate parameters from a dataset, with a verdict"),
+    "fit": ("experiments.fitcommand", "estimate parameters from a dataset, with a verdict"),
     "compare": ("experiments.inverse.compare", "simultaneous vs nested vs paper-faithful"),
     "diagnose": ("experiments.diagnosis.diagnose", "find the effect the model lacks"),
     "transient": ("experiments.dynamics.transient", "transient from rest against equilibrium"),

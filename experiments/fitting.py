@@ -25,12 +25,16 @@ from solvers.problem import (
 from solvers.result import InverseResult
 from solvers.simultaneous import SimultaneousSolver
 from solvers.verdict import fit_verdict
+from symbolic.continuum_model import ENERGIES
 from symbolic.loads import PointForce, ProbeForce
 from symbolic.model import BoundaryConditions, TissueModel
 from symbolic.volume import VolumeSpline
 
 DEFAULT_NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")
 """The paper estimated mu and alpha; gamma is included to show it is not identifiable."""
+
+ENERGY_NAMES = {"dnurbs": DEFAULT_NAMES, "linear-elastic": ("E", "nu")}
+"""What ``dvs fit`` estimates by default for each ``--energy``."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,9 @@ class FitSettings:
         Also fix the lateral ring of control points.
     fixed : dict
         Values of parameters that are not estimated.
+    energy : {"dnurbs", "linear-elastic"}
+        The base model: the paper's eq. (18), or isotropic linear elasticity
+        (``symbolic.continuum_model``, parameters E and nu).
     """
 
     names: tuple[str, ...] = DEFAULT_NAMES
@@ -61,10 +68,13 @@ class FitSettings:
     objective: str = "markers"
     fix_lateral: bool = False
     fixed: dict | None = None
+    energy: str = "dnurbs"
 
     def __post_init__(self) -> None:
         if self.objective not in ("markers", "control_points"):
             raise ValueError("objective must be 'markers' or 'control_points'")
+        if self.energy not in ENERGIES:
+            raise ValueError(f"energy must be one of {sorted(ENERGIES)}, got {self.energy!r}")
 
 
 DEFAULT_GRID = (9, 9, 2)
@@ -124,7 +134,7 @@ def build_problem(
     settings = settings or FitSettings()
     volume, uv = rest_geometry(dataset, settings)
     boundary = BoundaryConditions(fix_lateral=settings.fix_lateral)
-    model = TissueModel(volume, dict(settings.fixed or {}), boundary)
+    model = ENERGIES[settings.energy](volume, dict(settings.fixed or {}), boundary)
     loads = dataset_loads(dataset, volume)
     chosen = range(dataset.n_loads) if cases is None else cases
     problem_cases = []
@@ -176,6 +186,11 @@ def choose_method(problem: InverseProblem) -> tuple[str, str]:
         return "nested", (
             "linear model: one scalar factorisation per evaluation, faster than the "
             "simultaneous NLP on every grid measured (33x33x4: 1.2 s against 10.9 s)"
+        )
+    if problem.model.is_linear(problem.names):
+        return "nested", (
+            "linear model coupling the components (continuum): one sparse LU per evaluation, "
+            "faster than the simultaneous NLP where measured (17x17x4: 2.5 s against 5.7 s)"
         )
     return "nested", (
         "nonlinear model with few parameters: faster than the simultaneous NLP where "
@@ -252,6 +267,7 @@ def result_document(
             "correlation": report.correlation.tolist(),
         },
         "model": {
+            "energy": problem.model.energy,
             "grid": list(problem.model.volume.shape),
             "degrees": list(problem.model.volume.basis.degrees),
             "boundary_conditions": {
@@ -306,127 +322,3 @@ def fit_dataset(
     document = result_document(problem, result, report, settings, dataset_warnings(dataset))
     document["method_choice"] = {"requested": requested, "reason": reason}
     return problem, result, report, document
-
-
-# ------------------------------------------------------------------------ dvs fit
-MAX_LAYERS = 12
-"""Most control-point layers through the thickness (``--grid``'s third number)."""
-
-MAX_CONTROL_POINTS = 66 * 66 * 6
-"""Most control points of a fit (about 8 times the 33 x 33 x 4 grid of the benchmarks)."""
-
-
-def check_grid(grid: tuple[int, int, int], degrees, text: str, option: str = "--grid"):
-    """A control grid the degrees allow (>= degree + 1 each) and the machine can afford."""
-    from experiments.options import UsageError
-
-    least = tuple(d + 1 for d in degrees)
-    if any(g < m for g, m in zip(grid, least)):
-        raise UsageError(
-            f"{option} {text}: degrees {tuple(degrees)} need at least "
-            f"{'x'.join(map(str, least))} control points"
-        )
-    if grid[2] > MAX_LAYERS or grid[0] * grid[1] * grid[2] > MAX_CONTROL_POINTS:
-        raise UsageError(
-            f"{option} {text}: at most {MAX_LAYERS} layers and {MAX_CONTROL_POINTS} control points"
-        )
-    return grid
-
-
-def build_parser(prog: str = "python -m experiments.fitting"):
-    """The options of ``dvs fit`` (docs/cli.md)."""
-
-    from experiments.options import make_parser, path_argument
-
-    parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
-    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
-    parser.add_argument(
-        "--method",
-        choices=("auto", "simultaneous", "nested", "paper"),
-        default="auto",
-        help="inverse formulation (docs/inverse.md); auto: the faster for the problem",
-    )
-    parser.add_argument("--params", default=",".join(DEFAULT_NAMES), help="comma list")
-    parser.add_argument(
-        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
-    )
-    parser.add_argument(
-        "--objective",
-        choices=("markers", "control_points"),
-        default=None,
-        help="what is compared (default: markers; control_points for --method paper)",
-    )
-    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
-    return parser
-
-
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitting") -> int:
-    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
-
-    Plausibility warnings go to stderr, one line each; the verdict is printed last.
-    """
-    import sys
-
-    from experiments.dataset import load_dataset
-    from experiments.options import (
-        EXIT_NOT_CONVERGED,
-        check_output_dir,
-        parse_grid,
-        parse_names,
-        plural,
-        run_guarded,
-    )
-
-    args = build_parser(prog).parse_args(argv)
-
-    def warn(lines) -> None:
-        for line in lines:
-            print(f"{prog}: warning: {line}", file=sys.stderr)
-
-    def work() -> int:
-        objective = "control_points" if args.method == "paper" else "markers"
-        settings = FitSettings(
-            names=parse_names(args.params),
-            grid=None
-            if args.grid == "auto"
-            else check_grid(parse_grid(args.grid), FitSettings().degrees, args.grid),
-            objective=args.objective or objective,
-        )
-        check_output_dir(args.out)
-        dataset = load_dataset(args.dataset)
-        early = dataset_warnings(dataset)
-        warn(early)
-        cases = plural(dataset.n_loads, "load case")
-        print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
-        grid, degrees = control_grid(dataset.marker_shape, settings)
-        print(
-            f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
-            f"{dataset.marker_shape[0]} x {dataset.marker_shape[1]} markers"
-        )
-        progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
-        problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
-        write_fit_outputs(args.out, problem, result, document)
-        if args.method == "auto":
-            print(f"  method {result.method} ({document['method_choice']['reason']})")
-        for line in report.summary_lines():
-            print("  " + line)
-        print(
-            f"  rms {document['rms_mm'] * 1e3:.4g} um; {result.status}; {result.iterations} "
-            f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
-        )
-        if not result.success:
-            print(
-                f"{prog}: error: the solver did not converge ({result.status}); "
-                f"{args.out / 'result.json'} has success: false",
-                file=sys.stderr,
-            )
-            return EXIT_NOT_CONVERGED
-        print(f"  verdict: {document['verdict']['summary']}")
-        warn(document["warnings"][len(early) :])
-        return 0
-
-    return run_guarded(prog, work)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -242,3 +242,37 @@ def path_argument(text: str):
     if not text.strip():
         raise argparse.ArgumentTypeError("needs a path, got an empty name")
     return Path(text)
+
+
+# ------------------------------------------------------------- spline grids
+MAX_LAYERS = 12
+"""Most control-point layers through the thickness (``--grid``'s third number)."""
+
+MAX_CONTROL_POINTS = 66 * 66 * 6
+"""Most control points of a fit (about 8 times the 33 x 33 x 4 grid of the benchmarks)."""
+
+
+def check_grid(grid: tuple[int, int, int], degrees, text: str, option: str = "--grid"):
+    """A control grid the degrees allow (>= degree + 1 each) and the machine can afford."""
+    least = tuple(d + 1 for d in degrees)
+    if any(g < m for g, m in zip(grid, least)):
+        raise UsageError(
+            f"{option} {text}: degrees {tuple(degrees)} need at least "
+            f"{'x'.join(map(str, least))} control points"
+        )
+    if grid[2] > MAX_LAYERS or grid[0] * grid[1] * grid[2] > MAX_CONTROL_POINTS:
+        raise UsageError(
+            f"{option} {text}: at most {MAX_LAYERS} layers and {MAX_CONTROL_POINTS} control points"
+        )
+    return grid
+
+
+def parse_degrees(text: str, option: str = "--degrees") -> tuple[int, int, int]:
+    """'3x3x2' -> (3, 3, 2): three integers in 1-5."""
+    try:
+        degrees = tuple(int(part) for part in text.lower().split("x"))
+    except ValueError:
+        degrees = ()
+    if len(degrees) != 3 or not all(1 <= d <= 5 for d in degrees):
+        raise UsageError(f"{option} must look like 3x3x1 (three integers in 1-5), got {text!r}")
+    return degrees

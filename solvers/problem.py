@@ -31,10 +31,12 @@ DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
     "alpha_w": (1e-2, 1e2),
     "beta": (0.0, 10.0),
     "k0": (0.0, 1e3),
+    "E": (1e-2, 1e5),
+    "nu": (0.0, 0.49),
 }
 """Default bounds [natural units]; alpha spans four decades around the paper's values."""
 
-LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w"})
+LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w", "E"})
 DYNAMIC_ONLY = frozenset({"mu", "gamma"})
 """Parameters that drop out of the steady state (eq. 22)."""
 

@@ -44,6 +44,8 @@ PARAMETERS: dict[str, ParameterInfo] = {
     "alpha_w": ParameterInfo(0.5, "N/mm", "tension through the thickness, w (eq. 18)"),
     "beta": ParameterInfo(0.0, "N/mm", "rigidity, common factor of the six beta_ij (eq. 18)"),
     "k0": ParameterInfo(0.0, "1", "stiffening in s(eps) = 1 + k0 eps^2 (eq. 1)"),
+    "E": ParameterInfo(10.0, "kPa", "Young's modulus of the linear-elastic model (eq. C1)"),
+    "nu": ParameterInfo(0.45, "1", "Poisson's ratio of the linear-elastic model (eq. C1)"),
 }
 """Every parameter the inverse can estimate, with the paper's start values."""
 
@@ -92,6 +94,8 @@ def check_parameters(values: dict[str, float]) -> dict[str, float]:
             raise ValueError(f"parameter {name} must be finite, got {value}")
         if name != "k0" and value < 0:
             raise ValueError(f"parameter {name} must be >= 0, got {value}")
+    if merged["nu"] >= 0.5:
+        raise ValueError(f"Poisson's ratio nu must be < 0.5, got {merged['nu']}")
     return merged
 
 
@@ -221,6 +225,9 @@ class TissueModel:
     def is_linear(self, names: tuple[str, ...] = ()) -> bool:
         """True when K does not depend on B with ``names`` estimated (k0 fixed at 0)."""
         return "k0" not in names and self.is_linear_fixed
+
+    energy = "dnurbs"
+    """The base model's name (``dvs fit --energy``)."""
 
     componentwise = True
     """The linear K acts as I3 (x) A on the free points (``solvers.componentwise``);

@@ -126,9 +126,10 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.diagnose"):
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
 
-    from experiments.fitting import FitSettings, check_grid
+    from experiments.fitting import FitSettings
     from experiments.options import (
         UsageError,
+        check_grid,
         check_output_dir,
         not_converged,
         parse_grid,

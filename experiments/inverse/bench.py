@@ -343,8 +343,8 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
 
 def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
     """Comma list of control grids, each one ``dvs fit --grid`` would accept."""
-    from experiments.fitting import FitSettings, check_grid
-    from experiments.options import parse_grid
+    from experiments.fitting import FitSettings
+    from experiments.options import check_grid, parse_grid
 
     degrees = FitSettings().degrees
     return [

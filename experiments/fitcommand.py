@@ -1,0 +1,148 @@
+"""``dvs fit``: a dataset in, ``result.json`` and two figures out (docs/cli.md)."""
+
+from __future__ import annotations
+
+from experiments.fitting import (
+    ENERGY_NAMES,
+    FitSettings,
+    control_grid,
+    fit_dataset,
+    write_fit_outputs,
+)
+from experiments.plausibility import dataset_warnings
+from symbolic.continuum_model import ENERGIES
+
+
+def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
+    """Every estimated parameter must enter the chosen energy's equilibrium or dynamics."""
+    from experiments.options import UsageError
+
+    foreign = {
+        "dnurbs": {"E", "nu"},
+        "linear-elastic": {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"},
+    }
+    wrong = [n for n in names if n in foreign[energy]]
+    if wrong:
+        raise UsageError(
+            f"--params {','.join(wrong)} do not enter --energy {energy}; "
+            f"use {','.join(ENERGY_NAMES[energy])}"
+        )
+
+
+def build_parser(prog: str = "python -m experiments.fitcommand"):
+    """The options of ``dvs fit`` (docs/cli.md)."""
+
+    from experiments.options import make_parser, path_argument
+
+    parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
+    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
+    parser.add_argument(
+        "--method",
+        choices=("auto", "simultaneous", "nested", "paper"),
+        default="auto",
+        help="inverse formulation (docs/inverse.md); auto: the faster for the problem",
+    )
+    parser.add_argument(
+        "--energy",
+        choices=tuple(ENERGIES),
+        default="dnurbs",
+        help="base model: the paper's eq. 18, or isotropic linear elasticity (docs/continuum.md)",
+    )
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for linear-elastic)",
+    )
+    parser.add_argument(
+        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
+    )
+    parser.add_argument(
+        "--degrees", default="3x3x1", help="degrees PxQxR along u, v and through the thickness"
+    )
+    parser.add_argument(
+        "--objective",
+        choices=("markers", "control_points"),
+        default=None,
+        help="what is compared (default: markers; control_points for --method paper)",
+    )
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitcommand") -> int:
+    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
+
+    Plausibility warnings go to stderr, one line each; the verdict is printed last.
+    """
+    import sys
+
+    from experiments.dataset import load_dataset
+    from experiments.options import (
+        EXIT_NOT_CONVERGED,
+        check_grid,
+        check_output_dir,
+        parse_degrees,
+        parse_grid,
+        parse_names,
+        plural,
+        run_guarded,
+    )
+
+    args = build_parser(prog).parse_args(argv)
+
+    def warn(lines) -> None:
+        for line in lines:
+            print(f"{prog}: warning: {line}", file=sys.stderr)
+
+    def work() -> int:
+        objective = "control_points" if args.method == "paper" else "markers"
+        degrees = parse_degrees(args.degrees)
+        names = parse_names(args.params or ",".join(ENERGY_NAMES[args.energy]))
+        check_energy_names(args.energy, names)
+        settings = FitSettings(
+            names=names,
+            grid=None
+            if args.grid == "auto"
+            else check_grid(parse_grid(args.grid), degrees, args.grid),
+            degrees=degrees,
+            objective=args.objective or objective,
+            energy=args.energy,
+        )
+        check_output_dir(args.out)
+        dataset = load_dataset(args.dataset)
+        early = dataset_warnings(dataset)
+        warn(early)
+        cases = plural(dataset.n_loads, "load case")
+        print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
+        grid, degrees = control_grid(dataset.marker_shape, settings)
+        print(
+            f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
+            f"{dataset.marker_shape[0]} x {dataset.marker_shape[1]} markers"
+        )
+        progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
+        problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
+        write_fit_outputs(args.out, problem, result, document)
+        if args.method == "auto":
+            print(f"  method {result.method} ({document['method_choice']['reason']})")
+        for line in report.summary_lines():
+            print("  " + line)
+        print(
+            f"  rms {document['rms_mm'] * 1e3:.4g} um; {result.status}; {result.iterations} "
+            f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
+        )
+        if not result.success:
+            print(
+                f"{prog}: error: the solver did not converge ({result.status}); "
+                f"{args.out / 'result.json'} has success: false",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_CONVERGED
+        print(f"  verdict: {document['verdict']['summary']}")
+        warn(document["warnings"][len(early) :])
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,168 @@
+"""Isotropic linear elasticity in the volume spline, isogeometric (docs/continuum.md).
+
+The paper's stiffness (MODEL.md eq. 18) is a component-wise vector Laplacian in the
+parameter cube. A continuum stores the strain energy
+
+    W(u) = mu_L eps:eps + lambda/2 (tr eps)^2,     eps = (grad u + grad u^T) / 2,   (C1)
+
+per unit physical volume, with grad taken in physical coordinates x(u, v, w) =
+sum_i N_i(u, v, w) B0_i, the rest geometry. The displacement is the spline's own,
+u(u, v, w) = sum_i N_i Delta_i (isoparametric), so
+
+    d u_i / d x_j = sum_a (d u_i / d xi_a) (G^-1)_aj,    G_ia = d x_i / d xi_a,      (C2)
+
+and the energy integral over the physical volume is a quadratic form in vec(Delta)
+(x components of every control point first, then y, then z):
+
+    integral W dV = 1/2 vec(Delta)^T (mu_L K_mu + lambda K_lambda) vec(Delta),        (C3)
+    K_mu = integral 2 E^T E dV,    K_lambda = integral D^T D dV,
+
+with E the rows of eps (Voigt, off-diagonals weighted sqrt 2) and D = tr eps = div u.
+The integral is the spline's Gauss rule, (degree + 1) points per knot span and
+direction, mapped by |det G|: exact when the geometry map is affine, and otherwise
+accurate to the quadrature error of a rational integrand (measured in the tests).
+
+Units: lengths [mm], forces [N], so mu_L and lambda are in N/mm^2 (= MPa); Young's
+modulus E is quoted in kPa (``lame``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.basis import FIRST_DERIVATIVES, BSplineBasis, VolumeBasis
+from symbolic.energy import quadrature
+from symbolic.volume import VolumeSpline
+
+KPA = 1e-3
+"""1 kPa in N/mm^2."""
+
+
+def lame(young_kpa, poisson):
+    """Lame parameters (mu_L, lambda) [N/mm^2] of Young's modulus E [kPa] and nu [1].
+
+    mu_L = E / (2 (1 + nu)),  lambda = E nu / ((1 + nu)(1 - 2 nu)). Works on numbers
+    and on CasADi expressions.
+    """
+    young = KPA * young_kpa
+    return young / (2 * (1 + poisson)), young * poisson / ((1 + poisson) * (1 - 2 * poisson))
+
+
+def young_poisson(mu_l: float, lam: float) -> tuple[float, float]:
+    """(E [kPa], nu) of the Lame pair [N/mm^2]; the inverse of ``lame``."""
+    poisson = lam / (2.0 * (lam + mu_l))
+    return 2.0 * mu_l * (1.0 + poisson) / KPA, poisson
+
+
+@dataclass(frozen=True)
+class PhysicalGradient:
+    """The physical-gradient operators of a volume spline at quadrature points.
+
+    Attributes
+    ----------
+    operators : tuple of scipy.sparse.csr_matrix
+        P_j, (n_q, n): P_j @ f is d f / d x_j at the points for a scalar spline f with
+        control values f (eq. C2).
+    volume : numpy.ndarray
+        Quadrature weight times |det G| at each point [mm^3].
+    points : numpy.ndarray
+        The parameter points (n_q, 3).
+    """
+
+    operators: tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix]
+    volume: np.ndarray
+    points: np.ndarray
+
+    @classmethod
+    def of(cls, volume: VolumeSpline, extra_points: int = 0) -> PhysicalGradient:
+        """The operators at the spline's Gauss rule (plus ``extra_points`` per span)."""
+        points, weights = quadrature(volume.basis, extra_points)
+        derivatives = [volume.collocation(points, d) for d in FIRST_DERIVATIVES.values()]
+        jacobian = np.stack([d @ volume.control_points for d in derivatives], axis=-1)
+        determinant = np.linalg.det(jacobian)  # jacobian[q, i, a] = d x_i / d xi_a
+        if np.any(np.abs(determinant) <= 1e-12 * np.max(np.abs(determinant))):
+            raise ValueError("the geometry map is singular at a quadrature point (folded volume)")
+        inverse = np.linalg.inv(jacobian)  # inverse[q, a, j] = d xi_a / d x_j
+        operators = tuple(
+            sum(sp.diags(inverse[:, a, j]) @ derivatives[a] for a in range(3)).tocsr()
+            for j in range(3)
+        )
+        return cls(operators, weights * np.abs(determinant), points)
+
+    def stacked(self, component: int, direction: int) -> sp.csr_matrix:
+        """d u_component / d x_direction as an (n_q, 3 n) operator on vec(Delta)."""
+        operator = self.operators[direction]
+        blocks = [operator if k == component else None for k in range(3)]
+        n = operator.shape[1]
+        blocks = [b if b is not None else sp.csr_matrix((operator.shape[0], n)) for b in blocks]
+        return sp.hstack(blocks).tocsr()
+
+    def divergence(self) -> sp.csr_matrix:
+        """D = div u = tr eps, (n_q, 3 n) on vec(Delta)."""
+        return sum(self.stacked(i, i) for i in range(3)).tocsr()
+
+    def strain(self) -> list[sp.csr_matrix]:
+        """The six Voigt rows of eps, off-diagonals times sqrt 2, so that
+        sum_rows (row Delta)^2 = eps:eps."""
+        rows = [self.stacked(i, i) for i in range(3)]
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            rows.append((self.stacked(i, j) + self.stacked(j, i)) / np.sqrt(2.0))
+        return rows
+
+    def gram(self, rows: list[sp.csr_matrix], factor: float = 1.0) -> sp.csr_matrix:
+        """factor * integral sum_rows row^T row dV, symmetrised (3 n, 3 n)."""
+        weight = sp.diags(factor * self.volume)
+        total = sum(row.T @ weight @ row for row in rows)
+        return sp.csr_matrix(0.5 * (total + total.T))
+
+
+def elasticity_matrices(volume: VolumeSpline, extra_points: int = 0) -> dict[str, sp.csr_matrix]:
+    """K_mu and K_lambda of eq. (C3) on every control point, stacked (3 n, 3 n) [mm].
+
+    K = mu_L K_mu + lambda K_lambda [N/mm] for the Lame pair [N/mm^2].
+    """
+    gradient = PhysicalGradient.of(volume, extra_points)
+    return {
+        "shear": gradient.gram(gradient.strain(), 2.0),
+        "volumetric": gradient.gram([gradient.divergence()]),
+    }
+
+
+def body_force_vector(
+    volume: VolumeSpline, density: Callable[[np.ndarray], np.ndarray], extra_points: int = 2
+) -> np.ndarray:
+    """Generalised force F_i = integral N_i f(x) dV of a body force f [N/mm^3], (n, 3) [N].
+
+    ``density`` maps physical points (n_q, 3) [mm] to forces per volume (n_q, 3).
+    """
+    points, weights = quadrature(volume.basis, extra_points)
+    gradient_columns = [volume.collocation(points, d) for d in FIRST_DERIVATIVES.values()]
+    jacobian = np.stack([d @ volume.control_points for d in gradient_columns], axis=-1)
+    values = volume.collocation(points)
+    physical = values @ volume.control_points
+    f = np.asarray(density(physical), dtype=float)
+    if f.shape != physical.shape:
+        raise ValueError(f"the body force must give an (n, 3) array, got {f.shape}")
+    scale = weights * np.abs(np.linalg.det(jacobian))
+    return values.T @ (scale[:, None] * f)
+
+
+def box_volume(
+    lengths: tuple[float, float, float],
+    shape: tuple[int, int, int],
+    degrees: tuple[int, int, int],
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> VolumeSpline:
+    """A box [origin, origin + lengths] [mm] as a B-spline volume with uniform knots.
+
+    The control points sit at the Greville abscissae, so the geometry map is affine
+    (exactly x = origin + lengths * (u, v, w)).
+    """
+    basis = VolumeBasis(tuple(shape), tuple(degrees))
+    greville = [BSplineBasis(p, n).greville() for p, n in zip(degrees, shape)]
+    grid = basis.grid_points(*greville)
+    return VolumeSpline(basis, np.asarray(origin) + grid * np.asarray(lengths))

@@ -1,0 +1,114 @@
+"""ContinuumModel: the volume spline with the linear-elastic energy as its base model.
+
+The stiffness of ``TissueModel`` is eq. (18), sum_t c_t (I3 (x) K_t) on the free
+control points. Here it is the continuum of ``symbolic.continuum`` instead,
+
+    K(x) = mu_L(E, nu) K_mu + lambda(E, nu) K_lambda           (eq. C3),
+
+two stacked (3 n, 3 n) terms that couple the x, y and z components. The residual,
+its closed-form Jacobian, the prescribed displacements and the loads are those of
+``TissueModel``, so the nested and the simultaneous inverse accept the model as it
+is. E [kPa] and nu [1] are its parameters (``PARAMETERS``); mass and damping are
+the D-NURBS ones of eq. (13) and (16), unchanged.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.continuum import elasticity_matrices, lame
+from symbolic.model import TissueModel
+from symbolic.sparse import pattern_entries, to_casadi_sparse
+
+CONTINUUM_TERMS = ("shear", "volumetric")
+"""The terms of eq. (C3): K_mu (coefficient mu_L) and K_lambda (coefficient lambda)."""
+
+CONTINUUM_PARAMETERS = frozenset({"E", "nu"})
+
+
+class ContinuumModel(TissueModel):
+    """Isotropic linear elasticity in physical coordinates (docs/continuum.md).
+
+    Same parameters as ``TissueModel``; the paper's alpha and beta do not enter.
+    ``E`` [kPa] and ``nu`` set the Lame pair; k0 (stiffening) is not available.
+    """
+
+    componentwise = False
+    energy = "linear-elastic"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.parameters["k0"] != 0.0:
+            raise ValueError("the linear-elastic model has no stiffening k0; leave k0 at 0")
+        full = elasticity_matrices(self.volume, self.extra_points)
+        free = np.concatenate([self.free + k * self.volume.basis.size for k in range(3)])
+        self.continuum = {t: sp.csc_matrix(full[t][free][:, free]) for t in CONTINUUM_TERMS}
+        self._continuum_dm = {t: to_casadi_sparse(m) for t, m in self.continuum.items()}
+
+    # --------------------------------------------------------------- the terms
+    def is_linear(self, names: tuple[str, ...] = ()) -> bool:
+        if "k0" in names:
+            raise ValueError("the linear-elastic model has no k0 to estimate")
+        return True
+
+    def influential(self, names: tuple[str, ...]) -> np.ndarray:
+        """E and nu enter the equilibrium; the paper's alpha, beta, mu, gamma do not."""
+        return np.array([n in CONTINUUM_PARAMETERS for n in names])
+
+    def coefficients(self, values: dict) -> list:
+        """[mu_L, lambda] [N/mm^2] of the values (numbers or CasADi expressions)."""
+        return list(lame(values["E"], values["nu"]))
+
+    def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
+        """K(x) on the free points, stacked (3 n_free, 3 n_free) [N/mm] (not eq. 18)."""
+        mu_l, lam = self.coefficients(self.values(overrides))
+        return (mu_l * self.continuum["shear"] + lam * self.continuum["volumetric"]).tocsr()
+
+    def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
+        """K(x) vec(Delta) as an (n_free, 3) expression [N]."""
+        force = 0
+        for term, coefficient in zip(CONTINUUM_TERMS, self.coefficients(values)):
+            force = force + coefficient * ca.mtimes(self._continuum_dm[term], ca.vec(delta))
+        return ca.reshape(force, self.n_free, 3)
+
+    def linear_terms(self, names: tuple[str, ...]) -> tuple[ca.MX, ca.MX, list[str]]:
+        """x, c(x) = [mu_L, lambda] and the two terms of eq. (C3)."""
+        x, values = self.symbolic_values(names)
+        return x, ca.vertcat(*self.coefficients(values)), list(CONTINUUM_TERMS)
+
+    def term_columns(self, terms: list[str], vector: ca.MX) -> ca.MX:
+        """[K_t v]_t, (3 n_free, 2): dg/dc_t at Delta = v."""
+        return ca.horzcat(*[ca.mtimes(self._continuum_dm[t], vector) for t in terms])
+
+    def free_term(self, term: str, form: str = "kron"):
+        """K_t on the free points, stacked (it is not a Kronecker product here)."""
+        if form != "kron":
+            raise ValueError("the continuum terms couple the components: use form='kron'")
+        return self.continuum[term]
+
+    def _linear_jacobian(self, names: tuple[str, ...]) -> ca.Function:
+        """dg/ds = [[K(x), I3 (x) C^T], [I3 (x) C, 0]], K from the nonzeros of the terms."""
+        x, coefficients, terms = self.linear_terms(names)
+        blocks = [self.continuum[t] for t in terms]
+        pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
+        pattern.sort_indices()
+        unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
+        size = pattern.shape[0]
+        sparsity = ca.Sparsity(size, size, pattern.indptr.tolist(), pattern.indices.tolist())
+        stiffness = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
+        symbols = self._state_symbols()
+        m_rows = 3 * self._constraint_rows.shape[0]
+        coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
+        d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
+        columns = self.term_columns(terms, symbols[0][:size])
+        d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
+        return self._jacobian_function(symbols, x, d_s, d_x)
+
+    def edges(self):
+        raise ValueError("the linear-elastic model has no spring edges (no k0 stiffening)")
+
+
+ENERGIES = {"dnurbs": TissueModel, "linear-elastic": ContinuumModel}
+"""Base models by the name ``dvs fit --energy`` takes."""
