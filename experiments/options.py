@@ -171,6 +171,13 @@ def check_seed(seed: int, option: str = "--seed") -> int:
     return seed
 
 
+def check_noise(noise: float, option: str = "--noise") -> float:
+    """A marker noise level [mm] in [0, 1]."""
+    if not 0 <= noise <= 1:
+        raise UsageError(f"{option} must be a number in [0, 1] mm, got {noise}")
+    return noise
+
+
 def _writable(directory, option: str, path) -> None:
     """Probe ``directory`` with a temporary file (``os.access`` says yes to root)."""
     import tempfile

@@ -84,28 +84,37 @@ class Equilibrium:
 
 
 class SparseEvaluator:
-    """Evaluates a CasADi Function with one sparse output straight into a scipy matrix.
+    """Evaluates a CasADi Function with sparse outputs straight into scipy CSC matrices.
 
-    The output's pattern is read once; each call writes the nonzeros into a
-    numpy buffer through ``Function.buffer`` (no Python lists, no DM).
+    The outputs' patterns are read once; each call writes the nonzeros into numpy
+    buffers through ``Function.buffer`` (no Python lists, no DM).
     """
 
     def __init__(self, function: ca.Function):
-        self.function = function
-        pattern = function.sparsity_out(0)
-        self.indptr, self.indices = (np.asarray(v) for v in pattern.get_ccs())
-        self.shape = pattern.shape
-        self.nonzeros = np.zeros(pattern.nnz())
         self.buffer, self.trigger = function.buffer()
-        self.buffer.set_res(0, memoryview(self.nonzeros))
-        self._inputs = []
+        self.patterns, self.outputs = [], []
+        for i in range(function.n_out()):
+            pattern = function.sparsity_out(i)
+            indptr, indices = (np.asarray(v) for v in pattern.get_ccs())
+            self.patterns.append((indptr, indices, pattern.shape))
+            self.outputs.append(np.zeros(pattern.nnz()))
+            self.buffer.set_res(i, memoryview(self.outputs[-1]))
+        self._inputs: list = []
 
-    def __call__(self, *args) -> sp.csc_matrix:
+    def evaluate(self, *args) -> list[sp.csc_matrix]:
+        """Every output at the inputs (numpy arrays, vec'd column-major as CasADi does)."""
         self._inputs = [np.ascontiguousarray(np.asarray(a, dtype=float).T.ravel()) for a in args]
         for i, value in enumerate(self._inputs):
             self.buffer.set_arg(i, memoryview(value))
         self.trigger()
-        return sp.csc_matrix((self.nonzeros.copy(), self.indices, self.indptr), shape=self.shape)
+        return [
+            sp.csc_matrix((values.copy(), indices, indptr), shape=shape)
+            for values, (indptr, indices, shape) in zip(self.outputs, self.patterns)
+        ]
+
+    def __call__(self, *args) -> sp.csc_matrix:
+        """The first output."""
+        return self.evaluate(*args)[0]
 
 
 def casadi_to_scipy(matrix: ca.DM) -> sp.csc_matrix:

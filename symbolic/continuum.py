@@ -96,10 +96,8 @@ class PhysicalGradient:
     def stacked(self, component: int, direction: int) -> sp.csr_matrix:
         """d u_component / d x_direction as an (n_q, 3 n) operator on vec(Delta)."""
         operator = self.operators[direction]
-        blocks = [operator if k == component else None for k in range(3)]
-        n = operator.shape[1]
-        blocks = [b if b is not None else sp.csr_matrix((operator.shape[0], n)) for b in blocks]
-        return sp.hstack(blocks).tocsr()
+        zero = sp.csr_matrix(operator.shape)
+        return sp.hstack([operator if k == component else zero for k in range(3)]).tocsr()
 
     def divergence(self) -> sp.csr_matrix:
         """D = div u = tr eps, (n_q, 3 n) on vec(Delta)."""
@@ -139,16 +137,13 @@ def body_force_vector(
 
     ``density`` maps physical points (n_q, 3) [mm] to forces per volume (n_q, 3).
     """
-    points, weights = quadrature(volume.basis, extra_points)
-    gradient_columns = [volume.collocation(points, d) for d in FIRST_DERIVATIVES.values()]
-    jacobian = np.stack([d @ volume.control_points for d in gradient_columns], axis=-1)
-    values = volume.collocation(points)
+    gradient = PhysicalGradient.of(volume, extra_points)
+    values = volume.collocation(gradient.points)
     physical = values @ volume.control_points
     f = np.asarray(density(physical), dtype=float)
     if f.shape != physical.shape:
         raise ValueError(f"the body force must give an (n, 3) array, got {f.shape}")
-    scale = weights * np.abs(np.linalg.det(jacobian))
-    return values.T @ (scale[:, None] * f)
+    return values.T @ (gradient.volume[:, None] * f)
 
 
 def box_volume(

@@ -20,7 +20,7 @@ import scipy.sparse as sp
 
 from symbolic.continuum import elasticity_matrices, lame
 from symbolic.model import TissueModel
-from symbolic.sparse import pattern_entries, to_casadi_sparse
+from symbolic.sparse import combined, to_casadi_sparse
 
 CONTINUUM_TERMS = ("shear", "volumetric")
 """The terms of eq. (C3): K_mu (coefficient mu_L) and K_lambda (coefficient lambda)."""
@@ -88,23 +88,9 @@ class ContinuumModel(TissueModel):
             raise ValueError("the continuum terms couple the components: use form='kron'")
         return self.continuum[term]
 
-    def _linear_jacobian(self, names: tuple[str, ...]) -> ca.Function:
-        """dg/ds = [[K(x), I3 (x) C^T], [I3 (x) C, 0]], K from the nonzeros of the terms."""
-        x, coefficients, terms = self.linear_terms(names)
-        blocks = [self.continuum[t] for t in terms]
-        pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
-        pattern.sort_indices()
-        unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
-        size = pattern.shape[0]
-        sparsity = ca.Sparsity(size, size, pattern.indptr.tolist(), pattern.indices.tolist())
-        stiffness = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
-        symbols = self._state_symbols()
-        m_rows = 3 * self._constraint_rows.shape[0]
-        coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
-        d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
-        columns = self.term_columns(terms, symbols[0][:size])
-        d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
-        return self._jacobian_function(symbols, x, d_s, d_x)
+    def stiffness_expression(self, coefficients: ca.MX, terms: list[str]) -> ca.MX:
+        """K(x) = mu_L K_mu + lambda K_lambda on the free points, stacked (eq. C3)."""
+        return combined([self.continuum[t] for t in terms], coefficients)
 
     def edges(self):
         raise ValueError("the linear-elastic model has no spring edges (no k0 stiffening)")

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from symbolic.energy import STIFFNESS_TERMS, damping_matrix, mass_matrix, stiffness_terms
 from symbolic.loads import PrescribedDisplacement, independent_rows
-from symbolic.sparse import pattern_entries, to_casadi_sparse
+from symbolic.sparse import combined, to_casadi_sparse
 from symbolic.stiffening import EdgeSet, StiffeningFunction, quadratic_stiffening
 from symbolic.volume import VolumeSpline
 
@@ -380,27 +380,24 @@ class TissueModel:
     def _linear_jacobian(self, names: tuple[str, ...]) -> ca.Function:
         """Closed-form Jacobian of the linear g with respect to s, x, F_B and d.
 
-        dg/ds = [[I3 (x) A(x), I3 (x) C^T], [I3 (x) C, 0]] with A = sum_t c_t K_t
-        assembled from the nonzeros of the unit terms; dg/dx = sum_t vec(K_t Delta)
-        dc_t/dx; dg/dF_B = [-I; 0]; dg/dd = [0; -I3 (x) Q].
+        dg/ds = [[A(x), I3 (x) C^T], [I3 (x) C, 0]] with A from ``stiffness_expression``;
+        dg/dx = sum_t (K_t Delta) dc_t/dx; dg/dF_B = [-I; 0]; dg/dd = [0; -I3 (x) Q].
         """
         x, coefficients, terms = self.linear_terms(names)
-        blocks = [sp.csc_matrix(self.free_block(self.terms[t])) for t in terms]
         n, m_rows = 3 * self.n_free, 3 * self._constraint_rows.shape[0]
-        pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
-        pattern.sort_indices()
-        unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
-        sparsity = ca.Sparsity(
-            self.n_free, self.n_free, pattern.indptr.tolist(), pattern.indices.tolist()
-        )
-        scalar = ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
-        stiffness = ca.diagcat(scalar, scalar, scalar)  # I3 (x) A: vec stacks components
+        stiffness = self.stiffness_expression(coefficients, terms)
         symbols = self._state_symbols()
         coupling = to_casadi_sparse(sp.kron(sp.identity(3), self._constraint_free))
         d_s = ca.blockcat([[stiffness, coupling.T], [coupling, ca.MX(m_rows, m_rows)]])
         columns = self.term_columns(terms, symbols[0][:n])
         d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
         return self._jacobian_function(symbols, x, d_s, d_x)
+
+    def stiffness_expression(self, coefficients: ca.MX, terms: list[str]) -> ca.MX:
+        """A(x) = I3 (x) sum_t c_t K_t on the free points, (3 n_free, 3 n_free), assembled
+        from the nonzeros of the unit terms (vec stacks the components)."""
+        scalar = combined([self.free_block(self.terms[t]) for t in terms], coefficients)
+        return ca.diagcat(scalar, scalar, scalar)
 
     def _state_symbols(self) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
         """The symbols s, F_B, d and out_g of a custom Jacobian of ``state_residual``."""

@@ -41,3 +41,17 @@ def pattern_entries(pattern: sp.csc_matrix, matrix: sp.spmatrix) -> np.ndarray:
         raise ValueError("a matrix has entries outside the pattern")
     np.add.at(data, index, values)
     return data
+
+
+def combined(blocks: list[sp.spmatrix], coefficients: ca.MX) -> ca.MX:
+    """sum_t c_t K_t as a sparse MX on the union pattern of the blocks.
+
+    Its nonzeros are a constant sparse map of the coefficients (``pattern_entries``),
+    so the expression costs one sparse product however many terms there are.
+    """
+    pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
+    pattern.sort_indices()
+    unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
+    rows, cols = pattern.shape
+    sparsity = ca.Sparsity(rows, cols, pattern.indptr.tolist(), pattern.indices.tolist())
+    return ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))

@@ -283,7 +283,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """``dvs outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
     from experiments.options import (
-        UsageError,
+        check_noise,
         check_output_file,
         check_seed,
         plural,
@@ -293,8 +293,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 <= args.noise <= 1:
-            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_noise(args.noise)
         check_seed(args.seed)
         check_output_file(args.out, ".npz")
         print("solving the linear-elastic FE slab under every load", flush=True)

@@ -251,6 +251,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynam
 
     from experiments.options import (
         UsageError,
+        check_noise,
         check_output_dir,
         check_seed,
         not_converged,
@@ -260,8 +261,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynam
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 <= args.noise <= 1:
-            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_noise(args.noise)
         check_seed(args.seed)
         if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 100:
             raise UsageError("--substeps must lie in 1-100 and --coverage in 0-100")

@@ -142,13 +142,12 @@ def build_parser(prog: str = "python -m experiments.inverse.paper"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.paper"):
     """``dvs paper --out DIR``: table1.md and paper.json."""
-    from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
+    from experiments.options import check_noise, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 <= args.noise <= 1:
-            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_noise(args.noise)
         check_seed(args.seed)
         check_output_dir(args.out)
         print(f"fitting data sets 1, 2 and both (noise {args.noise} mm, seed {args.seed})")

@@ -70,7 +70,7 @@ class SlabSolution:
     """The slab's P2 displacement under Gaussian probe tractions, evaluated anywhere."""
 
     def __init__(self, slab: ReferenceSlab):
-        skfem = require_skfem()
+        skfem = self.skfem = require_skfem()
         from skfem.models.elasticity import linear_elasticity
 
         self.slab = slab
@@ -99,7 +99,7 @@ class SlabSolution:
 
     def displacement(self, force: np.ndarray, contact: np.ndarray, radius: float) -> np.ndarray:
         """Nodal displacements [mm] under a Gaussian traction of total ``force`` [N]."""
-        skfem = require_skfem()
+        skfem = self.skfem
         sigma = 0.5 * radius
         force = np.asarray(force, dtype=float)
 

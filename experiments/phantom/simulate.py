@@ -329,6 +329,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.phant
     from experiments.dataset import save_dataset
     from experiments.options import (
         UsageError,
+        check_noise,
         check_output_file,
         check_seed,
         plural,
@@ -338,8 +339,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.phant
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 <= args.noise <= 1:
-            raise UsageError(f"--noise must be a number in [0, 1] mm, got {args.noise}")
+        check_noise(args.noise)
         check_seed(args.seed)
         check_output_file(args.out, ".npz")
         options = design_options(args.design)

@@ -18,13 +18,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from experiments.realskin.model import SkinSlabModel
-from solvers.equilibrium import EquilibriumError
+from solvers.equilibrium import EquilibriumError, SparseEvaluator
 from solvers.nested import least_squares_fit
 from solvers.problem import InverseProblem, LoadCase
 
@@ -96,31 +95,6 @@ def _n_forces(case: LoadCase) -> int:
 
 
 # ------------------------------------------------------------------------ forward solve
-class _Buffered:
-    """Evaluates a CasADi Function with sparse outputs straight into scipy CSC matrices."""
-
-    def __init__(self, function: ca.Function):
-        self.buffer, self.trigger = function.buffer()
-        self.patterns, self.outputs = [], []
-        for i in range(function.n_out()):
-            pattern = function.sparsity_out(i)
-            indptr, indices = (np.asarray(v) for v in pattern.get_ccs())
-            self.patterns.append((indptr, indices, pattern.shape))
-            self.outputs.append(np.zeros(pattern.nnz()))
-            self.buffer.set_res(i, memoryview(self.outputs[-1]))
-        self._inputs: list = []
-
-    def __call__(self, *args) -> list[sp.csc_matrix]:
-        self._inputs = [np.ascontiguousarray(np.asarray(a, dtype=float).T.ravel()) for a in args]
-        for i, value in enumerate(self._inputs):
-            self.buffer.set_arg(i, memoryview(value))
-        self.trigger()
-        return [
-            sp.csc_matrix((values.copy(), indices, indptr), shape=shape)
-            for values, (indptr, indices, shape) in zip(self.outputs, self.patterns)
-        ]
-
-
 def _norm(vector: np.ndarray) -> float:
     """Euclidean norm; inf for a vector with non-finite entries (overflowed stiffening)."""
     if not np.all(np.isfinite(vector)):
@@ -163,7 +137,7 @@ class ForwardSolver:
         self.names = tuple(names)
         self.g = model.state_residual(self.names)
         self.n_state = self.g.size1_in(0)
-        self.derivatives = _Buffered(model.jacobian_function(self.names))
+        self.derivatives = SparseEvaluator(model.jacobian_function(self.names)).evaluate
         self.linear = model.is_linear(self.names)
         self.factorizations = 0
         self._shared: tuple | None = None

@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from symbolic.basis import FIRST_DERIVATIVES
+from symbolic.continuum import PhysicalGradient
 from symbolic.effects.base import (
     CaseSymbols,
     Effect,
@@ -27,7 +28,7 @@ from symbolic.effects.base import (
     stacked_free_block,
     surface_rule,
 )
-from symbolic.energy import quadrature, weighted_gram
+from symbolic.energy import weighted_gram
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -211,17 +212,8 @@ class VolumetricCoupling(Effect):
         """K_lambda on all control points, (3n, 3n) in stacked order [mm]."""
 
         def build():
-            points, weights = quadrature(model.volume.basis)
-            derivatives = [model.volume.collocation(points, d) for d in FIRST_DERIVATIVES.values()]
-            jacobian = np.stack([d @ model.rest for d in derivatives], axis=-1)  # (q, i, a)
-            inverse = np.linalg.inv(jacobian)  # (q, a, i)
-            volume = weights * np.abs(np.linalg.det(jacobian))
-            rows = [
-                sum(sp.diags(inverse[:, a, i]) @ derivatives[a] for a in range(3)) for i in range(3)
-            ]
-            divergence = sp.hstack(rows).tocsr()
-            total = divergence.T @ sp.diags(volume) @ divergence
-            return sp.csr_matrix(0.5 * (total + total.T))
+            gradient = PhysicalGradient.of(model.volume)
+            return gradient.gram([gradient.divergence()])
 
         return self.cached(model, "K_lambda", build)
 
