@@ -48,6 +48,7 @@ class FitSettings:
     grid : tuple of int or None
         Control grid (M, N, L) of the volume; None follows the data: up to 9 control
         points along u and v, no more than the markers there (``control_grid``), L = 2.
+        A finer grid refines the geometry fitted on the markers (``rest_geometry``).
     degrees : tuple of int
         Degrees of the volume, lowered where the grid has too few points for them.
     objective : {"markers", "control_points"}
@@ -85,34 +86,34 @@ def control_grid(markers: tuple[int, int], settings: FitSettings) -> tuple[tuple
     """The control grid and degrees of a fit to a U x V marker grid.
 
     Without ``settings.grid`` the grid follows the data: min(9, U) x min(9, V) x 2 (a
-    tensor-product fit of U values needs at most U control points). Each degree is at
-    most the grid's points minus one along its direction.
-
-    Raises
-    ------
-    ValueError
-        When a given grid has more control points along u or v than there are markers.
+    tensor-product fit of U values needs at most U control points). A given grid
+    may be finer than the markers: the geometry is then fitted on the markers' grid
+    and refined (``rest_geometry``). Each degree is at most the grid's points minus
+    one along its direction.
     """
     (u_count, v_count), chosen = markers, settings.grid
     if chosen is None:
         chosen = (min(DEFAULT_GRID[0], u_count), min(DEFAULT_GRID[1], v_count), DEFAULT_GRID[2])
-    elif chosen[0] > u_count or chosen[1] > v_count:
-        raise ValueError(
-            f"--grid {'x'.join(map(str, chosen))} needs at least {chosen[0]} x {chosen[1]} "
-            f"markers, the dataset has {u_count} x {v_count}; give --grid with at most "
-            f"{u_count}x{v_count} along u and v, or leave --grid out"
-        )
     degrees = tuple(min(d, g - 1) for d, g in zip(settings.degrees, chosen))
     return tuple(chosen), degrees
 
 
 def rest_geometry(dataset: Dataset, settings: FitSettings) -> tuple[VolumeSpline, np.ndarray]:
-    """Volume fitted to the rest markers and inner surface; markers' (u, v)."""
+    """Volume fitted to the rest markers and inner surface; markers' (u, v).
+
+    The rest surfaces are fitted on at most the markers' grid (linear through the
+    thickness); a finer or higher-degree grid is that geometry refined
+    (``VolumeSpline.refined``): the shape stays the measured one and only the
+    space of displacements grows.
+    """
     chosen, degrees = control_grid(dataset.marker_shape, settings)
+    (u_count, v_count) = dataset.marker_shape
+    fitted = (min(chosen[0], u_count), min(chosen[1], v_count), 2)
+    fitted_degrees = tuple(min(d, g - 1) for d, g in zip(degrees[:2], fitted)) + (1,)
     grid = np.stack([dataset.inner_rest, dataset.outer_rest], axis=2)
-    volume, _ = VolumeSpline.fit(grid, chosen[:2] + (2,), degrees[:2] + (1,))
-    if chosen[2] != 2:
-        volume = volume.with_layers(chosen[2], degrees[2])
+    volume, _ = VolumeSpline.fit(grid, fitted, fitted_degrees)
+    if tuple(chosen) != fitted or tuple(degrees) != fitted_degrees:
+        volume, _ = volume.refined(chosen, degrees)
     uv, _ = volume.project_to_outer(dataset.outer_rest.reshape(-1, 3))
     return volume, uv
 

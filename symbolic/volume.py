@@ -185,6 +185,37 @@ class VolumeSpline:
         layers = inner[:, :, None] + g[None, None, :, None] * (outer - inner)[:, :, None]
         return VolumeSpline(basis, layers.reshape(-1, 3))
 
+    def refined(
+        self, shape: tuple[int, int, int], degrees: tuple[int, int, int] | None = None
+    ) -> tuple[VolumeSpline, float]:
+        """The same geometry on a finer control grid (h- and p-), and its deviation [mm].
+
+        The new control points interpolate this volume at the Greville points of the
+        finer basis (clamped uniform knots; ``degrees`` default to this volume's,
+        each at most the new points minus one). Where the new space contains the
+        old one (same degree and n' - p = m (n - p) spans along each direction, or a
+        direction along which the geometry is linear, as w is) the geometry is
+        reproduced to rounding; otherwise the result is a close interpolant and the
+        returned deviation, the largest distance between the two maps on a dense
+        sample, says how close.
+        """
+        if self.basis.weights is not None:
+            raise ValueError("refinement does not support rational weights")
+        shape = tuple(int(n) for n in shape)
+        if any(new < old for new, old in zip(shape, self.shape)):
+            raise ValueError(f"a refined grid {shape} must not be coarser than {self.shape}")
+        wanted = self.basis.degrees if degrees is None else degrees
+        basis = VolumeBasis(shape, tuple(min(int(d), n - 1) for d, n in zip(wanted, shape)))
+        abscissae = [b.greville() for b in basis.bases]
+        control = self.evaluate(basis.grid_points(*abscissae)).reshape(shape + (3,))
+        for axis, (t, name) in enumerate(zip(abscissae, "uvw")):
+            control = _checked_pseudo_solve(basis.bases[axis].evaluate_dense(t), control, name, axis)
+        refined = VolumeSpline(basis, control.reshape(-1, 3))
+        sample = np.linspace(0.0, 1.0, 4 * max(shape) + 1)
+        params = basis.grid_points(sample, sample, np.linspace(0.0, 1.0, 5))
+        deviation = np.linalg.norm(refined.evaluate(params) - self.evaluate(params), axis=1)
+        return refined, float(deviation.max())
+
     @classmethod
     def fit(
         cls,

@@ -164,11 +164,13 @@ def test_a_non_square_marker_grid_fits_and_diagnoses_with_the_defaults(markers, 
     assert json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["success"]
 
 
-def test_a_grid_larger_than_the_markers_names_grid(tmp_path, capsys):
+def test_a_grid_finer_than_the_markers_refines_the_fitted_geometry(tmp_path, capsys):
     path = tmp_path / "data.npz"
     save_dataset(path, simulate(PhantomSettings(markers=(11, 8))))
     argv = ["fit", str(path), "--grid", "9x9x2", "--out", str(tmp_path / "o")]
-    _one_line_exit(argv, capsys, fragment="--grid")
+    assert main(argv) == 0
+    document = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert document["model"]["grid"] == [9, 9, 2] and document["verdict"]["explains_data"]
 
 
 # ------------------------------------------------------------------- experiments

@@ -111,3 +111,30 @@ def test_knots_are_clamped_and_uniform():
     assert knots.size == 13
     assert np.all(knots[:4] == 0) and np.all(knots[-4:] == 1)
     assert np.allclose(np.diff(knots[3:-3]), 1 / 6)
+
+
+@pytest.mark.parametrize(
+    "shape, degrees", [((15, 15, 2), None), ((15, 27, 4), (3, 3, 2)), ((9, 9, 5), (3, 3, 3))]
+)
+def test_refinement_into_a_nested_space_keeps_the_geometry(shape, degrees):
+    """Twice or four times the spans (or a higher degree through a linear w): same map."""
+    from experiments.phantom.forehead import PhantomSettings, segmented_surfaces
+
+    volume, _ = VolumeSpline.fit(segmented_surfaces(PhantomSettings(segmentation=(21, 21))))
+    refined, deviation = volume.refined(shape, degrees)
+    anywhere = RNG.random((500, 3))
+    assert refined.shape == shape and deviation < 1e-10
+    assert np.max(np.abs(refined.evaluate(anywhere) - volume.evaluate(anywhere))) < 1e-10
+
+
+def test_refinement_into_a_space_that_is_not_nested_reports_its_deviation():
+    """17 points of degree 3 (14 spans) do not contain 9 (6 spans): close, not exact."""
+    from experiments.phantom.forehead import PhantomSettings, segmented_surfaces
+
+    volume, _ = VolumeSpline.fit(segmented_surfaces(PhantomSettings(segmentation=(21, 21))))
+    refined, deviation = volume.refined((17, 17, 2))
+    anywhere = RNG.random((2000, 3))
+    measured = np.linalg.norm(refined.evaluate(anywhere) - volume.evaluate(anywhere), axis=1)
+    assert 1e-9 < measured.max() <= 1.01 * deviation < 1e-3
+    with pytest.raises(ValueError, match="coarser"):
+        volume.refined((7, 9, 2))

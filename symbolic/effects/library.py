@@ -77,7 +77,9 @@ class CaseFunctions:
     equilibrium : casadi.Function
         (s, p) -> g, the extended equilibrium (eq. 22) [N, and mm^3 for extra rows].
     newton : casadi.Function
-        (s, p) -> (g, dg/ds): the equilibrium and its sparse Jacobian.
+        (s, p) -> (g, dg/ds): the equilibrium and its sparse Jacobian (for a linear
+        base model its block is the closed-form K(x), the effects' by automatic
+        differentiation).
     residual : casadi.Function
         (s, p) -> r, the observation residual W (y(s, p) - Y), columns stacked [mm].
     sensitivity : casadi.Function
@@ -86,8 +88,9 @@ class CaseFunctions:
         Length of s.
     """
 
-    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX):
+    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX, dg_ds: ca.MX | None = None):
         self.s, self.p, self.g, self.r = s, p, g, r
+        self.dg_ds = dg_ds
         self.n_state = int(s.numel())
         self._built: dict[str, ca.Function] = {}
 
@@ -102,7 +105,11 @@ class CaseFunctions:
 
     @property
     def newton(self) -> ca.Function:
-        return self._get("newton", lambda: [self.g, ca.jacobian(self.g, self.s)], ["g", "dg_ds"])
+        def outputs():
+            jacobian = ca.jacobian(self.g, self.s) if self.dg_ds is None else self.dg_ds
+            return [self.g, jacobian]
+
+        return self._get("newton", outputs, ["g", "dg_ds"])
 
     @property
     def residual(self) -> ca.Function:
@@ -205,9 +212,18 @@ class ExtendedModel:
                 symbols.extra[effect.name] = ca.reshape(s[start : start + 3 * size], size, 3)
                 start += 3 * size
         thetas = [effect.block(p[self.slices[effect.name]], position) for effect in self.effects]
-        g = self._equilibrium(case, symbols, thetas)
+        base, rest = self._equilibrium(case, symbols, thetas)
         r = self._observation(case, symbols, thetas)
-        return CaseFunctions(s, p, g, r)
+        g = base + rest
+        if not self.model.is_linear(self.names):
+            return CaseFunctions(s, p, g, r)
+        # a linear base model: its block of dg/ds is the closed-form K(x) (one sparse
+        # product, ``stiffness_expression``), automatic differentiation does the effects
+        x = ca.vertcat(*[symbols.values[n] for n in self.names])
+        stiffness = self._base_stiffness()(x)
+        padding = n_state - stiffness.shape[0]
+        dg_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
+        return CaseFunctions(s, p, g, r, dg_ds)
 
     def _base_force(self) -> ca.Function:
         """K(B; x)(B - B0) of the base model as a Function of (Delta, x) (built once)."""
@@ -219,12 +235,26 @@ class ExtendedModel:
             self._functions[key] = ca.Function("elastic", [delta, x], [force])
         return self._functions[key]
 
-    def _equilibrium(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
-        """g = K(B; x) Delta + sum internal forces - F_B(theta), then the extra rows."""
+    def _base_stiffness(self) -> ca.Function:
+        """x -> K(x) on the free points, stacked, of a linear base model (built once)."""
+        key = ("base_stiffness", id(self.model), self.names)
+        if key not in self._functions:
+            x, coefficients, terms = self.model.linear_terms(self.names)
+            stiffness = self.model.stiffness_expression(coefficients, terms)
+            self._functions[key] = ca.Function("stiffness", [x], [stiffness])
+        return self._functions[key]
+
+    def _equilibrium(self, case: CaseData, symbols: CaseSymbols, thetas) -> tuple[ca.MX, ca.MX]:
+        """g = K(B; x) Delta + sum internal forces - F_B(theta), then the extra rows.
+
+        Returned in two parts: the base model's elastic force (zero on the extra rows)
+        and the rest, so that a linear base model's Jacobian can be the closed form.
+        """
         model = self.model
         load = LoadState(np.asarray(case.force_vector, dtype=float))
         x = ca.vertcat(*[symbols.values[n] for n in self.names])
-        force = self._base_force()(symbols.delta, x) - ca.DM(case.force)
+        base = self._base_force()(symbols.delta, x)
+        force = -ca.DM(case.force)
         extra_rows = []
         for effect, theta in zip(self.effects, thetas):
             load = effect.load(model, case, load, theta)
@@ -237,7 +267,8 @@ class ExtendedModel:
         change = load_change(model, case, load)
         if change is not None:
             force = force - change
-        return ca.vertcat(ca.vec(force), *extra_rows)
+        rest = ca.vertcat(ca.vec(force), *extra_rows)
+        return ca.vertcat(ca.vec(base), ca.MX(rest.shape[0] - base.numel(), 1)), rest
 
     def _observation(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
         """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``)."""
