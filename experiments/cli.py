@@ -34,6 +34,7 @@ RESEARCH = {
     "study": ("experiments.diagnosis.study", "the diagnosis of every effect over seeds"),
     "detection": ("experiments.diagnosis.detection", "how large an effect must be to be found"),
     "outoflibrary": ("experiments.diagnosis.outoflibrary", "data from a linear-elastic FE slab"),
+    "continuum-loop": ("experiments.diagnosis.continuum", "the loop on scikit-fem continuum data"),
     "realskin": ("experiments.realskin.study", "real in vivo skin: fit and close the loop"),
     "realskin-twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),

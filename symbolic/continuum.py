@@ -111,22 +111,30 @@ class PhysicalGradient:
             rows.append((self.stacked(i, j) + self.stacked(j, i)) / np.sqrt(2.0))
         return rows
 
-    def gram(self, rows: list[sp.csr_matrix], factor: float = 1.0) -> sp.csr_matrix:
-        """factor * integral sum_rows row^T row dV, symmetrised (3 n, 3 n)."""
-        weight = sp.diags(factor * self.volume)
+    def gram(self, rows: list[sp.csr_matrix], factor: float = 1.0, field=None) -> sp.csr_matrix:
+        """factor * integral f sum_rows row^T row dV, symmetrised (3 n, 3 n).
+
+        ``field`` f is a callable of the parameter points (n_q, 3), default 1.
+        """
+        scale = 1.0 if field is None else np.asarray(field(self.points), dtype=float)
+        weight = sp.diags(factor * scale * self.volume)
         total = sum(row.T @ weight @ row for row in rows)
         return sp.csr_matrix(0.5 * (total + total.T))
 
 
-def elasticity_matrices(volume: VolumeSpline, extra_points: int = 0) -> dict[str, sp.csr_matrix]:
+def elasticity_matrices(
+    volume: VolumeSpline, extra_points: int = 0, field=None
+) -> dict[str, sp.csr_matrix]:
     """K_mu and K_lambda of eq. (C3) on every control point, stacked (3 n, 3 n) [mm].
 
-    K = mu_L K_mu + lambda K_lambda [N/mm] for the Lame pair [N/mm^2].
+    K = mu_L K_mu + lambda K_lambda [N/mm] for the Lame pair [N/mm^2]. With ``field``
+    f(u, v, w) (a callable of parameter points) both moduli are scaled by f: the
+    terms of a spatially varying material.
     """
     gradient = PhysicalGradient.of(volume, extra_points)
     return {
-        "shear": gradient.gram(gradient.strain(), 2.0),
-        "volumetric": gradient.gram([gradient.divergence()]),
+        "shear": gradient.gram(gradient.strain(), 2.0, field),
+        "volumetric": gradient.gram([gradient.divergence()], 1.0, field),
     }
 
 

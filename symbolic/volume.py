@@ -209,7 +209,8 @@ class VolumeSpline:
         abscissae = [b.greville() for b in basis.bases]
         control = self.evaluate(basis.grid_points(*abscissae)).reshape(shape + (3,))
         for axis, (t, name) in enumerate(zip(abscissae, "uvw")):
-            control = _checked_pseudo_solve(basis.bases[axis].evaluate_dense(t), control, name, axis)
+            matrix = basis.bases[axis].evaluate_dense(t)
+            control = _checked_pseudo_solve(matrix, control, name, axis)
         refined = VolumeSpline(basis, control.reshape(-1, 3))
         sample = np.linspace(0.0, 1.0, 4 * max(shape) + 1)
         params = basis.grid_points(sample, sample, np.linspace(0.0, 1.0, 5))

@@ -37,6 +37,7 @@ DIRECTORY_OUTPUT = {
     "realskin-twin": [],
     "realskin-checks": [],
     "realcheck": ["--data", "{tmp}"],
+    "continuum-loop": [],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
 
@@ -51,7 +52,7 @@ FILE_OUTPUT = {
 NO_OUTPUT = {"realskin-data"}
 """Commands that only print."""
 
-EXPENSIVE = ("demo", "compare", "study", "detection", "realskin", "bench")
+EXPENSIVE = ("demo", "compare", "study", "detection", "realskin", "bench", "continuum-loop")
 
 
 def _unwritable(tmp: Path) -> Path:

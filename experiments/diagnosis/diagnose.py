@@ -18,25 +18,36 @@ from experiments.diagnosis.design import design_note
 from experiments.options import plural
 from experiments.plausibility import dataset_warnings
 from solvers.diagnosis.report import report, verdict
+from symbolic.effects.library import EFFECT_NAMES
 
 BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
-"""The base model's estimated parameters (static data cannot see mu and gamma)."""
+"""The paper's base model's estimated parameters (static data cannot see mu and gamma)."""
 
 
-def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None):
+def base_settings(grid=None, energy: str = "dnurbs", degrees=None):
+    """The ``FitSettings`` of the loop's base model: the energy's default parameters."""
+    from experiments.fitting import ENERGY_NAMES, FitSettings
+
+    names = BASE_NAMES if energy == "dnurbs" else ENERGY_NAMES[energy]
+    extra = {} if degrees is None else {"degrees": tuple(degrees)}
+    return FitSettings(names=names, grid=grid, energy=energy, **extra)
+
+
+def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=None):
     """Build the base problem of a dataset and run the loop; returns the Diagnosis.
 
     ``grid`` is the control grid (M, N, L); None follows the data (``control_grid``).
+    ``base`` is the base model's ``FitSettings`` (default ``base_settings(grid)``).
     """
-    from experiments.fitting import FitSettings, build_problem, dataset_loads
+    from experiments.fitting import build_problem, dataset_loads
     from solvers.diagnosis.loop import diagnose
 
-    base = build_problem(dataset, FitSettings(names=BASE_NAMES, grid=grid))
-    loads = dataset_loads(dataset, base.model.volume)
-    return diagnose(base, loads, settings, log)
+    problem = build_problem(dataset, base or base_settings(grid))
+    loads = dataset_loads(dataset, problem.model.volume)
+    return diagnose(problem, loads, settings, log)
 
 
-def run(dataset_or_path, out: Path, log=print, settings=None, grid=None) -> dict:
+def run(dataset_or_path, out: Path, log=print, settings=None, grid=None, base=None) -> dict:
     """Diagnose a dataset (object or ``.npz`` path); write diagnosis.json, report.md, figures.
 
     Returns
@@ -57,7 +68,7 @@ def run(dataset_or_path, out: Path, log=print, settings=None, grid=None) -> dict
         f"{dataset.outer_rest.shape[1]} markers"
     )
     begin = time.perf_counter()
-    diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), grid)
+    diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), grid, base)
     document = diagnosis.document()
     document["wall_time_s"] = time.perf_counter() - begin
     document["design"] = design_note(dataset)
@@ -118,20 +129,31 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     parser.add_argument(
         "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
     )
+    parser.add_argument(
+        "--degrees", default=None, help="spline degrees PxQxR (default 3x3x1; e.g. 3x3x2)"
+    )
+    parser.add_argument(
+        "--energy",
+        choices=("dnurbs", "linear-elastic"),
+        default="dnurbs",
+        help="base model: dnurbs (eq. 18, default) or linear-elastic (docs/continuum.md)",
+    )
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
-    parser.add_argument("--max-effects", type=int, default=3, help="most effects added (0-11)")
+    parser.add_argument(
+        "--max-effects", type=int, default=3, help=f"most effects added (0-{len(EFFECT_NAMES)})"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.diagnose"):
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
 
-    from experiments.fitting import FitSettings
     from experiments.options import (
         UsageError,
         check_grid,
         check_output_dir,
         not_converged,
+        parse_degrees,
         parse_grid,
         run_guarded,
     )
@@ -140,14 +162,19 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= 11:
-            raise UsageError("--level must lie in (0, 0.5] and --max-effects in 0-11")
+        most = len(EFFECT_NAMES)
+        if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= most:
+            raise UsageError(f"--level must lie in (0, 0.5] and --max-effects in 0-{most}")
+        base = base_settings(energy=args.energy)
+        if args.degrees is not None:
+            base = base_settings(energy=args.energy, degrees=parse_degrees(args.degrees))
         grid = None
         if args.grid != "auto":
-            grid = check_grid(parse_grid(args.grid), FitSettings().degrees, args.grid)
+            grid = check_grid(parse_grid(args.grid), base.degrees, args.grid)
+        base = base_settings(grid, args.energy, base.degrees)
         check_output_dir(args.out)
         settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
-        document = run(args.dataset, args.out, settings=settings, grid=grid)
+        document = run(args.dataset, args.out, settings=settings, base=base)
         if not document["success"]:
             return not_converged(prog, "a fit of the diagnosis", args.out / "diagnosis.json")
         return 0

@@ -116,6 +116,48 @@ def benchmark(effects: dict[str, float] | None = None, repeat: int = 3, log=prin
     return {"forward_solve_s": forward, "candidates": rows}
 
 
+def diagnosis_timings(log=print) -> list[dict]:
+    """Wall time of ``dvs diagnose``'s loop on 10-load datasets at 9 x 9 x 2 (target 60 s).
+
+    Two datasets of the diagnosis design: the phantom (paper's base model) and a
+    scikit-fem slab (the linear-elastic base model, when scikit-fem is installed).
+    Each is reported with the time of one base fit measured in the same run, so
+    the ratio holds on a busy machine too.
+    """
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.fitting import build_problem, dataset_loads
+    from solvers.diagnosis.fit import fit
+    from solvers.diagnosis.problem import ExtendedProblem
+
+    datasets = [
+        ("phantom", "dnurbs", simulate_with_effects({}, seed=0, **design_options("diagnosis")))
+    ]
+    try:
+        from experiments.diagnosis.continuum import ContinuumStudy, scenario_dataset
+
+        study = ContinuumStudy(grid=(9, 9, 2), degrees=(3, 3, 1))
+        datasets.append(("scikit-fem slab", "linear-elastic", scenario_dataset("none", study)))
+    except ImportError:
+        log("scikit-fem is not installed: the continuum row is skipped")
+    rows = []
+    for label, energy, dataset in datasets:
+        settings = base_settings(energy=energy)
+        begin = time.perf_counter()
+        base = build_problem(dataset, settings)
+        fit(ExtendedProblem(base, dataset_loads(dataset, base.model.volume), []))
+        one_fit = time.perf_counter() - begin
+        begin = time.perf_counter()
+        document = diagnose_dataset(dataset, base=settings).document()
+        wall = time.perf_counter() - begin
+        rows.append({"data": label, "energy": energy, "wall_s": wall, "base_fit_s": one_fit})
+        log(
+            f"diagnose, {label} ({energy}), 10 loads, 9x9x2: {wall:.1f} s (target 60 s, "
+            f"{'met' if wall <= 60 else 'MISSED'}); one base fit {one_fit:.2f} s, ratio "
+            f"{wall / one_fit:.0f}; selected {document['selected']}"
+        )
+    return rows
+
+
 def build_parser(prog: str = "python -m experiments.diagnosis.study"):
     """The options of ``dvs study``."""
     from experiments.options import make_parser, path_argument

@@ -338,6 +338,9 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
     parser.add_argument("--grids", default="9x9x2,17x17x3,33x33x4,65x65x4", help="inverse grids")
     parser.add_argument("--methods", default="simultaneous,nested", help="inverse methods")
     parser.add_argument("--out", type=path_argument, default=None, help="also write DIR/bench.json")
+    parser.add_argument(
+        "--diagnose", action="store_true", help="only time dvs diagnose on 10-load data (60 s)"
+    )
     return parser
 
 
@@ -369,6 +372,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
             raise UsageError(f"--methods takes simultaneous,nested,paper; got {args.methods!r}")
         if args.out is not None:
             check_output_dir(args.out)
+        if args.diagnose:
+            from experiments.diagnosis.study import diagnosis_timings
+
+            diagnosis_timings()
+            return 0
         print("Forward model (build = TissueModel + residual and Jacobian Functions)", flush=True)
         forward = [isolated(_forward_job, grid, args.k0) for grid in GRIDS]
         factorisations = {timing.grid: timing.factorisation for timing in forward}

@@ -251,7 +251,7 @@ def diagnose(
     """
     settings = settings or DiagnosisSettings()
     log = log or (lambda *_: None)
-    library = effect_library(settings.candidates)
+    library = effect_library(settings.candidates, base.model.energy)
     current = fit(ExtendedProblem(base, loads, []))
     if base.noise_mm is not None:
         sigma, source = float(base.noise_mm), "given"

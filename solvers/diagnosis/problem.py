@@ -219,7 +219,7 @@ class ExtendedProblem:
         for _ in range(40):
             if np.linalg.norm(g) <= tolerance * scale and jacobian is not None:
                 return state, jacobian
-            jacobian = StateJacobian(newton(state, p)[1])
+            jacobian = self._factorised(newton(state, p)[1])
             if np.linalg.norm(g) <= tolerance * scale:
                 return state, jacobian
             step = jacobian.solve(-g)
@@ -236,10 +236,31 @@ class ExtendedProblem:
             "the effect parameters may be unrealistic"
         )
 
+    def _factorised(self, matrix: sp.spmatrix) -> StateJacobian:
+        """A ``StateJacobian`` of dg/ds, reusing the last one when the matrix is the same.
+
+        For a linear base model dg/ds depends on p only (no effect of the library
+        varies it from case to case), so the load cases of one evaluation share one
+        LU; the matrices are compared entry by entry, never assumed equal.
+        """
+        matrix = sp.csc_matrix(matrix)
+        last = self.cache.get("last_state_jacobian")
+        if (
+            last is not None
+            and last.matrix.shape == matrix.shape
+            and np.array_equal(last.matrix.indptr, matrix.indptr)
+            and np.array_equal(last.matrix.indices, matrix.indices)
+            and np.array_equal(last.matrix.data, matrix.data)
+        ):
+            return last
+        jacobian = StateJacobian(matrix)
+        self.cache["last_state_jacobian"] = jacobian
+        return jacobian
+
     def linearise(self, position: int, p: np.ndarray, state: np.ndarray, jacobian=None):
         """r and exact dr/dp of one case at a solved state (implicit function theorem)."""
         if jacobian is None:
-            jacobian = StateJacobian(self.numeric(position, "newton")(state, p)[1])
+            jacobian = self._factorised(self.numeric(position, "newton")(state, p)[1])
         dg_dp, r, dr_ds, dr_dp = self.numeric(position, "sensitivity")(state, p)
         sensitivity = -jacobian.solve(_dense(dg_dp))
         total = dr_ds @ sensitivity + _dense(dr_dp)

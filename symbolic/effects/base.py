@@ -140,6 +140,9 @@ class Effect:
         Unit of that magnitude.
     equation : str
         The added term, for reports.
+    energies : tuple of str
+        The base energies (``symbolic.continuum_model.ENERGIES``) the effect extends;
+        a continuum already contains bending and the volumetric term, say.
     """
 
     name = ""
@@ -152,6 +155,7 @@ class Effect:
     default_magnitude = 0.0
     magnitude_unit = ""
     equation = ""
+    energies: tuple[str, ...] = ("dnurbs", "linear-elastic")
 
     def __init__(self) -> None:
         self._cache: dict = {}

@@ -11,7 +11,8 @@ the current alpha, beta (a skin load has F_I = 0). The free rows gain
 K_FI Delta_I. At c = 0 the extra rows read M_I Delta_I = 0, so Delta_I = 0:
 the fixed inner layer, exactly, with a non-singular Jacobian. (Stiffness
 effects act on the free rows only; their reaction on the inner layer is a
-second-order term in c.)
+second-order term in c.) On the continuum base model K is mu_L K_mu + lambda
+K_lambda of eq. (C3), whose blocks act on the stacked vec(Delta).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from symbolic.continuum import elasticity_matrices
+from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient, surface_rule
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
@@ -74,7 +77,14 @@ class BaseCompliance(Effect):
         def build():
             inner, free = self.inner(model), model.free
             out = {}
-            for term, matrix in model.terms.items():
+            if model.energy != "dnurbs":
+                # the continuum's stacked terms (eq. C3): blocks act on vec(Delta)
+                n = model.volume.basis.size
+                inner, free = (np.concatenate([i + k * n for k in range(3)]) for i in (inner, free))
+                terms = elasticity_matrices(model.volume, model.extra_points)
+            else:
+                terms = model.terms
+            for term, matrix in terms.items():
                 matrix = sp.csr_matrix(matrix)
                 out[term] = tuple(
                     to_casadi_sparse(matrix[a][:, b])
@@ -85,12 +95,20 @@ class BaseCompliance(Effect):
         return self.cached(model, "blocks", build)
 
     def _coupled(self, model: TissueModel, values: dict, index: int, delta: ca.MX):
+        blocks = self._blocks(model)
+        if model.energy != "dnurbs":
+            total = 0
+            for coefficient, term in zip(model.coefficients(values), CONTINUUM_TERMS):
+                block = blocks[term][index]
+                product = ca.mtimes(block, ca.vec(delta))
+                total = total + coefficient * ca.reshape(product, block.shape[0] // 3, 3)
+            return total
         total = 0
-        for term, blocks in self._blocks(model).items():
+        for term, pair in blocks.items():
             coefficient = linear_coefficient(values, term)
             if isinstance(coefficient, float) and coefficient == 0.0:
                 continue
-            total = total + coefficient * ca.mtimes(blocks[index], delta)
+            total = total + coefficient * ca.mtimes(pair[index], delta)
         return total
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
@@ -102,3 +120,63 @@ class BaseCompliance(Effect):
         reaction = reaction + self._coupled(model, symbols.values, 2, inner_delta)
         foundation = to_casadi_sparse(self.foundation_matrix(model))
         return theta[0] * reaction + ca.mtimes(foundation, inner_delta)
+
+
+def lateral_rule(model: TissueModel) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss points on the four lateral faces (u or v = 0 or 1) with area weights [mm^2]."""
+    from symbolic.basis import gauss_rule
+
+    bases = model.volume.basis.bases
+    rules = [gauss_rule(b, b.degree + 2) for b in bases]
+    points, weights = [], []
+    for axis in (0, 1):
+        other = 1 - axis
+        (s, ws), (w, ww) = rules[other], rules[2]
+        ss, tt = np.meshgrid(s, w, indexing="ij")
+        for end in (0.0, 1.0):
+            params = np.zeros((ss.size, 3))
+            params[:, axis], params[:, other], params[:, 2] = end, ss.ravel(), tt.ravel()
+            along = model.volume.evaluate(params, (0, 1, 0) if axis == 0 else (1, 0, 0))
+            across = model.volume.evaluate(params, (0, 0, 1))
+            area = np.linalg.norm(np.cross(along, across), axis=1)
+            points.append(params)
+            weights.append(np.outer(ws, ww).ravel() * area)
+    return np.vstack(points), np.concatenate(weights)
+
+
+class SurroundingTissue(Effect):
+    """k_s [N/mm^3]: the tissue beyond the marked area holds the lateral faces.
+
+    The volume ends where the markers end; real tissue goes on. Its resistance is
+    modelled as a Winkler support of the four lateral faces (u or v = 0 or 1),
+    energy 1/2 k_s integral_lateral |u|^2 dA, so K gains k_s M_L with
+    M_L = integral_lateral J^T J dA on the free points (each component alike).
+    k_s = 0 is the base model's free lateral faces. Realistic magnitude
+    0.002 N/mm^3: E / L for E = 20 kPa and a 10 mm reach of the surrounding tissue.
+    """
+
+    name = "surrounding_tissue"
+    parameter_names = ("k_s",)
+    units = ("N/mm^3",)
+    scales = (1e-3,)
+    lower = (0.0,)
+    upper = (10.0,)
+    default_magnitude = 0.002
+    magnitude_unit = "N/mm^3"
+    equation = "k_s integral_lateral |u|^2 dA (Winkler support of the lateral faces)"
+
+    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+        """M_L on all control points, (n, n) [mm^2]."""
+
+        def build():
+            points, area = lateral_rule(model)
+            collocation = sp.csr_matrix(model.volume.collocation(points))
+            return sp.csr_matrix(collocation.T @ sp.diags(area) @ collocation)
+
+        return self.cached(model, "M_L", build)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        block = self.cached(
+            model, "M_L_free", lambda: to_casadi_sparse(model.free_block(self.matrix(model)))
+        )
+        return theta[0] * ca.mtimes(block, symbols.delta)

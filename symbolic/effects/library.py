@@ -18,7 +18,14 @@ base_compliance      c = 1/k_b [mm^3/N]         ``boundary`` (section 2)
 contact_patch        sigma^2 [mm^2]             ``load`` (eq. 20)
 pre_tension          sigma0 [N/mm]              ``stiffness``
 volumetric_coupling  lambda [N/mm^2]            ``stiffness`` (section 4)
+shear_coupling       mu_L [N/mm^2]              ``stiffness`` (eq. C3)
+surrounding_tissue   k_s [N/mm^3]               ``boundary`` (section 2)
 ==================== ========================== ==================================
+
+Each effect names the base energies it extends (``Effect.energies``); on the
+linear-elastic base model the library has no bending, stiffening,
+volumetric_coupling or shear_coupling (the continuum contains them or, for k0,
+does not support it).
 
 ``ExtendedModel`` composes, per load case k, the named CasADi Functions of the
 extended equilibrium g_k(s, p) (eq. 22) and observation residual r_k(s, p)
@@ -32,11 +39,17 @@ import casadi as ca
 import numpy as np
 
 from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState
-from symbolic.effects.boundary import BaseCompliance
+from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection, load_change
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
 from symbolic.effects.stiffening import NonlinearStiffening
-from symbolic.effects.stiffness import Bending, Heterogeneity, PreTension, VolumetricCoupling
+from symbolic.effects.stiffness import (
+    Bending,
+    Heterogeneity,
+    PreTension,
+    ShearCoupling,
+    VolumetricCoupling,
+)
 from symbolic.model import TissueModel
 
 EFFECT_CLASSES: tuple[type[Effect], ...] = (
@@ -51,6 +64,8 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     ContactPatch,
     PreTension,
     VolumetricCoupling,
+    ShearCoupling,
+    SurroundingTissue,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
 """Every effect name of DESIGN.md, in the library's order."""
@@ -64,9 +79,15 @@ def make_effect(name: str) -> Effect:
     raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_NAMES)}")
 
 
-def effect_library(names=None) -> dict[str, Effect]:
-    """Effects by name (all of them by default), each instantiated once."""
-    return {name: make_effect(name) for name in (EFFECT_NAMES if names is None else names)}
+def effect_library(names=None, energy: str | None = None) -> dict[str, Effect]:
+    """Effects by name (all of them by default), each instantiated once.
+
+    With ``energy``, only the effects that extend that base energy.
+    """
+    chosen = {name: make_effect(name) for name in (EFFECT_NAMES if names is None else names)}
+    if energy is None:
+        return chosen
+    return {name: e for name, e in chosen.items() if energy in e.energies}
 
 
 class CaseFunctions:

@@ -153,6 +153,7 @@ class NonlinearStiffening(Effect):
     default_magnitude = 200.0
     magnitude_unit = "1"
     equation = "K_ab(B) = K0_ab (1 + k0 eps_ab^2) on spring-like pairs (eq. 1)"
+    energies = ("dnurbs",)
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
         force = self.cached(model, "force", lambda: stiffening_force(model))

@@ -10,7 +10,14 @@ vanish at theta = 0 (``nonlinear_stiffening`` lives in ``stiffening``).
   stiffness of an in-plane pre-stress sigma0 [N/mm] of the skin against rotation
   of its surface (normal displacement), in the physical metric.
 - ``volumetric_coupling``: lambda integral (div u)^2 dV over the physical volume
-  (Poisson effect): the only effect that couples the x, y, z components.
+  (Poisson effect), coupling the x, y, z components.
+- ``shear_coupling``: mu_L integral 2 eps:eps dV, the continuum's shear energy; with
+  volumetric_coupling it completes the isotropic linear elasticity of eq. (C3)
+  beside the alpha energy.
+
+On the continuum base model (``symbolic.continuum_model``) heterogeneity scales E
+instead of the alpha; bending, volumetric_coupling and shear_coupling extend the
+paper's model only (the continuum has them).
 """
 
 from __future__ import annotations
@@ -20,7 +27,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from symbolic.basis import FIRST_DERIVATIVES
-from symbolic.continuum import PhysicalGradient
+from symbolic.continuum import PhysicalGradient, elasticity_matrices
+from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import (
     CaseSymbols,
     Effect,
@@ -66,6 +74,19 @@ class Heterogeneity(Effect):
     def direction(self):
         return (1.0, -0.5, 0.0)
 
+    def _continuum(self, model: TissueModel) -> dict:
+        """Per field j, mu_L- and lambda-terms of E (1 + f_j) on the free points (eq. C3)."""
+
+        def build():
+            out = {}
+            for j, shape in enumerate(_bilinear_fields()):
+                matrices = elasticity_matrices(model.volume, model.extra_points, shape)
+                blocks = [stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS]
+                out[j] = [to_casadi_sparse(block) for block in blocks]
+            return out
+
+        return self.cached(model, "continuum", build)
+
     def _matrices(self, model: TissueModel) -> dict:
         def build():
             fields = dict(model.fields or {})
@@ -86,6 +107,13 @@ class Heterogeneity(Effect):
         return self.cached(model, "grams", build)
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        if model.energy != "dnurbs":
+            lame_pair = model.coefficients(symbols.values)
+            force = 0
+            for j, blocks in self._continuum(model).items():
+                for coefficient, block in zip(lame_pair, blocks):
+                    force = force + theta[j] * coefficient * apply_stacked(block, symbols.delta)
+            return force
         matrices = self._matrices(model)
         force = 0
         for (term, j), matrix in matrices.items():
@@ -110,6 +138,7 @@ class Bending(Effect):
     default_magnitude = 5e-3
     magnitude_unit = "N/mm"
     equation = "beta integral sum_{i<=j} |d_ij V|^2 (eq. 18)"
+    energies = ("dnurbs",)
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
         def build():
@@ -207,6 +236,7 @@ class VolumetricCoupling(Effect):
     default_magnitude = 0.05
     magnitude_unit = "N/mm^2"
     equation = "lambda integral (div u)^2 dV (physical volume)"
+    energies = ("dnurbs",)
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
         """K_lambda on all control points, (3n, 3n) in stacked order [mm]."""
@@ -224,3 +254,33 @@ class VolumetricCoupling(Effect):
             lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
         )
         return theta[0] * apply_stacked(block, symbols.delta)
+
+
+class ShearCoupling(Effect):
+    """mu_L [N/mm^2]: mu_L integral 2 eps:eps dV, the shear energy of a continuum.
+
+    eq. (18)'s alpha energy is a component-wise Laplacian in parameter space; a
+    continuum also couples the components through eps:eps = (grad u : grad u +
+    grad u : grad u^T) / 2. K_mu of ``symbolic.continuum`` (eq. C3) is that term,
+    stacked (3n x 3n). With volumetric_coupling it completes isotropic linear
+    elasticity beside the alpha energy. Realistic magnitude 0.005 N/mm^2 (5 kPa:
+    E of about 15 kPa for soft tissue).
+    """
+
+    name = "shear_coupling"
+    parameter_names = ("mu_L",)
+    units = ("N/mm^2",)
+    scales = (1e-3,)
+    lower = (0.0,)
+    upper = (100.0,)
+    default_magnitude = 0.005
+    magnitude_unit = "N/mm^2"
+    equation = "mu_L integral 2 eps:eps dV (physical volume, eq. C3)"
+    energies = ("dnurbs",)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        def build():
+            shear = elasticity_matrices(model.volume, model.extra_points)["shear"]
+            return to_casadi_sparse(stacked_free_block(model, shear))
+
+        return theta[0] * apply_stacked(self.cached(model, "K_mu", build), symbols.delta)

@@ -1,0 +1,61 @@
+"""Checks every effect must pass on any base model: off at theta = 0, exact derivatives.
+
+``setting`` is (ExtendedProblem without effects, its fitted EffectFit, the library).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solvers.diagnosis.problem import ExtendedProblem
+
+
+def _point(problem: ExtendedProblem, base_p: np.ndarray, factor: float) -> np.ndarray:
+    """p with x from the base fit and theta = factor * scale (alternating signs)."""
+    theta = problem.scale[len(base_p) :] * factor
+    theta = theta * np.where(np.arange(theta.size) % 2, -1.0, 1.0)
+    p = np.concatenate([base_p, theta])
+    return np.clip(p, problem.lower, problem.upper)
+
+
+def check_theta_zero(setting, name: str) -> None:
+    """g and r of the base problem extended by ``name`` at theta = 0 are the base's."""
+    problem, base_fit, library = setting
+    extended = problem.with_effects([library[name]])
+    p = np.concatenate([base_fit.p, np.zeros(len(extended.labels) - base_fit.p.size)])
+    rng = np.random.default_rng(0)
+    for position in range(len(problem.positions)):
+        n_base = problem.functions(position).n_state
+        n_state = extended.functions(position).n_state
+        state = rng.normal(0.0, 0.05, n_base)
+        padded = np.concatenate([state, np.zeros(n_state - n_base)])
+        g_base = problem.numeric(position, "equilibrium")(state, base_fit.p)[0].ravel()
+        g = extended.numeric(position, "equilibrium")(padded, p)[0].ravel()
+        np.testing.assert_allclose(g[:n_base], g_base, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(g[n_base:], 0.0 * g[n_base:])
+        r_base = problem.numeric(position, "residual")(state, base_fit.p)[0].ravel()
+        r = extended.numeric(position, "residual")(padded, p)[0].ravel()
+        np.testing.assert_allclose(r, r_base, rtol=0, atol=1e-14)  # c + (p - c) rounds
+    r_solved, _, _ = extended.evaluate(p)
+    np.testing.assert_allclose(r_solved, base_fit.residual, rtol=0, atol=1e-13)
+
+
+def check_derivatives(setting, name: str) -> None:
+    """d r / d p of the problem extended by ``name`` against central differences."""
+    problem, base_fit, library = setting
+    extended = problem.with_effects([library[name]])
+    n_x = base_fit.p.size
+    for point in (_point(extended, base_fit.p, 0.0), _point(extended, base_fit.p, 0.7)):
+        r, jacobian, _ = extended.evaluate(point)
+        for j in range(point.size):
+            step = extended.scale[j] * 1e-5 if j >= n_x else point[j] * 1e-6
+            if point[j] - step < extended.lower[j]:  # one-sided at a lower bound of 0
+                plus = extended.evaluate(point + step * np.eye(point.size)[j])[0]
+                twice = extended.evaluate(point + 2 * step * np.eye(point.size)[j])[0]
+                numeric = (4 * plus - 3 * r - twice) / (2 * step)
+            else:
+                plus = extended.evaluate(point + step * np.eye(point.size)[j])[0]
+                minus = extended.evaluate(point - step * np.eye(point.size)[j])[0]
+                numeric = (plus - minus) / (2 * step)
+            scale = max(np.abs(jacobian[:, j]).max(), 1e-12)
+            assert np.abs(numeric - jacobian[:, j]).max() < 1e-5 * scale, (name, j)

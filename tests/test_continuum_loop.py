@@ -1,0 +1,161 @@
+"""The loop on a continuum base model: its effects, and the scikit-fem data with departures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from effectchecks import check_derivatives, check_theta_zero
+
+from experiments.diagnosis.diagnose import base_settings
+from experiments.fitting import build_problem, dataset_loads
+from solvers.diagnosis.fit import fit
+from solvers.diagnosis.problem import ExtendedProblem
+from symbolic.effects.library import EFFECT_NAMES, effect_library, make_effect
+
+pytest.importorskip("skfem")
+
+from experiments.phantom.fe import (  # noqa: E402 - after the optional import
+    Departure,
+    ReferenceSlab,
+    SlabSolution,
+    design_cases,
+    reference_dataset,
+)
+
+CONTINUUM_EFFECTS = [n for n in EFFECT_NAMES if "linear-elastic" in make_effect(n).energies]
+SLAB = ReferenceSlab(elements=(12, 12, 2))
+
+
+@pytest.fixture(scope="module")
+def solution():
+    return SlabSolution(SLAB)
+
+
+@pytest.fixture(scope="module")
+def setting(solution):
+    """A paper-design scikit-fem dataset and its fitted linear-elastic base problem."""
+    forces, contacts = design_cases("paper", SLAB)
+    dataset = reference_dataset(SLAB, forces, contacts, 4.0, solver=solution)
+    base = build_problem(dataset, base_settings(energy="linear-elastic"))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    return problem, fit(problem), effect_library(energy="linear-elastic")
+
+
+def test_the_continuum_library_leaves_out_what_a_continuum_has():
+    assert set(EFFECT_NAMES) - set(CONTINUUM_EFFECTS) == {
+        "nonlinear_stiffening",
+        "bending",
+        "volumetric_coupling",
+        "shear_coupling",
+    }
+    assert set(effect_library(energy="dnurbs")) == set(EFFECT_NAMES)
+
+
+@pytest.mark.parametrize("name", CONTINUUM_EFFECTS)
+def test_theta_zero_reproduces_the_continuum_base_model(setting, name):
+    check_theta_zero(setting, name)
+
+
+@pytest.mark.parametrize("name", CONTINUUM_EFFECTS)
+def test_continuum_effect_derivatives_match_finite_differences(setting, name):
+    check_derivatives(setting, name)
+
+
+def test_shear_and_volumetric_coupling_complete_the_continuum():
+    """The paper's model at alpha = 0 plus mu_L K_mu + lambda K_lambda is eq. (C3) exactly."""
+    from symbolic.continuum import box_volume, lame
+    from symbolic.continuum_model import ContinuumModel
+    from symbolic.effects.stiffness import ShearCoupling, VolumetricCoupling
+    from symbolic.model import TissueModel
+
+    volume = box_volume((20.0, 16.0, 5.0), (6, 5, 3), (3, 2, 2))
+    paper = TissueModel(volume)
+    continuum = ContinuumModel(volume, {"E": 20.0, "nu": 0.45})
+    mu_l, lam = lame(20.0, 0.45)
+    assembled = mu_l * ShearCoupling().cached(paper, "dense", lambda: _full_shear(paper))
+    assembled = assembled + lam * VolumetricCoupling().matrix(paper)
+    n = volume.basis.size
+    free = np.concatenate([paper.free + k * n for k in range(3)])
+    difference = assembled.tocsr()[free][:, free] - continuum.stiffness_matrix()
+    assert abs(difference).max() < 1e-12 * abs(continuum.stiffness_matrix()).max()
+
+
+def _full_shear(model):
+    from symbolic.continuum import elasticity_matrices
+
+    return elasticity_matrices(model.volume)["shear"]
+
+
+def test_a_modulus_field_scales_the_elasticity_terms():
+    from symbolic.continuum import box_volume, elasticity_matrices
+
+    volume = box_volume((20.0, 16.0, 5.0), (5, 5, 2), (2, 2, 1))
+    plain = elasticity_matrices(volume)
+    doubled = elasticity_matrices(volume, field=lambda p: 2.0 + 0.0 * p[:, 0])
+    odd = elasticity_matrices(volume, field=lambda p: 2.0 * p[:, 0] - 1.0)
+    mirrored = elasticity_matrices(volume, field=lambda p: 1.0 - 2.0 * p[:, 0])
+    for term in plain:
+        assert abs(doubled[term] - 2 * plain[term]).max() < 1e-12 * abs(plain[term]).max()
+        assert abs(odd[term] + mirrored[term]).max() < 1e-12 * abs(plain[term]).max()
+
+
+def test_lateral_faces_are_integrated_exactly_on_a_box():
+    from symbolic.continuum import box_volume
+    from symbolic.effects.boundary import lateral_rule
+    from symbolic.model import TissueModel
+
+    model = TissueModel(box_volume((30.0, 20.0, 4.0), (6, 5, 2), (3, 3, 1)))
+    _, area = lateral_rule(model)
+    assert area.sum() == pytest.approx(2 * (30.0 + 20.0) * 4.0, rel=1e-12)
+
+
+def test_design_cases_are_the_phantom_designs():
+    forces, contacts = design_cases("paper", SLAB)
+    assert np.allclose(contacts, 0.0) and np.allclose(forces[:, :2], 0.0)
+    assert np.allclose(np.linalg.norm(forces, axis=1), (0.17, 0.25))
+    forces, contacts = design_cases("diagnosis", SLAB)
+    assert forces.shape == (10, 3) and len({tuple(c) for c in contacts}) == 5
+    tilt = np.degrees(np.arccos(-forces[1::2, 2] / np.linalg.norm(forces[1::2], axis=1)))
+    assert np.allclose(tilt, 20.0) and np.allclose(forces[0::2, :2], 0.0)
+
+
+def _deflection(solution, force, contact, radius=4.0, at=None):
+    field = solution.displacement(np.asarray(force), np.array([*contact, 5.0]), radius)
+    return solution.at(field, np.array([[*(contact if at is None else at), 5.0]]))[0]
+
+
+def test_a_stiffness_gradient_makes_the_stiff_side_stiffer(solution):
+    graded = SlabSolution(ReferenceSlab(elements=(12, 12, 2), gradient=0.6))
+    force = (0.0, 0.0, -0.25)
+    left, right = (_deflection(graded, force, (x, 0.0))[2] for x in (-8.0, 8.0))
+    centre = _deflection(solution, force, (0.0, 0.0))[2]
+    assert right > 1.2 * left  # E is 1.24 E0 at x = +8 and 0.76 E0 at x = -8 (negative z)
+    assert _deflection(graded, force, (0.0, 0.0))[2] == pytest.approx(centre, rel=0.05)
+
+
+def test_a_compliant_base_deflects_more_and_moves_the_base(solution):
+    soft = SlabSolution(ReferenceSlab(elements=(12, 12, 2), base_spring=0.01))
+    force = (0.0, 0.0, -0.25)
+    assert _deflection(soft, force, (0.0, 0.0))[2] < 1.1 * _deflection(solution, force, (0, 0))[2]
+    field = soft.displacement(np.array(force), np.array([0.0, 0.0, 5.0]), 4.0)
+    assert soft.at(field, np.array([[0.0, 0.0, 0.0]]))[0, 2] < -1e-3
+
+
+def test_departures_are_hidden_from_the_dataset(solution):
+    """The dataset declares the nominal loads; the markers move as the departed truth."""
+    forces, contacts = design_cases("paper", SLAB)
+    nominal = reference_dataset(SLAB, forces, contacts, 4.0, solver=solution)
+    for departure in (
+        Departure(contact_offset_mm=(1.2, 1.6)),
+        Departure(radius_factor=2.0),
+        Departure(tangential=(0.24, 0.18)),
+        Departure(rigid_mm=0.1),
+    ):
+        hidden = reference_dataset(
+            SLAB, forces, contacts, 4.0, departure=departure, solver=solution
+        )
+        assert np.array_equal(hidden.forces, nominal.forces)
+        assert np.array_equal(hidden.contacts, nominal.contacts)
+        assert np.array_equal(hidden.probe_radius, nominal.probe_radius)
+        moved = np.nanmax(np.abs(hidden.outer_loaded - nominal.outer_loaded))
+        assert moved > 0.05, departure
