@@ -47,7 +47,15 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     return diagnose(problem, loads, settings, log)
 
 
-def run(dataset_or_path, out: Path, log=print, settings=None, grid=None, base=None) -> dict:
+def run(
+    dataset_or_path,
+    out: Path,
+    log=print,
+    settings=None,
+    grid=None,
+    base=None,
+    check_refinement: bool = True,
+) -> dict:
     """Diagnose a dataset (object or ``.npz`` path); write diagnosis.json, report.md, figures.
 
     Returns
@@ -70,12 +78,24 @@ def run(dataset_or_path, out: Path, log=print, settings=None, grid=None, base=No
     begin = time.perf_counter()
     diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), grid, base)
     document = diagnosis.document()
+    if check_refinement:
+        from experiments.diagnosis.refinement import refinement_check, summary
+
+        level = diagnosis.level
+        document["refinement"] = refinement_check(
+            diagnosis, dataset, base or base_settings(grid), level
+        )
+        log("  " + summary(document["refinement"]))
     document["wall_time_s"] = time.perf_counter() - begin
     document["design"] = design_note(dataset)
     out.mkdir(parents=True, exist_ok=True)
     plot_residuals(diagnosis, out / "residuals.png")
     atomic_write_json(out / "diagnosis.json", document)
     text = report(diagnosis, document) + f"\n## The design\n\n{_design_text(document)}\n"
+    if "refinement" in document:
+        from experiments.diagnosis.refinement import summary
+
+        text += f"\n## Discretisation or physics\n\n{summary(document['refinement'])}.\n"
     atomic_write_text(out / "report.md", text)
     log(
         f"rms {document['rms_before_mm'] * 1e3:.1f} -> {document['rms_after_mm'] * 1e3:.1f} um; "
@@ -142,6 +162,11 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     parser.add_argument(
         "--max-effects", type=int, default=3, help=f"most effects added (0-{len(EFFECT_NAMES)})"
     )
+    parser.add_argument(
+        "--no-refinement-check",
+        action="store_true",
+        help="skip refitting the final model on a refined volume (discretisation or physics)",
+    )
     return parser
 
 
@@ -174,7 +199,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         base = base_settings(grid, args.energy, base.degrees)
         check_output_dir(args.out)
         settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
-        document = run(args.dataset, args.out, settings=settings, base=base)
+        document = run(
+            args.dataset,
+            args.out,
+            settings=settings,
+            base=base,
+            check_refinement=not args.no_refinement_check,
+        )
         if not document["success"]:
             return not_converged(prog, "a fit of the diagnosis", args.out / "diagnosis.json")
         return 0
