@@ -142,6 +142,8 @@ OUT_OF_RANGE = [
     (["study", "--seeds", "-1", "--out", "o"], "--seeds"),
     (["detection", "--factors", "0", "--out", "o"], "--factors"),
     (["outoflibrary", "--noise", "5", "--out", "x.npz"], "--noise"),
+    (["continuum-loop", "--scenarios", "gravity", "--out", "o"], "--scenarios"),
+    (["diagnose", "{data}", "--degrees", "9x9x9", "--out", "o"], "--degrees"),
     (["realskin", "--grid", "1", "1", "--out", "o"], "--grid"),
     (["realskin-twin", "--ratios", "-1"], "--ratios"),
     (["realskin-checks", "--check", "nope"], "--check"),
