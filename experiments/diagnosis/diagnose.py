@@ -87,7 +87,7 @@ def run(
         )
         log("  " + summary(document["refinement"]))
     document["wall_time_s"] = time.perf_counter() - begin
-    document["design"] = design_note(dataset)
+    document["design"] = design_note(dataset, (base or base_settings(grid)).energy)
     out.mkdir(parents=True, exist_ok=True)
     plot_residuals(diagnosis, out / "residuals.png")
     atomic_write_json(out / "diagnosis.json", document)
