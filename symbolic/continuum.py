@@ -111,6 +111,13 @@ class PhysicalGradient:
             rows.append((self.stacked(i, j) + self.stacked(j, i)) / np.sqrt(2.0))
         return rows
 
+    def elasticity(self, field=None) -> dict[str, sp.csr_matrix]:
+        """K_mu and K_lambda of eq. (C3), both moduli scaled by ``field`` (default 1)."""
+        return {
+            "shear": self.gram(self.strain(), 2.0, field),
+            "volumetric": self.gram([self.divergence()], 1.0, field),
+        }
+
     def gram(self, rows: list[sp.csr_matrix], factor: float = 1.0, field=None) -> sp.csr_matrix:
         """factor * integral f sum_rows row^T row dV, symmetrised (3 n, 3 n).
 
@@ -131,11 +138,7 @@ def elasticity_matrices(
     f(u, v, w) (a callable of parameter points) both moduli are scaled by f: the
     terms of a spatially varying material.
     """
-    gradient = PhysicalGradient.of(volume, extra_points)
-    return {
-        "shear": gradient.gram(gradient.strain(), 2.0, field),
-        "volumetric": gradient.gram([gradient.divergence()], 1.0, field),
-    }
+    return PhysicalGradient.of(volume, extra_points).elasticity(field)
 
 
 def body_force_vector(

@@ -42,9 +42,12 @@ class ContinuumModel(TissueModel):
         super().__post_init__()
         if self.parameters["k0"] != 0.0:
             raise ValueError("the linear-elastic model has no stiffening k0; leave k0 at 0")
-        full = elasticity_matrices(self.volume, self.extra_points)
+        self.elasticity = elasticity_matrices(self.volume, self.extra_points)
+        """K_mu and K_lambda on every control point, stacked (3 n, 3 n) [mm]."""
         free = np.concatenate([self.free + k * self.volume.basis.size for k in range(3)])
-        self.continuum = {t: sp.csc_matrix(full[t][free][:, free]) for t in CONTINUUM_TERMS}
+        self.continuum = {
+            t: sp.csc_matrix(self.elasticity[t][free][:, free]) for t in CONTINUUM_TERMS
+        }
         self._continuum_dm = {t: to_casadi_sparse(m) for t, m in self.continuum.items()}
 
     # --------------------------------------------------------------- the terms

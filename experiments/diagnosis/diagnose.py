@@ -68,6 +68,7 @@ def run(
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
+    base = base or base_settings(grid)
     for line in dataset_warnings(dataset):
         print(f"dvs diagnose: warning: {line}", file=sys.stderr)
     out = Path(out)
@@ -76,18 +77,15 @@ def run(
         f"{dataset.outer_rest.shape[1]} markers"
     )
     begin = time.perf_counter()
-    diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), grid, base)
+    diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), base=base)
     document = diagnosis.document()
     if check_refinement:
         from experiments.diagnosis.refinement import refinement_check, summary
 
-        level = diagnosis.level
-        document["refinement"] = refinement_check(
-            diagnosis, dataset, base or base_settings(grid), level
-        )
+        document["refinement"] = refinement_check(diagnosis, dataset, base)
         log("  " + summary(document["refinement"]))
     document["wall_time_s"] = time.perf_counter() - begin
-    document["design"] = design_note(dataset, (base or base_settings(grid)).energy)
+    document["design"] = design_note(dataset, base.energy)
     out.mkdir(parents=True, exist_ok=True)
     plot_residuals(diagnosis, out / "residuals.png")
     atomic_write_json(out / "diagnosis.json", document)
@@ -190,13 +188,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         most = len(EFFECT_NAMES)
         if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= most:
             raise UsageError(f"--level must lie in (0, 0.5] and --max-effects in 0-{most}")
-        base = base_settings(energy=args.energy)
-        if args.degrees is not None:
-            base = base_settings(energy=args.energy, degrees=parse_degrees(args.degrees))
+        degrees = None if args.degrees is None else parse_degrees(args.degrees)
         grid = None
         if args.grid != "auto":
-            grid = check_grid(parse_grid(args.grid), base.degrees, args.grid)
-        base = base_settings(grid, args.energy, base.degrees)
+            checked = degrees or base_settings().degrees
+            grid = check_grid(parse_grid(args.grid), checked, args.grid)
+        base = base_settings(grid, args.energy, degrees)
         check_output_dir(args.out)
         settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
         document = run(

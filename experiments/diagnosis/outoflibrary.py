@@ -36,6 +36,7 @@ import scipy.sparse.linalg as spla
 from experiments.dataset import Dataset, save_dataset
 from experiments.phantom.fe import require_skfem
 from experiments.phantom.simulate import SimulationSettings
+from symbolic.continuum import KPA, lame
 
 
 @dataclass(frozen=True)
@@ -163,9 +164,8 @@ def solve_slab(settings: SlabSettings) -> tuple[np.ndarray, list[np.ndarray], np
     @skfem.BilinearForm
     def elasticity(u, v, w):
         depth = settings.curvature_radius - np.linalg.norm(w.x - centre, axis=0)
-        young = np.where(depth < skin_depth, settings.skin_young, settings.young)
-        mu_l, lam = young / (2 * (1 + settings.poisson)), young * settings.poisson
-        lam = lam / ((1 + settings.poisson) * (1 - 2 * settings.poisson))
+        young = np.where(depth < skin_depth, settings.skin_young, settings.young)  # N/mm^2
+        mu_l, lam = lame(young / KPA, settings.poisson)
         return 2.0 * mu_l * ddot(sym_grad(u), sym_grad(v)) + lam * div(u) * div(v)
 
     matrix = elasticity.assemble(basis)

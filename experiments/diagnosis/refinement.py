@@ -38,7 +38,7 @@ def refined_grid(grid, degrees) -> tuple[tuple[int, int, int], tuple[int, int, i
     return (2 * (m - p) + p, 2 * (n - q) + q, layers + 1), (p, q, max(r, depth))
 
 
-def refinement_check(diagnosis, dataset, settings, level: float = 0.01) -> dict:
+def refinement_check(diagnosis, dataset, settings) -> dict:
     """Refit the final model on the refined volume; the record of diagnosis.json.
 
     Parameters
@@ -49,8 +49,8 @@ def refinement_check(diagnosis, dataset, settings, level: float = 0.01) -> dict:
         The data it ran on.
     settings : FitSettings
         The base model's settings (grid None follows the data).
-    level : float
-        The loop's significance level.
+
+    The chi^2 limit is the 1-dof quantile at the loop's level (``diagnosis.level``).
     """
     from experiments.fitting import build_problem, control_grid, dataset_loads
     from solvers.diagnosis.fit import fit
@@ -59,8 +59,12 @@ def refinement_check(diagnosis, dataset, settings, level: float = 0.01) -> dict:
 
     grid, degrees = control_grid(dataset.marker_shape, settings)
     fine_grid, fine_degrees = refined_grid(grid, degrees)
-    record = {"grid": list(grid), "refined_grid": list(fine_grid), "degrees": list(degrees)}
-    record["refined_degrees"] = list(fine_degrees)
+    record = {
+        "grid": list(grid),
+        "degrees": list(degrees),
+        "refined_grid": list(fine_grid),
+        "refined_degrees": list(fine_degrees),
+    }
     if settings.energy == "dnurbs":
         reason = "the paper's energy is defined on its grid (alpha depend on it)"
         return {**record, "verdict": "not checked", "reason": reason}
@@ -78,7 +82,7 @@ def refinement_check(diagnosis, dataset, settings, level: float = 0.01) -> dict:
     shared = len(problem.names)
     shifts = np.abs(refit.p[:shared] - final.fit.p[:shared]) / errors[:shared]
     drop = chi2 - fine_chi2
-    limit = float(stats.chi2.isf(level, 1))
+    limit = float(stats.chi2.isf(diagnosis.level, 1))
     moved = bool(np.any(shifts > 1.0))
     verdict = "discretisation" if abs(drop) > limit or moved else "converged"
     return {

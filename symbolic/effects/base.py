@@ -285,15 +285,28 @@ def _surface_frame(model: TissueModel, uv: np.ndarray) -> tuple[np.ndarray, ...]
     return du, dv, e1, e2, normal
 
 
-def surface_rule(model: TissueModel, w: float, points_per_span: int | None = None):
-    """Gauss points (u, v, w) on the surface w = const with physical area weights [mm^2]."""
+def face_rule(model: TissueModel, axis: int, value: float, points_per_span: int | None = None):
+    """Gauss points on the face where parameter ``axis`` equals ``value``.
+
+    Returns the points (n, 3), their physical area weights [mm^2] and the two
+    tangent derivatives of the volume along the face's parameters, in (u, v, w) order.
+    """
     from symbolic.basis import gauss_rule
 
-    basis = model.volume.basis
-    (u, wu), (v, wv) = (gauss_rule(b, points_per_span) for b in basis.bases[:2])
-    uu, vv = np.meshgrid(u, v, indexing="ij")
-    params = np.column_stack([uu.ravel(), vv.ravel(), np.full(uu.size, float(w))])
-    du = model.volume.evaluate(params, (1, 0, 0))
-    dv = model.volume.evaluate(params, (0, 1, 0))
-    area = np.linalg.norm(np.cross(du, dv), axis=1)
-    return params, np.outer(wu, wv).ravel() * area, du, dv
+    first, second = (a for a in range(3) if a != axis)
+    bases = model.volume.basis.bases
+    (s, ws), (t, wt) = (gauss_rule(bases[a], points_per_span) for a in (first, second))
+    ss, tt = np.meshgrid(s, t, indexing="ij")
+    params = np.empty((ss.size, 3))
+    params[:, axis], params[:, first], params[:, second] = value, ss.ravel(), tt.ravel()
+    d_first, d_second = (
+        model.volume.evaluate(params, tuple(int(a == b) for b in range(3))) for a in (first, second)
+    )
+    area = np.linalg.norm(np.cross(d_first, d_second), axis=1)
+    return params, np.outer(ws, wt).ravel() * area, d_first, d_second
+
+
+def surface_rule(model: TissueModel, w: float, points_per_span: int | None = None):
+    """Gauss points (u, v, w) on the surface w = const with physical area weights [mm^2],
+    and V_u, V_v there."""
+    return face_rule(model, 2, w, points_per_span)

@@ -21,9 +21,14 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from symbolic.continuum import elasticity_matrices
 from symbolic.continuum_model import CONTINUUM_TERMS
-from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient, surface_rule
+from symbolic.effects.base import (
+    CaseSymbols,
+    Effect,
+    face_rule,
+    linear_coefficient,
+    surface_rule,
+)
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -81,7 +86,7 @@ class BaseCompliance(Effect):
                 # the continuum's stacked terms (eq. C3): blocks act on vec(Delta)
                 n = model.volume.basis.size
                 inner, free = (np.concatenate([i + k * n for k in range(3)]) for i in (inner, free))
-                terms = elasticity_matrices(model.volume, model.extra_points)
+                terms = model.elasticity
             else:
                 terms = model.terms
             for term, matrix in terms.items():
@@ -124,24 +129,11 @@ class BaseCompliance(Effect):
 
 def lateral_rule(model: TissueModel) -> tuple[np.ndarray, np.ndarray]:
     """Gauss points on the four lateral faces (u or v = 0 or 1) with area weights [mm^2]."""
-    from symbolic.basis import gauss_rule
-
-    bases = model.volume.basis.bases
-    rules = [gauss_rule(b, b.degree + 2) for b in bases]
-    points, weights = [], []
-    for axis in (0, 1):
-        other = 1 - axis
-        (s, ws), (w, ww) = rules[other], rules[2]
-        ss, tt = np.meshgrid(s, w, indexing="ij")
-        for end in (0.0, 1.0):
-            params = np.zeros((ss.size, 3))
-            params[:, axis], params[:, other], params[:, 2] = end, ss.ravel(), tt.ravel()
-            along = model.volume.evaluate(params, (0, 1, 0) if axis == 0 else (1, 0, 0))
-            across = model.volume.evaluate(params, (0, 0, 1))
-            area = np.linalg.norm(np.cross(along, across), axis=1)
-            points.append(params)
-            weights.append(np.outer(ws, ww).ravel() * area)
-    return np.vstack(points), np.concatenate(weights)
+    points_per_span = max(model.volume.basis.degrees) + 2
+    faces = [
+        face_rule(model, axis, end, points_per_span)[:2] for axis in (0, 1) for end in (0.0, 1.0)
+    ]
+    return np.vstack([f[0] for f in faces]), np.concatenate([f[1] for f in faces])
 
 
 class SurroundingTissue(Effect):

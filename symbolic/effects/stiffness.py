@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from symbolic.basis import FIRST_DERIVATIVES
-from symbolic.continuum import PhysicalGradient, elasticity_matrices
+from symbolic.continuum import PhysicalGradient
 from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import (
     CaseSymbols,
@@ -79,8 +79,9 @@ class Heterogeneity(Effect):
 
         def build():
             out = {}
+            gradient = PhysicalGradient.of(model.volume, model.extra_points)
             for j, shape in enumerate(_bilinear_fields()):
-                matrices = elasticity_matrices(model.volume, model.extra_points, shape)
+                matrices = gradient.elasticity(shape)
                 blocks = [stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS]
                 out[j] = [to_casadi_sparse(block) for block in blocks]
             return out
@@ -278,9 +279,19 @@ class ShearCoupling(Effect):
     equation = "mu_L integral 2 eps:eps dV (physical volume, eq. C3)"
     energies = ("dnurbs",)
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
-        def build():
-            shear = elasticity_matrices(model.volume, model.extra_points)["shear"]
-            return to_casadi_sparse(stacked_free_block(model, shear))
+    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+        """K_mu on all control points, (3n, 3n) in stacked order [mm]."""
 
-        return theta[0] * apply_stacked(self.cached(model, "K_mu", build), symbols.delta)
+        def build():
+            gradient = PhysicalGradient.of(model.volume)
+            return gradient.gram(gradient.strain(), 2.0)
+
+        return self.cached(model, "K_mu", build)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        block = self.cached(
+            model,
+            "K_mu_free",
+            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
+        )
+        return theta[0] * apply_stacked(block, symbols.delta)
