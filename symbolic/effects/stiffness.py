@@ -149,7 +149,23 @@ class Bending(Effect):
         return theta[0] * ca.mtimes(self.cached(model, "K_beta", build), symbols.delta)
 
 
-class PreTension(Effect):
+class StackedStiffness(Effect):
+    """An effect theta_0 K on the free points, K (3n, 3n) stacked from ``matrix(model)``."""
+
+    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+        """K on all control points, (3n, 3n) in stacked order."""
+        raise NotImplementedError
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        block = self.cached(
+            model,
+            "free_block",
+            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
+        )
+        return theta[0] * apply_stacked(block, symbols.delta)
+
+
+class PreTension(StackedStiffness):
     """sigma0 [N/mm]: in-plane pre-stress of the skin, a geometric stiffness.
 
     An isotropic membrane pre-stress sigma0 adds 1/2 sigma0 integral_skin g^ab
@@ -208,16 +224,8 @@ class PreTension(Effect):
 
         return self.cached(model, "K_sigma", build)
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
-        block = self.cached(
-            model,
-            "K_sigma_free",
-            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
-        )
-        return theta[0] * apply_stacked(block, symbols.delta)
 
-
-class VolumetricCoupling(Effect):
+class VolumetricCoupling(StackedStiffness):
     """lambda [N/mm^2]: 1/2 lambda integral (div u)^2 dV over the physical volume.
 
     With G = [V_u V_v V_w] of the rest shape B0 at a quadrature point,
@@ -248,16 +256,8 @@ class VolumetricCoupling(Effect):
 
         return self.cached(model, "K_lambda", build)
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
-        block = self.cached(
-            model,
-            "K_lambda_free",
-            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
-        )
-        return theta[0] * apply_stacked(block, symbols.delta)
 
-
-class ShearCoupling(Effect):
+class ShearCoupling(StackedStiffness):
     """mu_L [N/mm^2]: mu_L integral 2 eps:eps dV, the shear energy of a continuum.
 
     eq. (18)'s alpha energy is a component-wise Laplacian in parameter space; a
@@ -287,11 +287,3 @@ class ShearCoupling(Effect):
             return gradient.gram(gradient.strain(), 2.0)
 
         return self.cached(model, "K_mu", build)
-
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
-        block = self.cached(
-            model,
-            "K_mu_free",
-            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
-        )
-        return theta[0] * apply_stacked(block, symbols.delta)
