@@ -39,6 +39,7 @@ RESEARCH = {
     "realskin-twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),
     "realskin-strain": ("experiments.realskin.strain", "model-free axial strain from the DIC"),
+    "realskin-continuum": ("experiments.realskin.continuum", "real skin: E and nu of the continua"),
     "realskin-data": ("experiments.realskin.data", "summary of the real skin measurements"),
     "realcheck": ("experiments.stereo.realcheck", "the stereo pipeline on real images"),
     "render": ("experiments.stereo.render", "synthetic images of the forehead experiment"),

@@ -20,6 +20,7 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
     foreign = {
         "dnurbs": {"E", "nu"},
         "linear-elastic": {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"},
+        "neo-hookean": {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"},
     }
     wrong = [n for n in names if n in foreign[energy]]
     if wrong:
@@ -46,12 +47,13 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
         "--energy",
         choices=tuple(ENERGIES),
         default="dnurbs",
-        help="base model: the paper's eq. 18, or isotropic linear elasticity (docs/continuum.md)",
+        help="base model: the paper's eq. 18, isotropic linear elasticity or neo-Hookean "
+        "(docs/continuum.md)",
     )
     parser.add_argument(
         "--params",
         default=None,
-        help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for linear-elastic)",
+        help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for the continua)",
     )
     parser.add_argument(
         "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"

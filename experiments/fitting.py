@@ -33,7 +33,11 @@ from symbolic.volume import VolumeSpline
 DEFAULT_NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")
 """The paper estimated mu and alpha; gamma is included to show it is not identifiable."""
 
-ENERGY_NAMES = {"dnurbs": DEFAULT_NAMES, "linear-elastic": ("E", "nu")}
+ENERGY_NAMES = {
+    "dnurbs": DEFAULT_NAMES,
+    "linear-elastic": ("E", "nu"),
+    "neo-hookean": ("E", "nu"),
+}
 """What ``dvs fit`` estimates by default for each ``--energy``."""
 
 
@@ -58,9 +62,10 @@ class FitSettings:
         Also fix the lateral ring of control points.
     fixed : dict
         Values of parameters that are not estimated.
-    energy : {"dnurbs", "linear-elastic"}
-        The base model: the paper's eq. (18), or isotropic linear elasticity
-        (``symbolic.continuum_model``, parameters E and nu).
+    energy : {"dnurbs", "linear-elastic", "neo-hookean"}
+        The base model: the paper's eq. (18), isotropic linear elasticity or the
+        compressible neo-Hookean energy (``symbolic.continuum_model``, parameters E
+        and nu).
     """
 
     names: tuple[str, ...] = DEFAULT_NAMES

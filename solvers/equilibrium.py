@@ -124,6 +124,23 @@ def casadi_to_scipy(matrix: ca.DM) -> sp.csc_matrix:
     return sp.csc_matrix((np.asarray(matrix.nonzeros()), indices, indptr), shape=matrix.shape)
 
 
+def kkt_jacobian(model: TissueModel, names: tuple[str, ...]):
+    """dg/ds(s, x, F_B, d) = [[K_T, C^T], [C, 0]] from the model's numeric tangent
+    (``TissueModel.tangent``), as scipy CSC; None when the model has none (use AD)."""
+    tangent = model.tangent(tuple(names))
+    if tangent is None:
+        return None
+    coupling = sp.kron(sp.identity(3), model._constraint_free).tocsc()
+
+    def jacobian(state, x, force, prescribed) -> sp.csc_matrix:
+        matrix = tangent(state, x)
+        if coupling.shape[0] == 0:
+            return matrix
+        return sp.bmat([[matrix, coupling.T], [coupling, None]], format="csc")
+
+    return jacobian
+
+
 class EquilibriumSolver:
     """Newton solver for one model and one choice of symbolic parameters.
 
@@ -157,17 +174,19 @@ class EquilibriumSolver:
             self._cache: tuple | None = None
             return
         g = model.state_residual(self.names) if residual is None else residual
-        s, x, force, prescribed = g.mx_in()
-        value = g(s, x, force, prescribed)
         self.residual = g
-        self.jacobian = ca.Function(
-            "dg_ds",
-            [s, x, force, prescribed],
-            [ca.jacobian(value, s)],
-            ["s", "x", "F_B", "d"],
-            ["dg_ds"],
-        )
-        self._jacobian = SparseEvaluator(self.jacobian)
+        self._jacobian = kkt_jacobian(model, self.names)
+        if self._jacobian is None:
+            s, x, force, prescribed = g.mx_in()
+            value = g(s, x, force, prescribed)
+            jacobian = ca.Function(
+                "dg_ds",
+                [s, x, force, prescribed],
+                [ca.jacobian(value, s)],
+                ["s", "x", "F_B", "d"],
+                ["dg_ds"],
+            )
+            self._jacobian = SparseEvaluator(jacobian)
         self.n_state = g.size1_in(0)
         self._cache = None
 
@@ -267,7 +286,10 @@ class EquilibriumSolver:
         x = args[0]
         if self.linear and self._cache is not None and np.array_equal(self._cache[0], x):
             return self._cache[1], self._cache[2]
-        jacobian = self._jacobian(state, *args)
+        try:
+            jacobian = self._jacobian(state, *args)
+        except ValueError as error:  # e.g. an inverted element of the neo-Hookean model
+            raise EquilibriumError(f"{error}; reduce the load or give a better start") from None
         factor = spla.splu(jacobian, **ORDERING)
         if self.linear:
             self._cache = (np.array(x), jacobian, factor)

@@ -1,4 +1,4 @@
-"""ContinuumModel: the volume spline with the linear-elastic energy as its base model.
+"""Continuum base models: the volume spline with the linear-elastic or neo-Hookean energy.
 
 The stiffness of ``TissueModel`` is eq. (18), sum_t c_t (I3 (x) K_t) on the free
 control points. Here it is the continuum of ``symbolic.continuum`` instead,
@@ -18,7 +18,8 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from symbolic.continuum import elasticity_matrices, lame
+from symbolic.continuum import PhysicalGradient, lame
+from symbolic.hyperelastic import NeoHookeanForce, NeoHookeanTangent
 from symbolic.model import TissueModel
 from symbolic.sparse import combined, to_casadi_sparse
 
@@ -41,8 +42,10 @@ class ContinuumModel(TissueModel):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.parameters["k0"] != 0.0:
-            raise ValueError("the linear-elastic model has no stiffening k0; leave k0 at 0")
-        self.elasticity = elasticity_matrices(self.volume, self.extra_points)
+            raise ValueError(f"the {self.energy} model has no stiffening k0; leave k0 at 0")
+        self.gradient = PhysicalGradient.of(self.volume, self.extra_points)
+        """The physical-gradient operators at the Gauss points (eq. C2)."""
+        self.elasticity = self.gradient.elasticity()
         """K_mu and K_lambda on every control point, stacked (3 n, 3 n) [mm]."""
         free = np.concatenate([self.free + k * self.volume.basis.size for k in range(3)])
         self.continuum = {
@@ -53,7 +56,7 @@ class ContinuumModel(TissueModel):
     # --------------------------------------------------------------- the terms
     def is_linear(self, names: tuple[str, ...] = ()) -> bool:
         if "k0" in names:
-            raise ValueError("the linear-elastic model has no k0 to estimate")
+            raise ValueError(f"the {self.energy} model has no k0 to estimate")
         return True
 
     def influential(self, names: tuple[str, ...]) -> np.ndarray:
@@ -96,8 +99,61 @@ class ContinuumModel(TissueModel):
         return combined([self.continuum[t] for t in terms], coefficients)
 
     def edges(self):
-        raise ValueError("the linear-elastic model has no spring edges (no k0 stiffening)")
+        raise ValueError(f"the {self.energy} model has no spring edges (no k0 stiffening)")
 
 
-ENERGIES = {"dnurbs": TissueModel, "linear-elastic": ContinuumModel}
+class NeoHookeanModel(ContinuumModel):
+    """The compressible neo-Hookean energy of eq. (C6) as the base model (large strain).
+
+    Same parameters as ``ContinuumModel`` (E [kPa], nu); the internal force is eq. (C8),
+    nonlinear in the displacement, so the solvers take their Newton and AD paths. At rest
+    its tangent is ``ContinuumModel``'s K(x); ``stiffness_matrix`` returns that tangent.
+    """
+
+    energy = "neo-hookean"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.force = NeoHookeanForce(
+            [p[:, self.free] for p in self.gradient.operators], self.gradient.volume
+        )
+        self._tangent: NeoHookeanTangent | None = None
+
+    @property
+    def is_linear_fixed(self) -> bool:
+        return False
+
+    def is_linear(self, names: tuple[str, ...] = ()) -> bool:
+        super().is_linear(names)  # refuses k0
+        return False
+
+    def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
+        """f(Delta) of eq. (C8) on the free points, (n_free, 3) [N]."""
+        mu_l, lam = self.coefficients(values)
+        return self.force(delta, mu_l, lam)
+
+    def tangent(self, names: tuple[str, ...] = ()):
+        """(vec(Delta_free), x) -> K_T of eq. (C9) on the free points (numpy, CSC)."""
+        names = tuple(names)
+        if self._tangent is None:
+            gradient = self.gradient
+            values = self.volume.collocation(gradient.points)
+            self._tangent = NeoHookeanTangent(
+                values, gradient.operators, gradient.volume, self.free
+            )
+
+        def tangent(delta_vec: np.ndarray, x: np.ndarray) -> sp.csc_matrix:
+            mu_l, lam = self.coefficients(self.values(dict(zip(names, np.ravel(x)))))
+            delta = np.zeros_like(self.rest)
+            delta[self.free] = np.asarray(delta_vec)[: 3 * self.n_free].reshape(3, -1).T
+            return self._tangent(delta, mu_l, lam)
+
+        return tangent
+
+
+ENERGIES = {
+    "dnurbs": TissueModel,
+    "linear-elastic": ContinuumModel,
+    "neo-hookean": NeoHookeanModel,
+}
 """Base models by the name ``dvs fit --energy`` takes."""

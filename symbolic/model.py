@@ -266,6 +266,11 @@ class TissueModel:
             force = force + coefficient * ca.mtimes(self.free_term(term, "dm"), delta)
         return force
 
+    def tangent(self, names: tuple[str, ...] = ()):
+        """(vec(Delta_free), x) -> d(elastic force)/dDelta as scipy CSC, when the model
+        assembles it faster than AD (``NeoHookeanModel``); None: the solvers use AD."""
+        return None
+
     def symbolic_values(self, names: tuple[str, ...]) -> tuple[ca.MX, dict]:
         """A symbol x for the named parameters and the full value dict with it inserted."""
         names = tuple(names)

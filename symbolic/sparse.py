@@ -55,3 +55,36 @@ def combined(blocks: list[sp.spmatrix], coefficients: ca.MX) -> ca.MX:
     rows, cols = pattern.shape
     sparsity = ca.Sparsity(rows, cols, pattern.indptr.tolist(), pattern.indices.tolist())
     return ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
+
+
+class SparseCallback(ca.Callback):
+    """A numeric sparse matrix function (v, x) -> A as a CasADi Function (a callback).
+
+    Lets an MX graph use a matrix assembled in numpy (the neo-Hookean tangent in the
+    effect library's Newton Jacobian). It has no derivatives of its own, so it may stand
+    only where a Jacobian is the output. ``evaluate(v, x)`` returns a CSC matrix with
+    the nonzero pattern of ``pattern``; v and x are dense columns of the given sizes.
+    """
+
+    def __init__(self, name: str, evaluate, sizes: tuple[int, int], pattern: sp.csc_matrix):
+        ca.Callback.__init__(self)
+        self._evaluate, self._sizes = evaluate, sizes
+        rows, cols = pattern.shape
+        self._pattern = ca.Sparsity(rows, cols, pattern.indptr.tolist(), pattern.indices.tolist())
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return 2
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self._sizes[i], 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return self._pattern
+
+    def eval(self, args):
+        matrix = self._evaluate(np.asarray(args[0]).ravel(), np.asarray(args[1]).ravel())
+        return [ca.DM(self._pattern, matrix.data)]

@@ -38,6 +38,7 @@ DIRECTORY_OUTPUT = {
     "realskin-checks": [],
     "realcheck": ["--data", "{tmp}"],
     "continuum-loop": [],
+    "realskin-continuum": [],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
 
@@ -52,7 +53,16 @@ FILE_OUTPUT = {
 NO_OUTPUT = {"realskin-data"}
 """Commands that only print."""
 
-EXPENSIVE = ("demo", "compare", "study", "detection", "realskin", "bench", "continuum-loop")
+EXPENSIVE = (
+    "demo",
+    "compare",
+    "study",
+    "detection",
+    "realskin",
+    "bench",
+    "continuum-loop",
+    "realskin-continuum",
+)
 
 
 def _unwritable(tmp: Path) -> Path:
@@ -148,6 +158,8 @@ OUT_OF_RANGE = [
     (["realskin-twin", "--ratios", "-1"], "--ratios"),
     (["realskin-checks", "--check", "nope"], "--check"),
     (["realskin-strain", "--frames", "x"], "--frames"),
+    (["realskin-continuum", "--cases", "nope", "--out", "o"], "--cases"),
+    (["realskin-continuum", "--thickness", "0", "--out", "o"], "--thickness"),
     (["realskin-data", "--case", "nope"], "--case"),
     (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
     (["render", "run", "--scale", "100"], "--scale"),

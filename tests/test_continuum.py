@@ -15,6 +15,7 @@ import casadi as ca
 import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
+from volumes import curved_volume
 
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.continuum import (
@@ -33,15 +34,6 @@ skfem = pytest.importorskip("skfem")
 def vec(displacement: np.ndarray) -> np.ndarray:
     """vec of an (n, 3) array, x components first (the stacked order)."""
     return displacement.T.ravel()
-
-
-def curved_volume() -> VolumeSpline:
-    """A 20 x 16 x 4 mm slab with a bulged top and wavy sides (a non-affine map)."""
-    box = box_volume((20.0, 16.0, 4.0), (6, 5, 3), (3, 3, 2))
-    p = box.control_points
-    bulge = 1.5 * np.sin(np.pi * p[:, 0] / 20) * np.sin(np.pi * p[:, 1] / 16) * p[:, 2] / 4
-    shifted = p + np.column_stack([0.8 * np.sin(p[:, 1] / 5), 0.3 * p[:, 0] / 20, bulge])
-    return VolumeSpline(box.basis, shifted)
 
 
 def stiffness(volume, mu=0.3, lam=1.1, extra=0):

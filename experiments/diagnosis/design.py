@@ -16,6 +16,7 @@ import numpy as np
 from experiments.dataset import Dataset
 from experiments.plausibility import outward_normals
 from experiments.validation import median_marker_spacing
+from symbolic.effects.library import effect_library
 
 HIDDEN_ANYWHERE = ("base_compliance",)
 """Effects not selected on any design tried (absorbed by alpha_w)."""
@@ -55,6 +56,8 @@ def design_note(dataset: Dataset, energy: str = "dnurbs") -> dict:
     one_contact = summary["contacts"] == 1 and summary["tilted_loads"] == 0
     if energy != "dnurbs":
         hidden = HIDDEN_FROM_THE_CONTINUUM_ON_ONE_CONTACT if one_contact else ()
+        offered = effect_library(energy=energy)
+        hidden = tuple(name for name in hidden if name in offered)
         line = (
             f"with every load at one contact along the normal, E and nu absorb "
             f"{', '.join(hidden)}; press at several contacts and tilt a load (docs/continuum.md)"

@@ -152,9 +152,10 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     )
     parser.add_argument(
         "--energy",
-        choices=("dnurbs", "linear-elastic"),
+        choices=("dnurbs", "linear-elastic", "neo-hookean"),
         default="dnurbs",
-        help="base model: dnurbs (eq. 18, default) or linear-elastic (docs/continuum.md)",
+        help="base model: dnurbs (eq. 18, default), linear-elastic or neo-hookean "
+        "(docs/continuum.md)",
     )
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
     parser.add_argument(

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from experiments.realskin.model import SkinSlabModel
-from solvers.equilibrium import EquilibriumError, SparseEvaluator
+from solvers.equilibrium import EquilibriumError, SparseEvaluator, kkt_jacobian
 from solvers.nested import least_squares_fit
 from solvers.problem import InverseProblem, LoadCase
 
@@ -113,6 +114,22 @@ class ForwardState:
     factor: object
 
 
+def general_derivatives(model, names: tuple[str, ...], g):
+    """(s, x, F_B, d) -> [dg/ds, dg/dx] of any ``TissueModel``: its numeric dg/ds where
+    it has one (``kkt_jacobian``), CasADi's Jacobians otherwise."""
+    s, x, force, prescribed = g.mx_in()
+    value = g(s, x, force, prescribed)
+    numeric = kkt_jacobian(model, names)
+    outputs = [ca.jacobian(value, x)] if numeric else [ca.jacobian(value, s), ca.jacobian(value, x)]
+    evaluator = SparseEvaluator(ca.Function("dg", [s, x, force, prescribed], outputs))
+
+    def derivatives(*args) -> list[sp.csc_matrix]:
+        results = evaluator.evaluate(*args)
+        return [numeric(*args), *results] if numeric else results
+
+    return derivatives
+
+
 class ForwardSolver:
     """Newton for g(s, x, F_B, d) = 0 with the model's closed-form Jacobian.
 
@@ -137,7 +154,10 @@ class ForwardSolver:
         self.names = tuple(names)
         self.g = model.state_residual(self.names)
         self.n_state = self.g.size1_in(0)
-        self.derivatives = SparseEvaluator(model.jacobian_function(self.names)).evaluate
+        if hasattr(model, "jacobian_function"):
+            self.derivatives = SparseEvaluator(model.jacobian_function(self.names)).evaluate
+        else:  # a base model of symbolic.continuum_model
+            self.derivatives = general_derivatives(model, self.names, self.g)
         self.linear = model.is_linear(self.names)
         self.factorizations = 0
         self._shared: tuple | None = None

@@ -155,7 +155,7 @@ class Effect:
     default_magnitude = 0.0
     magnitude_unit = ""
     equation = ""
-    energies: tuple[str, ...] = ("dnurbs", "linear-elastic")
+    energies: tuple[str, ...] = ("dnurbs", "linear-elastic", "neo-hookean")
 
     def __init__(self) -> None:
         self._cache: dict = {}

@@ -40,6 +40,7 @@ class BaseCompliance(Effect):
     E = 0.4 MPa over the frontal bone).
     """
 
+    energies = ("dnurbs", "linear-elastic")  # couples through the linear K
     name = "base_compliance"
     parameter_names = ("compliance",)
     units = ("mm^3/N",)

@@ -51,6 +51,7 @@ from symbolic.effects.stiffness import (
     VolumetricCoupling,
 )
 from symbolic.model import TissueModel
+from symbolic.sparse import SparseCallback
 
 EFFECT_CLASSES: tuple[type[Effect], ...] = (
     NonlinearStiffening,
@@ -237,7 +238,15 @@ class ExtendedModel:
         r = self._observation(case, symbols, thetas)
         g = base + rest
         if not self.model.is_linear(self.names):
-            return CaseFunctions(s, p, g, r)
+            tangent = self._base_tangent()
+            if tangent is None:
+                return CaseFunctions(s, p, g, r)
+            # a numeric tangent of the base energy (neo-Hookean), AD for the effects
+            x = ca.vertcat(*[symbols.values[n] for n in self.names])
+            stiffness = tangent(s[: 3 * n_free], x)
+            padding = n_state - stiffness.shape[0]
+            dg_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
+            return CaseFunctions(s, p, g, r, dg_ds)
         # a linear base model: its block of dg/ds is the closed-form K(x) (one sparse
         # product, ``stiffness_expression``), automatic differentiation does the effects
         x = ca.vertcat(*[symbols.values[n] for n in self.names])
@@ -254,6 +263,20 @@ class ExtendedModel:
             delta = ca.MX.sym("delta", self.model.n_free, 3)
             force = self.model.elastic_force(delta, values, self.names)
             self._functions[key] = ca.Function("elastic", [delta, x], [force])
+        return self._functions[key]
+
+    def _base_tangent(self) -> ca.Function | None:
+        """(vec(Delta_free), x) -> the base model's numeric tangent as a CasADi callback,
+        or None when the model has none (``TissueModel.tangent``; built once)."""
+        key = ("base_tangent", id(self.model), self.names)
+        if key not in self._functions:
+            tangent = self.model.tangent(self.names)
+            if tangent is not None:
+                n = 3 * self.model.n_free
+                pattern = tangent(np.zeros(n), [self.model.parameters[k] for k in self.names])
+                sizes = (n, len(self.names))
+                tangent = SparseCallback("base_tangent", tangent, sizes, pattern)
+            self._functions[key] = tangent
         return self._functions[key]
 
     def _base_stiffness(self) -> ca.Function:

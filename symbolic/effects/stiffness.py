@@ -61,6 +61,7 @@ class Heterogeneity(Effect):
     much across a forehead).
     """
 
+    energies = ("dnurbs", "linear-elastic")  # scales the linear K of eq. (C3)
     name = "heterogeneity"
     parameter_names = ("h_u", "h_v", "h_uv")
     units = ("1", "1", "1")
