@@ -61,6 +61,31 @@ def test_continuum_effect_derivatives_match_finite_differences(setting, name):
     check_derivatives(setting, name)
 
 
+NEO_HOOKEAN_EFFECTS = [n for n in EFFECT_NAMES if "neo-hookean" in make_effect(n).energies]
+
+
+@pytest.fixture(scope="module")
+def neo_hookean_setting(solution):
+    """The paper-design dataset of ``setting`` with the neo-Hookean base model."""
+    forces, contacts = design_cases("paper", SLAB)
+    dataset = reference_dataset(SLAB, forces, contacts, 4.0, solver=solution)
+    base = build_problem(dataset, base_settings(energy="neo-hookean"))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    return problem, fit(problem), effect_library(energy="neo-hookean")
+
+
+def test_the_neo_hookean_library_leaves_out_the_linear_stiffness_effects():
+    assert set(CONTINUUM_EFFECTS) - set(NEO_HOOKEAN_EFFECTS) == {"heterogeneity", "base_compliance"}
+
+
+@pytest.mark.parametrize("name", NEO_HOOKEAN_EFFECTS)
+def test_neo_hookean_effects_are_off_at_zero_and_have_exact_derivatives(neo_hookean_setting, name):
+    """The library's contract on a nonlinear base model whose Newton Jacobian is the
+    numeric tangent (a CasADi callback) and whose sensitivities are AD."""
+    check_theta_zero(neo_hookean_setting, name, solved_atol=1e-10)
+    check_derivatives(neo_hookean_setting, name)
+
+
 def test_shear_and_volumetric_coupling_complete_the_continuum():
     """The paper's model at alpha = 0 plus mu_L K_mu + lambda K_lambda is eq. (C3) exactly."""
     from symbolic.continuum import box_volume, lame
