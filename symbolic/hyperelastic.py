@@ -148,7 +148,6 @@ class NeoHookeanTangent:
         order = np.argsort(inverse.ravel(), kind="stable")
         self.n_elements, self.k = elements.shape
         self.points_per_element = n_q // self.n_elements
-        self._order = order
         self._support = support[order]
         rows, cols = np.repeat(np.arange(n_q), self.k), support.ravel()
         self._g = np.stack(

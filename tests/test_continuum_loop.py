@@ -32,13 +32,23 @@ def solution():
 
 
 @pytest.fixture(scope="module")
-def setting(solution):
-    """A paper-design scikit-fem dataset and its fitted linear-elastic base problem."""
+def paper_dataset(solution):
+    """A paper-design scikit-fem dataset."""
     forces, contacts = design_cases("paper", SLAB)
-    dataset = reference_dataset(SLAB, forces, contacts, 4.0, solver=solution)
-    base = build_problem(dataset, base_settings(energy="linear-elastic"))
+    return reference_dataset(SLAB, forces, contacts, 4.0, solver=solution)
+
+
+def fitted_setting(dataset, energy: str):
+    """The dataset's fitted base problem on ``energy`` and that energy's library."""
+    base = build_problem(dataset, base_settings(energy=energy))
     problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
-    return problem, fit(problem), effect_library(energy="linear-elastic")
+    return problem, fit(problem), effect_library(energy=energy)
+
+
+@pytest.fixture(scope="module")
+def setting(paper_dataset):
+    """The paper-design dataset and its fitted linear-elastic base problem."""
+    return fitted_setting(paper_dataset, "linear-elastic")
 
 
 def test_the_continuum_library_leaves_out_what_a_continuum_has():
@@ -65,13 +75,9 @@ NEO_HOOKEAN_EFFECTS = [n for n in EFFECT_NAMES if "neo-hookean" in make_effect(n
 
 
 @pytest.fixture(scope="module")
-def neo_hookean_setting(solution):
-    """The paper-design dataset of ``setting`` with the neo-Hookean base model."""
-    forces, contacts = design_cases("paper", SLAB)
-    dataset = reference_dataset(SLAB, forces, contacts, 4.0, solver=solution)
-    base = build_problem(dataset, base_settings(energy="neo-hookean"))
-    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
-    return problem, fit(problem), effect_library(energy="neo-hookean")
+def neo_hookean_setting(paper_dataset):
+    """The paper-design dataset with the neo-Hookean base model."""
+    return fitted_setting(paper_dataset, "neo-hookean")
 
 
 def test_the_neo_hookean_library_leaves_out_the_linear_stiffness_effects():

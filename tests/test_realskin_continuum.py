@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from experiments.realskin.continuum import AUTHORS, fit_energy, paper_fit, summary
-from experiments.realskin.setup import RealSkinSettings
+from experiments.realskin.continuum import fit_energy, paper_fit, summary
+from experiments.realskin.setup import RealSkinSettings, build
+from experiments.realskin.study import AUTHORS
 
 SETTINGS = RealSkinSettings(boundary="lateral")
 
@@ -20,8 +21,9 @@ def test_keloid_linear_continuum_beats_the_paper_energy_and_meets_the_authors(sh
     """Measured: displacement RMS 0.520 -> 0.354 mm; E t 0.107 N/mm in the authors'
     0.07-0.14; nu at its bound 0.49 (the linear membrane cannot stiffen, so it stiffens
     laterally instead: the neo-Hookean fit gives 0.41, test below)."""
-    paper = paper_fit("keloid", SETTINGS, log=lambda *a: None)
-    continuum = fit_energy("keloid", "linear-elastic", SETTINGS, log=lambda *a: None)
+    setup = build("keloid", SETTINGS)
+    paper = paper_fit(setup, SETTINGS.bounds, log=lambda *a: None)
+    continuum = fit_energy(setup, "linear-elastic", SETTINGS.thickness_mm, log=lambda *a: None)
     assert continuum.rms_displacement_mm < 0.8 * paper.rms_displacement_mm
     row = summary("keloid", continuum, SETTINGS.thickness_mm)
     low, high = AUTHORS["keloid"]["E"]
@@ -34,7 +36,8 @@ def test_neo_hookean_poisson_ratio_matches_the_authors(shared_data, case):
     """nu of the neo-Hookean membrane lies in the authors' range for both cases
     (measured 0.163 and 0.414); E t does for the keloid (0.124 N/mm) and is ~3x below
     it for healthy skin (0.010 against 0.027-0.031 N/mm; docs/realskin.md)."""
-    fit = fit_energy(case, "neo-hookean", SETTINGS, log=lambda *a: None)
+    setup = build(case, SETTINGS)
+    fit = fit_energy(setup, "neo-hookean", SETTINGS.thickness_mm, log=lambda *a: None)
     assert fit.success
     row = summary(case, fit, SETTINGS.thickness_mm)
     low, high = AUTHORS[case]["nu"]

@@ -22,17 +22,12 @@ from pathlib import Path
 from experiments.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cases import load_cases
 from experiments.realskin.model import SkinParameterSpace
-from experiments.realskin.setup import RealSkinSettings, build
+from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.stages import StageFit, fit_stage
+from experiments.realskin.study import AUTHORS
 from symbolic.continuum import KPA
 from symbolic.continuum_model import ENERGIES
 from symbolic.model import BoundaryConditions
-
-AUTHORS = {
-    "healthy": {"E": (0.027, 0.031), "nu": (0.14, 0.22)},
-    "keloid": {"E": (0.07, 0.14), "nu": (0.35, 0.42)},
-}
-"""The original authors' 2D neo-Hookean fits (README of the data; units probably N/mm)."""
 
 CONTINUUM_ENERGIES = ("linear-elastic", "neo-hookean")
 BOUNDS = {"E": (0.1, 1e4), "nu": (0.0, 0.49)}
@@ -45,13 +40,12 @@ def start_values(name: str, thickness_mm: float) -> dict[str, float]:
     return {"E": 0.5 * (e_low + e_high) / thickness_mm / KPA, "nu": 0.5 * (nu_low + nu_high)}
 
 
-def fit_energy(name: str, energy: str, settings: RealSkinSettings, log=print) -> StageFit:
+def fit_energy(setup: Setup, energy: str, thickness_mm: float, log=print) -> StageFit:
     """E and nu of one case with one continuum energy, on the study's slab and frames."""
-    setup = build(name, settings)
-    volume = setup.model.volume
-    start = start_values(name, settings.thickness_mm)
+    name = setup.case.name
+    start = start_values(name, thickness_mm)
     model = ENERGIES[energy](
-        volume,
+        setup.model.volume,
         dict(start),
         BoundaryConditions(fix_inner=False, fix_lateral=True),
         prescribed=setup.pads.prescribed,
@@ -61,11 +55,10 @@ def fit_energy(name: str, energy: str, settings: RealSkinSettings, log=print) ->
     return fit_stage(model, cases, space, f"{name}, {energy}", log)
 
 
-def paper_fit(name: str, settings: RealSkinSettings, log=print) -> StageFit:
+def paper_fit(setup: Setup, bounds: dict, log=print) -> StageFit:
     """The paper's linear energy (alpha_u, isotropic in the plane) on the same membrane."""
-    setup = build(name, settings)
-    space = SkinParameterSpace.build(setup.base_names, setup.start, settings.bounds)
-    return fit_stage(setup.model, setup.cases, space, f"{name}, dnurbs (eq. 18)", log)
+    space = SkinParameterSpace.build(setup.base_names, setup.start, bounds)
+    return fit_stage(setup.model, setup.cases, space, f"{setup.case.name}, dnurbs (eq. 18)", log)
 
 
 def summary(name: str, fit: StageFit, thickness_mm: float) -> dict:
@@ -118,9 +111,10 @@ def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=p
     rows = []
     for name in cases:
         log(f"{name}: fitting the paper's energy and the continua")
-        rows.append(summary(name, paper_fit(name, settings, log), thickness_mm))
+        setup = build(name, settings)
+        rows.append(summary(name, paper_fit(setup, settings.bounds, log), thickness_mm))
         for energy in CONTINUUM_ENERGIES:
-            rows.append(summary(name, fit_energy(name, energy, settings, log), thickness_mm))
+            rows.append(summary(name, fit_energy(setup, energy, thickness_mm, log), thickness_mm))
     document = {"thickness_mm": thickness_mm, "boundary": "lateral", "fits": rows}
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "continuum.json", document)

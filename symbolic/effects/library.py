@@ -237,20 +237,16 @@ class ExtendedModel:
         base, rest = self._equilibrium(case, symbols, thetas)
         r = self._observation(case, symbols, thetas)
         g = base + rest
-        if not self.model.is_linear(self.names):
+        # the base model's block of dg/ds in closed form (a linear model's K(x), one
+        # sparse product) or numerically (the neo-Hookean tangent); AD does the effects
+        x = ca.vertcat(*[symbols.values[n] for n in self.names])
+        if self.model.is_linear(self.names):
+            stiffness = self._base_stiffness()(x)
+        else:
             tangent = self._base_tangent()
             if tangent is None:
                 return CaseFunctions(s, p, g, r)
-            # a numeric tangent of the base energy (neo-Hookean), AD for the effects
-            x = ca.vertcat(*[symbols.values[n] for n in self.names])
             stiffness = tangent(s[: 3 * n_free], x)
-            padding = n_state - stiffness.shape[0]
-            dg_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
-            return CaseFunctions(s, p, g, r, dg_ds)
-        # a linear base model: its block of dg/ds is the closed-form K(x) (one sparse
-        # product, ``stiffness_expression``), automatic differentiation does the effects
-        x = ca.vertcat(*[symbols.values[n] for n in self.names])
-        stiffness = self._base_stiffness()(x)
         padding = n_state - stiffness.shape[0]
         dg_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
         return CaseFunctions(s, p, g, r, dg_ds)
