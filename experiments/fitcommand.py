@@ -5,8 +5,8 @@ from __future__ import annotations
 from experiments.fitting import (
     ENERGY_NAMES,
     FitSettings,
-    control_grid,
     fit_dataset,
+    model_grid,
     write_fit_outputs,
 )
 from experiments.plausibility import dataset_warnings
@@ -33,7 +33,7 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
 def build_parser(prog: str = "python -m experiments.fitcommand"):
     """The options of ``dvs fit`` (docs/cli.md)."""
 
-    from experiments.options import make_parser, path_argument
+    from experiments.options import add_margin_argument, make_parser, path_argument
 
     parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
     parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
@@ -61,6 +61,7 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
     parser.add_argument(
         "--degrees", default="3x3x1", help="degrees PxQxR along u, v and through the thickness"
     )
+    add_margin_argument(parser)
     parser.add_argument(
         "--objective",
         choices=("markers", "control_points"),
@@ -81,7 +82,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
     from experiments.dataset import load_dataset
     from experiments.options import (
         EXIT_NOT_CONVERGED,
+        UsageError,
         check_grid,
+        check_margin,
         check_output_dir,
         parse_degrees,
         parse_grid,
@@ -99,6 +102,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
     def work() -> int:
         objective = "control_points" if args.method == "paper" else "markers"
         degrees = parse_degrees(args.degrees)
+        if check_margin(args.margin) > 0 and (args.objective or objective) != "markers":
+            raise UsageError("--margin needs --objective markers (control points follow the grid)")
         names = parse_names(args.params or ",".join(ENERGY_NAMES[args.energy]))
         check_energy_names(args.energy, names)
         settings = FitSettings(
@@ -109,6 +114,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
             degrees=degrees,
             objective=args.objective or objective,
             energy=args.energy,
+            margin=check_margin(args.margin),
         )
         check_output_dir(args.out)
         dataset = load_dataset(args.dataset)
@@ -116,7 +122,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
         warn(early)
         cases = plural(dataset.n_loads, "load case")
         print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
-        grid, degrees = control_grid(dataset.marker_shape, settings)
+        grid, degrees = model_grid(dataset, settings)
         print(
             f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
             f"{dataset.marker_shape[0]} x {dataset.marker_shape[1]} markers"

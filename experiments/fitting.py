@@ -14,6 +14,7 @@ import numpy as np
 
 from experiments.dataset import Dataset
 from experiments.plausibility import dataset_warnings
+from experiments.surroundings import extend_grid, margin_rows
 from solvers.identifiability import IdentifiabilityReport, analyse
 from solvers.nested import NestedSolver
 from solvers.problem import (
@@ -66,6 +67,10 @@ class FitSettings:
         The base model: the paper's eq. (18), isotropic linear elasticity or the
         compressible neo-Hookean energy (``symbolic.continuum_model``, parameters E
         and nu).
+    margin : float
+        Width [mm] of the band of tissue beyond the markers that the volume also
+        covers (``experiments.surroundings``); 0, the default, ends the volume at the
+        markers as the paper did. Only with ``objective="markers"``.
     """
 
     names: tuple[str, ...] = DEFAULT_NAMES
@@ -75,10 +80,15 @@ class FitSettings:
     fix_lateral: bool = False
     fixed: dict | None = None
     energy: str = "dnurbs"
+    margin: float = 0.0
 
     def __post_init__(self) -> None:
         if self.objective not in ("markers", "control_points"):
             raise ValueError("objective must be 'markers' or 'control_points'")
+        if not (np.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(f"margin must be a length >= 0 mm, got {self.margin!r}")
+        if self.margin > 0 and self.objective != "markers":
+            raise ValueError("a margin needs objective 'markers' (control points follow the grid)")
         if self.energy not in ENERGIES:
             raise ValueError(f"energy must be one of {sorted(ENERGIES)}, got {self.energy!r}")
 
@@ -87,35 +97,52 @@ DEFAULT_GRID = (9, 9, 2)
 """The paper's control grid, used where the markers allow it."""
 
 
-def control_grid(markers: tuple[int, int], settings: FitSettings) -> tuple[tuple, tuple]:
+def control_grid(
+    markers: tuple[int, int], settings: FitSettings, rows: int = 0
+) -> tuple[tuple, tuple]:
     """The control grid and degrees of a fit to a U x V marker grid.
 
     Without ``settings.grid`` the grid follows the data: min(9, U) x min(9, V) x 2 (a
-    tensor-product fit of U values needs at most U control points). A given grid
-    may be finer than the markers: the geometry is then fitted on the markers' grid
-    and refined (``rest_geometry``). Each degree is at most the grid's points minus
-    one along its direction.
+    tensor-product fit of U values needs at most U control points), plus the ``rows``
+    added on each side by a margin (``model_grid``). A given grid may be finer than
+    the markers: the geometry is then fitted on the markers' grid and refined
+    (``rest_geometry``). Each degree is at most the grid's points minus one along its
+    direction.
     """
     (u_count, v_count), chosen = markers, settings.grid
     if chosen is None:
-        chosen = (min(DEFAULT_GRID[0], u_count), min(DEFAULT_GRID[1], v_count), DEFAULT_GRID[2])
+        extra = 2 * int(rows)
+        chosen = (
+            min(DEFAULT_GRID[0], u_count) + extra,
+            min(DEFAULT_GRID[1], v_count) + extra,
+            DEFAULT_GRID[2],
+        )
     degrees = tuple(min(d, g - 1) for d, g in zip(settings.degrees, chosen))
     return tuple(chosen), degrees
+
+
+def model_grid(dataset: Dataset, settings: FitSettings) -> tuple[tuple, tuple]:
+    """The control grid and degrees of the volume ``rest_geometry`` builds."""
+    rows = margin_rows(dataset.outer_rest, settings.margin)
+    return control_grid(dataset.marker_shape, settings, rows)
 
 
 def rest_geometry(dataset: Dataset, settings: FitSettings) -> tuple[VolumeSpline, np.ndarray]:
     """Volume fitted to the rest markers and inner surface; markers' (u, v).
 
-    The rest surfaces are fitted on at most the markers' grid (linear through the
-    thickness); a finer or higher-degree grid is that geometry refined
-    (``VolumeSpline.refined``): the shape stays the measured one and only the
-    space of displacements grows.
+    The rest surfaces, extended by ``settings.margin`` (``extend_grid``), are fitted
+    on at most the markers' grid (linear through the thickness); a finer or
+    higher-degree grid is that geometry refined (``VolumeSpline.refined``): the shape
+    stays the measured one and only the space of displacements grows.
     """
-    chosen, degrees = control_grid(dataset.marker_shape, settings)
-    (u_count, v_count) = dataset.marker_shape
+    rows = margin_rows(dataset.outer_rest, settings.margin)
+    chosen, degrees = control_grid(dataset.marker_shape, settings, rows)
+    outer = extend_grid(dataset.outer_rest, settings.margin, rows)
+    inner = extend_grid(dataset.inner_rest, settings.margin, rows)
+    (u_count, v_count) = outer.shape[:2]
     fitted = (min(chosen[0], u_count), min(chosen[1], v_count), 2)
     fitted_degrees = tuple(min(d, g - 1) for d, g in zip(degrees[:2], fitted)) + (1,)
-    grid = np.stack([dataset.inner_rest, dataset.outer_rest], axis=2)
+    grid = np.stack([inner, outer], axis=2)
     volume, _ = VolumeSpline.fit(grid, fitted, fitted_degrees)
     if tuple(chosen) != fitted or tuple(degrees) != fitted_degrees:
         volume, _ = volume.refined(chosen, degrees)
@@ -281,6 +308,7 @@ def result_document(
                 "fix_lateral": problem.model.boundary.fix_lateral,
             },
             "objective": settings.objective,
+            "margin_mm": settings.margin,
             "fixed_parameters": {
                 k: v for k, v in problem.model.parameters.items() if k not in problem.names
             },

@@ -178,6 +178,30 @@ def check_noise(noise: float, option: str = "--noise") -> float:
     return noise
 
 
+MAX_MARGIN_MM = 100.0
+"""Widest band of tissue beyond the markers (``--margin``) [mm]."""
+
+
+def add_margin_argument(parser, default: float = 0.0) -> None:
+    """``--margin MM`` of ``dvs fit`` and ``dvs diagnose`` (``FitSettings.margin``)."""
+    parser.add_argument(
+        "--margin",
+        type=float,
+        default=default,
+        help="width [mm] of tissue beyond the markers the volume also covers (0: ends at the "
+        "markers; e.g. 10 for the continua, docs/continuum.md)",
+    )
+
+
+def check_margin(margin: float, option: str = "--margin") -> float:
+    """A margin of tissue beyond the markers [mm] in [0, 100]."""
+    if not 0 <= margin <= MAX_MARGIN_MM:
+        raise UsageError(
+            f"{option} must be a width in [0, {MAX_MARGIN_MM:g}] mm (e.g. 10), got {margin}"
+        )
+    return margin
+
+
 def _writable(directory, option: str, path) -> None:
     """Probe ``directory`` with a temporary file (``os.access`` says yes to root)."""
     import tempfile

@@ -16,6 +16,8 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from experiments.phantom.fe import Departure, ReferenceSlab, design_cases
 
 SCENARIOS = {
@@ -43,8 +45,9 @@ class ContinuumStudy:
     """What the study runs (lengths in mm)."""
 
     design: str = "diagnosis"
-    grid: tuple[int, int, int] = (15, 15, 3)
+    grid: tuple[int, int, int] = (27, 27, 4)
     degrees: tuple[int, int, int] = (3, 3, 2)
+    margin: float = 10.0
     radius: float = 4.0
     noise_mm: float = 0.02
     seed: int = 1
@@ -81,7 +84,7 @@ def run_scenario(name: str, study: ContinuumStudy, solvers=None, log=None) -> di
 
     dataset = scenario_dataset(name, study, solvers)
     begin = time.perf_counter()
-    base = base_settings(study.grid, "linear-elastic", study.degrees)
+    base = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
     document = diagnose_dataset(dataset, log=log, base=base).document()
     hidden = SCENARIOS[name][2]
     selected = list(document["selected"])
@@ -104,6 +107,87 @@ def run_scenario(name: str, study: ContinuumStudy, solvers=None, log=None) -> di
         },
         "wall_s": time.perf_counter() - begin,
     }
+
+
+MODEL_ERROR_CASES = (
+    (60.0, 0.0, (15, 15, 3)),
+    (60.0, 0.0, (27, 27, 3)),
+    (60.0, 0.0, (27, 27, 4)),
+    (60.0, 10.0, (19, 19, 4)),
+    (60.0, 10.0, (27, 27, 3)),
+    (60.0, 10.0, (27, 27, 4)),
+    (60.0, 10.0, (33, 33, 4)),
+    (60.0, 5.0, (27, 27, 4)),
+    (60.0, 15.0, (27, 27, 4)),
+    (80.0, 10.0, (27, 27, 4)),
+)
+"""(slab extent [mm], model margin [mm], grid) of ``model_error_rows``: the volume ending
+at the markers on any grid, then margins, grids, and a slab whose tissue goes on 20 mm
+beyond the markers while the model's margin stays 10 mm."""
+
+
+def model_error_rows(study: ContinuumStudy, cases=MODEL_ERROR_CASES, log=print) -> list[dict]:
+    """Noise-free base fits (no loop): the model error of the base model itself.
+
+    The slab's cells keep their size (2.5 mm) whatever its extent; the scenario is
+    ``none``; ``study`` gives the design, the degrees and the probe.
+    """
+    from experiments.fitting import build_problem, solve
+    from experiments.phantom.fe import reference_dataset
+    from experiments.phantom.simulate import SimulationSettings
+
+    from .diagnose import base_settings
+
+    clean = SimulationSettings(noise_mm=1e-6, seed=study.seed)
+    datasets, rows = {}, []
+    for extent, margin, grid in cases:
+        if extent not in datasets:
+            cells = int(round(study.slab.elements[0] * extent / study.slab.lengths[0]))
+            slab = replace(study.slab, lengths=(extent, extent, study.slab.lengths[2]))
+            slab = replace(slab, elements=(cells, cells, study.slab.elements[2]))
+            forces, contacts = design_cases(study.design, slab)
+            datasets[extent] = reference_dataset(
+                slab, forces, contacts, study.radius, (9, 9), clean, Departure()
+            )
+        begin = time.perf_counter()
+        problem = build_problem(
+            datasets[extent], base_settings(grid, "linear-elastic", study.degrees, margin)
+        )
+        result = solve(problem, "nested")
+        observed = sum(case.n_observations for case in problem.cases)
+        rows.append(
+            {
+                "slab_extent_mm": extent,
+                "tissue_beyond_markers_mm": (extent - study.slab.marked[0]) / 2,
+                "margin_mm": margin,
+                "grid": list(grid),
+                "model_error_um": 1e3 * float(np.sqrt(2 * result.cost / observed)),
+                **{k: float(v) for k, v in result.as_dict().items()},
+                "wall_s": time.perf_counter() - begin,
+            }
+        )
+        log(
+            f"extent {extent:g} mm, margin {margin:g} mm, grid {'x'.join(map(str, grid))}: "
+            f"model error {rows[-1]['model_error_um']:.1f} um, E {rows[-1]['E']:.2f} kPa, "
+            f"nu {rows[-1]['nu']:.4f}"
+        )
+    return rows
+
+
+def model_error_table(rows: list[dict]) -> str:
+    """The rows of ``model_error_rows`` as a Markdown table."""
+    lines = [
+        "| tissue beyond markers (mm) | margin (mm) | grid | model error (um, 3D RMS) "
+        "| E (kPa) | nu |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['tissue_beyond_markers_mm']:g} | {row['margin_mm']:g} | "
+            f"{'x'.join(map(str, row['grid']))} | {row['model_error_um']:.1f} | "
+            f"{row['E']:.2f} | {row['nu']:.4f} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def table(rows: list[dict]) -> str:
@@ -135,8 +219,16 @@ def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
     parser.add_argument(
         "--scenarios", default=",".join(SCENARIOS), help="comma list (default: all)"
     )
-    parser.add_argument("--grid", default="15x15x3", help="control grid MxNxL (15x15x3)")
+    parser.add_argument("--grid", default="27x27x4", help="control grid MxNxL (27x27x4)")
     parser.add_argument("--degrees", default="3x3x2", help="degrees PxQxR (3x3x2)")
+    parser.add_argument(
+        "--margin", type=float, default=10.0, help="tissue beyond the markers [mm] (10)"
+    )
+    parser.add_argument(
+        "--model-error",
+        action="store_true",
+        help="instead of the loop: noise-free base fits over margins and grids (model_error.md)",
+    )
     return parser
 
 
@@ -146,6 +238,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
     from experiments.options import (
         UsageError,
         check_grid,
+        check_margin,
         check_output_dir,
         parse_degrees,
         parse_grid,
@@ -162,9 +255,17 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
             raise UsageError(f"--scenarios: unknown {unknown}; choose from {', '.join(SCENARIOS)}")
         degrees = parse_degrees(args.degrees)
         grid = check_grid(parse_grid(args.grid), degrees, args.grid)
+        margin = check_margin(args.margin)
         check_output_dir(args.out)
         require_skfem()
-        study = ContinuumStudy(design=args.design, grid=grid, degrees=degrees)
+        study = ContinuumStudy(design=args.design, grid=grid, degrees=degrees, margin=margin)
+        if args.model_error:
+            rows = model_error_rows(study, log=lambda line: print(line, flush=True))
+            Path(args.out).mkdir(parents=True, exist_ok=True)
+            atomic_write_json(Path(args.out) / "model_error.json", rows)
+            atomic_write_text(Path(args.out) / "model_error.md", model_error_table(rows))
+            print(model_error_table(rows))
+            return 0
         rows, solvers = [], {}
         for name in names:
             print(f"{name}: scikit-fem data, {args.design} design; the loop", flush=True)

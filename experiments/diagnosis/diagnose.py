@@ -24,13 +24,13 @@ BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
 """The paper's base model's estimated parameters (static data cannot see mu and gamma)."""
 
 
-def base_settings(grid=None, energy: str = "dnurbs", degrees=None):
+def base_settings(grid=None, energy: str = "dnurbs", degrees=None, margin: float = 0.0):
     """The ``FitSettings`` of the loop's base model: the energy's default parameters."""
     from experiments.fitting import ENERGY_NAMES, FitSettings
 
     names = BASE_NAMES if energy == "dnurbs" else ENERGY_NAMES[energy]
     extra = {} if degrees is None else {"degrees": tuple(degrees)}
-    return FitSettings(names=names, grid=grid, energy=energy, **extra)
+    return FitSettings(names=names, grid=grid, energy=energy, margin=margin, **extra)
 
 
 def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=None):
@@ -139,7 +139,7 @@ def plot_residuals(diagnosis, path: Path) -> None:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     """The options of ``dvs diagnose``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.options import add_margin_argument, make_parser, path_argument
 
     parser = make_parser(prog, "Find what the base model is missing (writes diagnosis.json).")
     parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
@@ -157,6 +157,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
         help="base model: dnurbs (eq. 18, default), linear-elastic or neo-hookean "
         "(docs/continuum.md)",
     )
+    add_margin_argument(parser)
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
     parser.add_argument(
         "--max-effects", type=int, default=3, help=f"most effects added (0-{len(EFFECT_NAMES)})"
@@ -175,6 +176,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
     from experiments.options import (
         UsageError,
         check_grid,
+        check_margin,
         check_output_dir,
         not_converged,
         parse_degrees,
@@ -194,7 +196,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         if args.grid != "auto":
             checked = degrees or base_settings().degrees
             grid = check_grid(parse_grid(args.grid), checked, args.grid)
-        base = base_settings(grid, args.energy, degrees)
+        base = base_settings(grid, args.energy, degrees, check_margin(args.margin))
         check_output_dir(args.out)
         settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
         document = run(

@@ -52,12 +52,12 @@ def refinement_check(diagnosis, dataset, settings) -> dict:
 
     The chi^2 limit is the 1-dof quantile at the loop's level (``diagnosis.level``).
     """
-    from experiments.fitting import build_problem, control_grid, dataset_loads
+    from experiments.fitting import build_problem, dataset_loads, model_grid
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
     from symbolic.effects.library import make_effect
 
-    grid, degrees = control_grid(dataset.marker_shape, settings)
+    grid, degrees = model_grid(dataset, settings)
     fine_grid, fine_degrees = refined_grid(grid, degrees)
     record = {
         "grid": list(grid),
