@@ -27,6 +27,7 @@ slow: $(STAMP)
 
 bench: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
+	$(BIN)/python -m experiments.stereo.boardbench
 
 lint: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests

@@ -54,13 +54,28 @@ def stereo(cylinder):
 
 def test_every_chessboard_pair_is_detected(board):
     n_pairs, cal = board
-    assert n_pairs == 13
+    assert n_pairs == 13 and cal.used == list(range(13)) and not cal.skipped
     assert len(cal.left_corners) == len(cal.right_corners) == n_pairs
     cols = BOARD[0]
     for lc, rc in zip(cal.left_corners, cal.right_corners):
         assert lc.shape == rc.shape == (BOARD[0] * BOARD[1], 2)
         # Same corner order in both images: row directions agree.
         assert (lc[cols - 1] - lc[0]) @ (rc[cols - 1] - rc[0]) > 0
+
+
+def test_a_pair_without_a_board_is_skipped_and_named(shared_data):
+    """One unusable pair (a blank right image) costs that pair, not the calibration;
+    too few usable pairs fail with one line that says how many were found."""
+    left, right = read_image_list(shared_data / "opencv-stereo")
+    imgs_l = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in left[:5]]
+    imgs_r = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in right[:5]]
+    imgs_r[2] = np.full_like(imgs_r[2], 200)
+    cal = calibrate_stereo_images(imgs_l, imgs_r, BOARD)
+    assert cal.used == [0, 1, 3, 4] and cal.skipped == {2: "no board in the right image"}
+    assert len(cal.left_corners) == 4 and cal.left.rms < 0.5 and cal.right.rms < 0.5
+    with pytest.raises(ValueError, match="only 2 of 5 pairs") as error:
+        calibrate_stereo_images(imgs_l, [*imgs_r[:2], *[imgs_r[2]] * 3], BOARD)
+    assert "\n" not in str(error.value)
 
 
 def test_single_camera_rms_below_half_a_pixel(board):

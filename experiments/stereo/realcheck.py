@@ -82,6 +82,7 @@ def check_opencv_stereo(data_dir: Path) -> dict:
     return {
         "pairs": len(left),
         "pairs_detected": len(cal.left_corners),
+        "pairs_skipped": {str(k): why for k, why in cal.skipped.items()},
         "left_rms_px": cal.left.rms,
         "right_rms_px": cal.right.rms,
         "stereo_rms_px": cal.stereo.rms,

@@ -39,9 +39,6 @@ from solvers.equilibrium import EquilibriumSolver
 from .calibration import calibrate_camera, stereo_calibrate
 from .cameras import Camera
 from .chessboard import board_points, find_corners, match_board_order
-from .dots import to_gray
-
-_SUBPIX = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
 
 
 @dataclass(frozen=True)
@@ -311,31 +308,6 @@ class RigCalibration:
                 )
 
 
-def board_corners(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray:
-    """Chessboard inner corners (cols * rows, 2) [px], refined with a window sized to the squares.
-
-    The classic ``cv2.findChessboardCorners`` is tried first (it is fast); if it fails,
-    :func:`.chessboard.find_corners` (``findChessboardCornersSB``). ``cornerSubPix`` then
-    refines with a half-window of a quarter of the smallest corner spacing (3 to 15 px).
-
-    Raises
-    ------
-    ValueError
-        If no complete board is found.
-    """
-    gray = to_gray(image)
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-    ok, corners = cv2.findChessboardCorners(gray, pattern, flags=flags)
-    corners = corners.reshape(-1, 2) if ok else find_corners(gray, pattern, 3)
-    grid = corners.reshape(pattern[1], pattern[0], 2)
-    step = min(np.linalg.norm(np.diff(grid, axis=a), axis=-1).min() for a in (0, 1))
-    half = int(np.clip(0.25 * step, 3, 15))
-    refined = cv2.cornerSubPix(
-        gray, corners.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), _SUBPIX
-    )
-    return refined.reshape(-1, 2).astype(np.float64)
-
-
 def calibrate_rig(
     board_images: Sequence[Sequence[np.ndarray]], target: BoardTarget, flags: int = cv2.CALIB_FIX_K3
 ) -> RigCalibration:
@@ -369,7 +341,7 @@ def calibrate_rig(
         found = []
         for j, image in enumerate(views):
             try:
-                found.append(board_corners(image, target.pattern))
+                found.append(find_corners(image, target.pattern))
             except ValueError as err:
                 raise ValueError(f"camera {c}, board view {j}: {err}") from None
         corners.append(found)
