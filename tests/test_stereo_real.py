@@ -178,6 +178,7 @@ def test_triangulated_dots_match_p3d(stereo):
 
 
 def test_holdout_triangulation(cylinder):
+    """Interleaved halves: every held-out dot has calibrated neighbours (near in-sample)."""
     grid, views = cylinder
     hold = md.holdout_check((views["201"], views["202"]), grid)
     print(
@@ -187,6 +188,46 @@ def test_holdout_triangulation(cylinder):
     )
     assert hold["n"] >= 150
     assert hold["rms"] <= 0.1
+
+
+@pytest.fixture(scope="module")
+def reports(cylinder):
+    grid, views = cylinder
+    return {name: md.calibration_report(view, grid) for name, view in views.items()}
+
+
+@pytest.mark.parametrize("name", ["201", "202"])
+def test_principal_point_error_matches_its_spatial_spread(reports, name):
+    """The reported (block jackknife) standard error of the principal point agrees with
+    half the difference between the estimates from the two ends of the cylinder (its
+    expected size for a consistent error); the covariance's is several times too small,
+    the residuals being correlated in space."""
+    r = reports[name]
+    std, half = np.array(r["principal_point_std_px"]), np.array(r["principal_point_half_spread_px"])
+    cov = np.array(r["principal_point_cov_std_px"])
+    print(f"{name}: model {r['model']}, std {std.round(1)}, half spread {half.round(1)}, cov {cov}")
+    assert np.all(half < 3.0 * std) and np.all(std < 3.0 * np.maximum(half, 1.0))
+    assert np.max(std / cov) > 4.0
+    assert r["warning"] is None and std.max() <= 25.0
+    # the well-conditioned models: not the thin-prism model whose principal point moved
+    assert "prism" not in r["model"]
+
+
+def test_spatial_holdout_triangulation(cylinder, reports):
+    """Calibrated without one of 12 blocks of dots at a time, triangulated there."""
+    from experiments.stereo.calibration import DISTORTION_MODELS
+
+    grid, views = cylinder
+    pair = (views["201"], views["202"])
+    flags = tuple(DISTORTION_MODELS[reports[n]["model"]] for n in ("201", "202"))
+    spatial = md.spatial_holdout_check(pair, grid, flags)
+    in_sample = md.stereo_check(pair, (pair[0].camera, pair[1].camera), grid).rms
+    print(
+        f"3D RMS: in-sample {in_sample:.4f} mm, spatial blocks {spatial['blocks_rms']:.4f} "
+        f"mm, one end from the other {spatial['ends_rms']:.4f} mm"
+    )
+    assert spatial["n"] >= 150 and spatial["blocks_rms"] <= 0.1
+    assert in_sample < spatial["blocks_rms"] < spatial["ends_rms"]
 
 
 def test_triangulation_covariance_matches_errors(stereo):

@@ -292,3 +292,51 @@ def test_board_corners_found_on_a_scaled_copy_are_refined_to_the_truth():
         found = found[::-1]
     error = np.linalg.norm(found - truth, axis=1)
     assert np.sqrt(np.mean(error**2)) < 0.05 and error.max() < 0.1
+
+
+def _object_view(dist, noise_px=0.3, seed=0):
+    """The MultiDIC cylinder seen by a 2464 x 3280 camera with lens ``dist``, noisy pixels."""
+    from experiments.stereo.cameras import Camera
+
+    th = np.radians(12.06) * np.arange(14) - np.radians(78.0)
+    z = 10.0 + 12.0 * np.arange(20)
+    grid = np.stack(np.broadcast_arrays(57 * np.cos(th)[None], 57 * np.sin(th)[None],
+                                        z[:, None]), axis=-1).reshape(-1, 3)  # fmt: skip
+    R = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
+    t = -R @ np.array([450.0, 0.0, 124.0])
+    K = np.array([[3000.0, 0.0, 1240.0], [0.0, 3000.0, 1650.0], [0.0, 0.0, 1.0]])
+    camera = Camera(K, np.asarray(dist, float), R, t, (2464, 3280))
+    facing = grid[:, 0] > 15.0
+    pixels = camera.project(grid[facing])
+    pixels += np.random.default_rng(seed).normal(0.0, noise_px, pixels.shape)
+    return grid[facing], pixels, camera
+
+
+def test_the_spatial_hold_out_does_not_pick_terms_the_lens_lacks():
+    """Radial distortion only: the richer models fit the seen dots better but the
+    spatial hold-out keeps k1 k2; a decentred lens gets decentring terms (tangential or
+    thin prism, which to first order are the same distortion)."""
+    from experiments.stereo.calibration import select_distortion_model
+
+    X, x, camera = _object_view([-0.08, 0.05, 0.0, 0.0, 0.0])
+    name, table = select_distortion_model(X, x, camera.image_size)
+    assert name == "k1 k2"
+    assert min(r["in_sample_rms_px"] for r in table.values()) < table["k1 k2"]["in_sample_rms_px"]
+    X, x, camera = _object_view([-0.08, 0.05, 0.004, -0.003, 0.0])
+    name, table = select_distortion_model(X, x, camera.image_size)
+    assert "p1 p2" in name or "prism" in name
+    assert table[name]["holdout_rms_px"] < 0.7 * table["k1 k2"]["holdout_rms_px"]
+
+
+def test_the_block_jackknife_agrees_with_the_covariance_for_independent_noise():
+    """With independent pixel noise both standard errors of the principal point measure
+    the same thing: they agree within a factor of two, and the truth is within 3 of them."""
+    from experiments.stereo.calibration import calibrate_from_object, principal_point_spread
+
+    X, x, camera = _object_view([-0.08, 0.05, 0.0, 0.0, 0.0], noise_px=0.5)
+    cal = calibrate_from_object(X, x, camera.image_size)
+    spread = principal_point_spread(X, x, camera.image_size)
+    ratio = spread / cal.principal_point_std
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+    error = np.abs(cal.camera.K[:2, 2] - camera.K[:2, 2])
+    assert np.all(error < 3.0 * np.maximum(spread, cal.principal_point_std))

@@ -158,9 +158,12 @@ class ObjectCalibration:
     dlt_rms : float
         RMS reprojection error of the DLT fit [px].
     rms : float
-        RMS reprojection error after refinement [px].
+        RMS reprojection error after refinement [px] (in-sample).
     residuals : numpy.ndarray
         Observed minus reprojected pixels after refinement, (n, 2) [px].
+    principal_point_std : numpy.ndarray
+        Standard errors of (cx, cy) from the calibration's covariance [px]
+        (``cv2.calibrateCameraExtended``; assumes independent residuals).
     """
 
     camera: Camera
@@ -168,14 +171,31 @@ class ObjectCalibration:
     dlt_rms: float
     rms: float
     residuals: np.ndarray
+    principal_point_std: np.ndarray
 
 
-#: Distortion model used by default for the object calibration: radial k1, k2,
-#: tangential p1, p2 and thin-prism s1..s4; k3 held at zero. Chosen by the
-#: reprojection error of held-out dots on the MultiDIC views (docs/stereo.md):
-#: 0.61 px with k1, k2, p1, p2 alone, 0.40 px with the thin-prism terms, which
-#: model a slightly tilted or decentred lens (small board cameras).
-OBJECT_FLAGS = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3 | cv2.CALIB_THIN_PRISM_MODEL
+_G = cv2.CALIB_USE_INTRINSIC_GUESS
+_PRISM = cv2.CALIB_THIN_PRISM_MODEL
+DISTORTION_MODELS = {
+    "k1 k2": _G | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
+    "k1 k2 k3": _G | cv2.CALIB_ZERO_TANGENT_DIST,
+    "k1 k2 p1 p2": _G | cv2.CALIB_FIX_K3,
+    "k1 k2 k3 p1 p2": _G,
+    "k1 k2 + thin prism": _G | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST | _PRISM,
+    "k1 k2 p1 p2 + thin prism": _G | cv2.CALIB_FIX_K3 | _PRISM,
+}
+"""Candidate lens models of the object calibration, simplest first (OpenCV flags)."""
+
+#: Distortion model used by default for the object calibration: radial k1, k2. Chosen
+#: by the spatial hold-out (``select_distortion_model``) on both MultiDIC views; the
+#: richer models fit the dots they saw better (0.38-0.61 against 0.66 px) but trade
+#: their decentring terms against the principal point, which then moves by 50-130 px
+#: (docs/stereo.md).
+OBJECT_FLAGS = DISTORTION_MODELS["k1 k2"]
+
+PRINCIPAL_POINT_STD_BOUND_PX = 25.0
+"""Largest spatial standard error of the principal point accepted without a warning [px]
+(1 % of a 2464 px wide image)."""
 
 
 def calibrate_from_object(
@@ -193,8 +213,8 @@ def calibrate_from_object(
     image_size : tuple of int
         ``(width, height)`` [px].
     flags : int
-        Flags for ``cv2.calibrateCamera``; must include
-        ``CALIB_USE_INTRINSIC_GUESS``.
+        Flags for ``cv2.calibrateCamera`` (a ``DISTORTION_MODELS`` entry);
+        ``CALIB_USE_INTRINSIC_GUESS`` is always added.
 
     Raises
     ------
@@ -210,7 +230,7 @@ def calibrate_from_object(
     cam0 = decompose_projection(dlt.P, image_size)
     K0 = cam0.K.copy()
     K0[0, 1] = 0.0  # OpenCV's model has no skew
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+    out = cv2.calibrateCameraExtended(
         [X.astype(np.float32).reshape(-1, 1, 3)],
         [x.astype(np.float32).reshape(-1, 1, 2)],
         tuple(image_size),
@@ -218,7 +238,98 @@ def calibrate_from_object(
         np.zeros(12 if flags & cv2.CALIB_THIN_PRISM_MODEL else 5),
         flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
     )
+    _, K, dist, rvecs, tvecs, std_intrinsics = out[:6]
     cam = Camera.from_rvec(K, dist.ravel(), rvecs[0], tvecs[0], tuple(image_size))
     residuals = x - cam.project(X)
     rms = float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
-    return ObjectCalibration(cam, cam0, dlt.rms, rms, residuals)
+    pp_std = np.asarray(std_intrinsics, float).ravel()[2:4]
+    return ObjectCalibration(cam, cam0, dlt.rms, rms, residuals, pp_std)
+
+
+def spatial_halves(points3d: np.ndarray) -> list[np.ndarray]:
+    """Test masks of a spatial hold-out: halves of the object along its two longest axes.
+
+    Four folds: the points on either side of the median along the first principal
+    axis of ``points3d`` (one end of a cylinder against the other), then along the
+    second (one side against the other). A fold's training set is its complement, so
+    a model is judged where it saw no dot nearby, which interleaved splits cannot do.
+    """
+    X = np.asarray(points3d, float)
+    centred = X - X.mean(axis=0)
+    axes = np.linalg.svd(centred, full_matrices=False)[2]
+    folds = []
+    for axis in axes[:2]:
+        coordinate = centred @ axis
+        low = coordinate < np.median(coordinate)
+        folds += [low, ~low]
+    return folds
+
+
+def spatial_blocks(points3d: np.ndarray, shape: tuple[int, int] = (4, 3)) -> np.ndarray:
+    """Block label (0 .. a b - 1) of every point: quantile bands along the two longest axes."""
+    X = np.asarray(points3d, float)
+    centred = X - X.mean(axis=0)
+    axes = np.linalg.svd(centred, full_matrices=False)[2]
+    label = np.zeros(X.shape[0], dtype=int)
+    for axis, count in zip(axes[:2], shape):
+        coordinate = centred @ axis
+        edges = np.quantile(coordinate, np.linspace(0, 1, count + 1)[1:-1])
+        label = label * count + np.digitize(coordinate, edges)
+    return label
+
+
+def select_distortion_model(
+    points3d: np.ndarray, pixels: np.ndarray, image_size: tuple[int, int], models=None
+) -> tuple[str, dict]:
+    """The lens model with the smallest spatial hold-out reprojection error.
+
+    Each model is fitted on the complement of each ``spatial_halves`` fold and judged
+    by the RMS reprojection error of the fold's points [px], pooled over the four
+    folds. A richer model must beat every simpler one by 2 % to be chosen.
+
+    Returns
+    -------
+    name : str
+        The chosen key of ``models`` (default ``DISTORTION_MODELS``).
+    table : dict
+        Model -> {"holdout_rms_px", "in_sample_rms_px"}.
+    """
+    models = DISTORTION_MODELS if models is None else models
+    X, x = np.asarray(points3d, float), np.asarray(pixels, float)
+    folds = spatial_halves(X)
+    table = {}
+    for name, flags in models.items():
+        squares = []
+        for test in folds:
+            camera = calibrate_from_object(X[~test], x[~test], image_size, flags).camera
+            squares.append(np.sum((x[test] - camera.project(X[test])) ** 2, axis=1))
+        table[name] = {
+            "holdout_rms_px": float(np.sqrt(np.mean(np.concatenate(squares)))),
+            "in_sample_rms_px": calibrate_from_object(X, x, image_size, flags).rms,
+        }
+    best = None
+    for name, row in table.items():
+        if best is None or row["holdout_rms_px"] < 0.98 * table[best]["holdout_rms_px"]:
+            best = name
+    return best, table
+
+
+def principal_point_spread(
+    points3d: np.ndarray, pixels: np.ndarray, image_size: tuple[int, int], flags: int = OBJECT_FLAGS
+) -> np.ndarray:
+    """Spatial standard error of (cx, cy) [px]: delete-one-block jackknife.
+
+    The calibration is repeated without each of the 12 ``spatial_blocks``;
+    ``sqrt((g - 1) / g sum (c_b - mean c)^2)``. Unlike the covariance it holds when
+    the residuals are correlated in space (on the MultiDIC cylinder it is 9x larger,
+    and agrees with the spread between the ``spatial_halves``).
+    """
+    X, x = np.asarray(points3d, float), np.asarray(pixels, float)
+    blocks = spatial_blocks(X)
+    centres = []
+    for b in np.unique(blocks):
+        keep = blocks != b
+        centres.append(calibrate_from_object(X[keep], x[keep], image_size, flags).camera.K[:2, 2])
+    centres = np.array(centres)
+    g = centres.shape[0]
+    return np.sqrt((g - 1) / g * np.sum((centres - centres.mean(axis=0)) ** 2, axis=0))

@@ -28,6 +28,7 @@ import numpy as np
 from experiments.paths import shared_data_dir
 
 from . import multidic as md
+from .calibration import DISTORTION_MODELS
 from .chessboard import StereoBoardCalibration, calibrate_stereo_images
 from .surface import fit_surface, grid_parameters, icp_to_surface
 from .triangulation import triangulate
@@ -140,8 +141,13 @@ def check_multidic(data_dir: Path) -> tuple[dict, dict]:
     names = ("201", "202")
     views = tuple(md.load_view(data_dir / f"{n}.jpg", grid) for n in names)
     out = {n: index_check(v, grid) for n, v in zip(names, views)}
+    reports = [md.calibration_report(v, grid) for v in views]
+    for name, report in zip(names, reports):
+        out[name]["calibration"] = report
     stereo = md.stereo_check(views, (views[0].camera, views[1].camera), grid)
     hold = md.holdout_check(views, grid)
+    flags = tuple(DISTORTION_MODELS[r["model"]] for r in reports)
+    spatial = md.spatial_holdout_check(views, grid, flags)
     ij = np.argwhere(stereo.mask)
     uv = grid_parameters(ij)
     surf = fit_surface(stereo.triangulation.points, uv, SURFACE_GRID)
@@ -154,7 +160,9 @@ def check_multidic(data_dir: Path) -> tuple[dict, dict]:
         "triangulation_rms_px": stereo.triangulation.rms,
         "sigma_px": stereo.triangulation.sigma,
         "mean_std_mm": stereo.triangulation.std.mean(axis=0).tolist(),
-        "holdout_rms_3d_mm": hold["rms"],
+        "spatial_holdout_blocks_rms_3d_mm": spatial["blocks_rms"],
+        "spatial_holdout_ends_rms_3d_mm": spatial["ends_rms"],
+        "interleaved_holdout_rms_3d_mm": hold["rms"],
         "holdout_fold_rms_mm": hold["fold_rms"],
         "holdout_n": hold["n"],
         "holdout_reproj_rms_px": hold["reproj_rms"],
@@ -297,14 +305,27 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.stere
                 f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
                 f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)"
             )
+        for name in ("201", "202"):
+            c = mdr[name]["calibration"]
+            print(
+                f"multidic {name}: lens model {c['model']} (spatial hold-out); principal point "
+                f"({c['principal_point_px'][0]:.0f}, {c['principal_point_px'][1]:.0f}) px, "
+                "spatial std ({:.1f}, {:.1f}) px [covariance ({:.1f}, {:.1f}), half the "
+                "ends' difference ({:.1f}, {:.1f})]".format(
+                    *c["principal_point_std_px"],
+                    *c["principal_point_cov_std_px"],
+                    *c["principal_point_half_spread_px"],
+                )
+            )
+            if c["warning"]:
+                print(f"warning: multidic {name}: {c['warning']}")
         s = mdr["stereo"]
         print(
-            f"multidic stereo: {s['n_dots']} dots, RMS 3D error {s['rms_3d_mm']:.4f} mm "
-            f"(max {s['max_3d_mm']:.3f} mm), calibrated and evaluated on the same dots"
-        )
-        print(
-            f"multidic hold-out: calibrate on one checkerboard half, triangulate the other: "
-            f"RMS 3D error {s['holdout_rms_3d_mm']:.4f} mm over {s['holdout_n']} dots"
+            f"multidic stereo, {s['n_dots']} dots: RMS 3D error {s['rms_3d_mm']:.4f} mm "
+            f"in-sample (max {s['max_3d_mm']:.3f} mm); spatial hold-out "
+            f"{s['spatial_holdout_blocks_rms_3d_mm']:.4f} mm (one of 12 blocks left out at a "
+            f"time), {s['spatial_holdout_ends_rms_3d_mm']:.4f} mm (one end from the other); "
+            f"interleaved halves {s['interleaved_holdout_rms_3d_mm']:.4f} mm"
         )
         print(
             f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
