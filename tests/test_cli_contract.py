@@ -169,6 +169,7 @@ OUT_OF_RANGE = [
     (["render", "run", "--scale", "100"], "--scale"),
     (["demo", "--out", ""], "--out"),
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
+    (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
 ]
 
 

@@ -206,6 +206,57 @@ def fit_alpha(dataset, cases=None) -> np.ndarray:
     return NestedSolver(problem).solve().x
 
 
+def test_given_intrinsics_are_kept_and_only_the_poses_estimated(experiment, tmp_path, capsys):
+    """``--intrinsics FILE``: the cameras' K and distortion from a separate calibration
+    (here the truth) are used as given; the markers are as accurate as with the rig's own."""
+    from experiments.stereo.intrinsics import load_intrinsics, save_intrinsics
+
+    path = tmp_path / "intrinsics.json"
+    save_intrinsics(path, experiment.cameras)
+    given = load_intrinsics(path)
+    rec = reconstruct(experiment.folder, intrinsics=given)
+    for camera, true in zip(rec.calibration.cameras, experiment.cameras):
+        np.testing.assert_array_equal(camera.K, true.K)
+        np.testing.assert_array_equal(camera.dist, true.dist)
+    assert max(rec.calibration.rms_px) < 0.1
+    assert max(rms(e) for e in marker_errors(experiment, rec.dataset)) < 0.02
+    out = tmp_path / "dataset.npz"
+    assert main([str(experiment.folder), "--out", str(out), "--intrinsics", str(path)]) == 0
+    assert "intrinsics given" in capsys.readouterr().out
+    save_intrinsics(path, experiment.cameras[:2])
+    assert main([str(experiment.folder), "--out", str(out), "--intrinsics", str(path)]) == 2
+    assert "intrinsics are for 2 cameras, the rig has 3" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("not json", "cannot read"),
+        ('{"schema": "other"}', "not an intrinsics file"),
+        ('{"schema": "dvs-intrinsics/1", "cameras": []}', "non-empty"),
+        ('{"schema": "dvs-intrinsics/1", "cameras": [{"K": 1}]}', "needs K"),
+        (
+            '{"schema": "dvs-intrinsics/1", "cameras": [{"K": [[1,0,0],[0,1,0],[0,0,1]], '
+            '"dist": [0, 0, 0], "image_size": [640, 480]}]}',
+            "dist needs",
+        ),
+        (
+            '{"schema": "dvs-intrinsics/1", "cameras": [{"K": [[-1,0,0],[0,1,0],[0,0,1]], '
+            '"dist": [0, 0, 0, 0, 0], "image_size": [640, 480]}]}',
+            "K must be",
+        ),
+    ],
+)
+def test_a_bad_intrinsics_file_is_refused_in_one_line(tmp_path, text, message):
+    from experiments.stereo.intrinsics import load_intrinsics
+
+    path = tmp_path / "intrinsics.json"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as error:
+        load_intrinsics(path)
+    assert "\n" not in str(error.value)
+
+
 def test_fit_recovers_alpha(reconstruction):
     """Both loads jointly: within 5 % (about two standard deviations of alpha_u here)."""
     x = fit_alpha(reconstruction.dataset)
@@ -340,3 +391,15 @@ def test_the_block_jackknife_agrees_with_the_covariance_for_independent_noise():
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
     error = np.abs(cal.camera.K[:2, 2] - camera.K[:2, 2])
     assert np.all(error < 3.0 * np.maximum(spread, cal.principal_point_std))
+
+
+def test_the_pose_from_the_object_with_given_intrinsics():
+    """Intrinsics from elsewhere, pose from the object: the true camera centre to 0.5 mm
+    at 450 mm, and the reprojection at the noise level."""
+    from experiments.stereo.calibration import pose_from_object
+
+    X, x, camera = _object_view([-0.08, 0.05, 0.0, 0.0, 0.0], noise_px=0.3)
+    given = Camera(camera.K, camera.dist, np.eye(3), np.zeros(3), camera.image_size)
+    cal = pose_from_object(X, x, given)
+    assert np.linalg.norm(cal.camera.center() - camera.center()) < 0.5
+    assert cal.rms < 0.5 and np.all(cal.principal_point_std == 0)

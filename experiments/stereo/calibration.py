@@ -246,6 +246,28 @@ def calibrate_from_object(
     return ObjectCalibration(cam, cam0, dlt.rms, rms, residuals, pp_std)
 
 
+def pose_from_object(
+    points3d: np.ndarray, pixels: np.ndarray, intrinsics: Camera
+) -> ObjectCalibration:
+    """Only the pose of a camera whose intrinsics come from elsewhere (``cv2.solvePnP``).
+
+    MultiDIC's workflow: K and distortion from checkerboards, the pose from the
+    object. The returned ``principal_point_std`` is zero (not estimated here) and
+    ``dlt_camera`` is the DLT fit, for comparison.
+    """
+    X = np.asarray(points3d, dtype=float)
+    x = np.asarray(pixels, dtype=float)
+    dlt = dlt_projection(X, x)
+    cam0 = decompose_projection(dlt.P, intrinsics.image_size)
+    ok, rvec, tvec = cv2.solvePnP(X, x, intrinsics.K, intrinsics.dist)
+    if not ok:
+        raise ValueError("the pose could not be found from these object points")
+    cam = Camera.from_rvec(intrinsics.K, intrinsics.dist, rvec, tvec, intrinsics.image_size)
+    residuals = x - cam.project(X)
+    rms = float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
+    return ObjectCalibration(cam, cam0, dlt.rms, rms, residuals, np.zeros(2))
+
+
 def spatial_halves(points3d: np.ndarray) -> list[np.ndarray]:
     """Test masks of a spatial hold-out: halves of the object along its two longest axes.
 

@@ -281,6 +281,7 @@ def reconstruct(
     calibration: RigCalibration | None = None,
     settings: ReconstructSettings | None = None,
     progress=None,
+    intrinsics=None,
 ) -> Reconstruction:
     """Reconstruct a dataset v1 from an experiment folder (see the module docstring).
 
@@ -294,6 +295,10 @@ def reconstruct(
         Thresholds.
     progress : callable, optional
         Receives one-line progress messages.
+    intrinsics : sequence of Camera, optional
+        Each camera's K and distortion from a separate calibration
+        (``experiments.stereo.intrinsics.load_intrinsics``); the board images then
+        give only the poses.
 
     Raises
     ------
@@ -305,9 +310,10 @@ def reconstruct(
     exp = read_experiment(folder)
     C, (U, V) = exp.n_cameras, exp.shape
     if calibration is None:
-        say(f"calibrating {C} cameras from {exp.n_boards} board views")
+        fixed = "" if intrinsics is None else " (intrinsics given: poses only)"
+        say(f"calibrating {C} cameras from {exp.n_boards} board views{fixed}")
         boards = [[exp.image(c, f"board{j}") for j in range(exp.n_boards)] for c in range(C)]
-        calibration = calibrate_rig(boards, exp.target)
+        calibration = calibrate_rig(boards, exp.target, intrinsics=intrinsics)
     cams = calibration.cameras
     if len(cams) != C:
         raise ValueError(f"the calibration has {len(cams)} cameras, the experiment {C}")
@@ -368,19 +374,33 @@ def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
     parser.add_argument(
         "--out", type=path_argument, required=True, help="dataset file to write (.npz)"
     )
+    parser.add_argument(
+        "--intrinsics",
+        type=path_argument,
+        default=None,
+        help="JSON of each camera's K and distortion from a separate calibration "
+        "(docs/formats.md); the board images then give only the poses",
+    )
     return parser
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.reconstruct"):
-    """``dvs reconstruct FOLDER --out FILE.npz``; exit 2 with one line on bad input."""
+    """``dvs reconstruct FOLDER --out FILE.npz [--intrinsics FILE]``; exit 2 on bad input."""
     from experiments.options import check_output_file, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
         check_output_file(args.out, ".npz")
+        intrinsics = None
+        if args.intrinsics is not None:
+            from .intrinsics import load_intrinsics
+
+            intrinsics = load_intrinsics(args.intrinsics)
         try:
-            rec = reconstruct(args.folder, progress=lambda m: print(m, flush=True))
+            rec = reconstruct(
+                args.folder, progress=lambda m: print(m, flush=True), intrinsics=intrinsics
+            )
         except cv2.error as error:
             raise ValueError(" ".join(str(error).split())) from None
         args.out.parent.mkdir(parents=True, exist_ok=True)

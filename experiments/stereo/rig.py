@@ -36,7 +36,7 @@ from experiments.phantom.forehead import (
 )
 from solvers.equilibrium import EquilibriumSolver
 
-from .calibration import calibrate_camera, stereo_calibrate
+from .calibration import CameraCalibration, calibrate_camera, stereo_calibrate
 from .cameras import Camera
 from .chessboard import board_points, find_corners, match_board_order
 
@@ -308,8 +308,38 @@ class RigCalibration:
                 )
 
 
+def posed_camera(camera: Camera, objects, corners, size, index: int = 0) -> CameraCalibration:
+    """Given intrinsics, the board pose of every view (``cv2.solvePnP``) and the RMS [px].
+
+    Raises
+    ------
+    ValueError
+        If the intrinsics are for another image size than the images.
+    """
+    if tuple(camera.image_size) != tuple(size):
+        raise ValueError(
+            f"the intrinsics of camera {index} are for {camera.image_size[0]}x"
+            f"{camera.image_size[1]} images, its board images are {size[0]}x{size[1]}"
+        )
+    rvecs, tvecs, per_view, squares = [], [], [], []
+    for X, x in zip(objects, corners):
+        ok, rvec, tvec = cv2.solvePnP(
+            np.asarray(X, np.float64), np.asarray(x, np.float64), camera.K, camera.dist
+        )
+        view = Camera.from_rvec(camera.K, camera.dist, rvec, tvec, camera.image_size)
+        error = np.sum((np.asarray(x) - view.project(np.asarray(X))) ** 2, axis=1)
+        rvecs.append(rvec), tvecs.append(tvec), squares.append(error)
+        per_view.append(float(np.sqrt(np.mean(error))))
+    rms = float(np.sqrt(np.mean(np.concatenate(squares))))
+    first = Camera.from_rvec(camera.K, camera.dist, rvecs[0], tvecs[0], camera.image_size)
+    return CameraCalibration(first, rms, np.array(per_view), rvecs, tvecs)
+
+
 def calibrate_rig(
-    board_images: Sequence[Sequence[np.ndarray]], target: BoardTarget, flags: int = cv2.CALIB_FIX_K3
+    board_images: Sequence[Sequence[np.ndarray]],
+    target: BoardTarget,
+    flags: int = cv2.CALIB_FIX_K3,
+    intrinsics: Sequence[Camera] | None = None,
 ) -> RigCalibration:
     """Calibrate every camera and its pose relative to camera 0 from chessboard images.
 
@@ -322,6 +352,10 @@ def calibrate_rig(
         The board (pattern and square size).
     flags : int
         ``cv2.calibrateCamera`` flags of the single-camera calibrations.
+    intrinsics : sequence of Camera, optional
+        One camera per entry of ``board_images`` whose K and distortion are kept
+        (a separate calibration, ``experiments.stereo.intrinsics``); then only the
+        board poses (``cv2.solvePnP``) and the cameras' poses are estimated.
 
     Raises
     ------
@@ -333,6 +367,8 @@ def calibrate_rig(
     n_views = len(board_images[0]) if n_cams else 0
     if n_cams < 2 or n_views < 3 or any(len(v) != n_views for v in board_images):
         raise ValueError("need >= 2 cameras, each with the same >= 3 board views")
+    if intrinsics is not None and len(intrinsics) != n_cams:
+        raise ValueError(f"the intrinsics are for {len(intrinsics)} cameras, the rig has {n_cams}")
     corners = []
     for c, views in enumerate(board_images):
         sizes = {np.shape(im)[:2] for im in views}
@@ -353,7 +389,10 @@ def calibrate_rig(
                 match_board_order(r, k, target.pattern) for r, k in zip(corners[0], corners[c])
             ]
         h, w = np.shape(views[0])[:2]
-        singles.append(calibrate_camera(obj, corners[c], (w, h), flags=flags))
+        if intrinsics is None:
+            singles.append(calibrate_camera(obj, corners[c], (w, h), flags=flags))
+        else:
+            singles.append(posed_camera(intrinsics[c], obj, corners[c], (w, h), c))
     first = singles[0].camera
     cameras, stereo_rms = [Camera(first.K, first.dist, image_size=first.image_size)], [0.0]
     for c in range(1, n_cams):
