@@ -27,7 +27,7 @@ slow: $(STAMP)
 
 bench: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
-	$(BIN)/python -m experiments.stereo.boardbench
+	$(BIN)/dvs boardbench
 
 lint: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests

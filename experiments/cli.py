@@ -42,6 +42,7 @@ RESEARCH = {
     "realskin-continuum": ("experiments.realskin.continuum", "real skin: E and nu of the continua"),
     "realskin-data": ("experiments.realskin.data", "summary of the real skin measurements"),
     "realcheck": ("experiments.stereo.realcheck", "the stereo pipeline on real images"),
+    "boardbench": ("experiments.stereo.boardbench", "checkerboard detection: time and accuracy"),
     "render": ("experiments.stereo.render", "synthetic images of the forehead experiment"),
 }
 """The research scripts (docs/cli.md, "Research scripts"): name -> (module, help)."""

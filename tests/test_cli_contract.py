@@ -50,7 +50,7 @@ FILE_OUTPUT = {
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
-NO_OUTPUT = {"realskin-data"}
+NO_OUTPUT = {"realskin-data", "boardbench"}
 """Commands that only print."""
 
 EXPENSIVE = (
@@ -167,6 +167,7 @@ OUT_OF_RANGE = [
     (["realskin-data", "--case", "nope"], "--case"),
     (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
     (["render", "run", "--scale", "100"], "--scale"),
+    (["boardbench", "--full-size-images", "0"], "--full-size-images"),
     (["demo", "--out", ""], "--out"),
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
