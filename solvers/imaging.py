@@ -1,0 +1,372 @@
+"""Stiffness imaging: the regularised field estimate, three ways, and its weight.
+
+The estimate minimises (docs/imaging.md)
+
+    J(c) = Phi_d(c) + beta R(c)                                                      (I8)
+
+over the N field coefficients (``solvers.fieldproblem``, ``solvers.regularization``).
+
+- ``gauss_newton(..., hessian="adjoint")``: nested, matrix-free. Each Gauss-Newton
+  step solves (J^T J + beta R'') p = -grad by conjugate gradients, each product
+  J^T J v costing one forward and one adjoint solve per case with the factorisation
+  of the current c; the N-column sensitivity is never formed.
+- ``gauss_newton(..., hessian="sensitivity")``: nested, implicit-function route: J
+  formed column by column (N solves per case), the step by a dense solve.
+- ``lbfgs``: nested, L-BFGS-B on J(c) with the adjoint gradient.
+- ``simultaneous``: the coefficients and every case's state are the variables of one
+  IPOPT NLP, the equilibria (eq. I3) its equality constraints.
+
+``discrepancy_weight`` chooses beta by Morozov's principle: the whitened chi^2 equals
+its expectation under the noise, n (the number of residuals).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.optimize as so
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from solvers.fieldproblem import FieldProblem
+from solvers.simultaneous import static_defaults
+from symbolic.continuum import KPA
+from symbolic.sparse import to_casadi_sparse
+
+
+@dataclass
+class FieldEstimate:
+    """One regularised estimate (eq. I8).
+
+    Attributes
+    ----------
+    coefficients : numpy.ndarray
+        c, (N,): s = log(E / E_ref) at the field's nodes (degree 1).
+    weight : float
+        beta [mm^2].
+    chi2 : float
+        |r|^2, the whitened misfit (expectation n_residuals under pure noise).
+    regularization : float
+        R(c).
+    rms_um : float
+        RMS marker distance [um].
+    iterations, seconds : int, float
+        Outer iterations and wall time [s].
+    method, success, message : str, bool, str
+        Which solver, and how it ended.
+    """
+
+    coefficients: np.ndarray
+    weight: float
+    chi2: float
+    regularization: float
+    rms_um: float
+    iterations: int
+    seconds: float
+    method: str
+    success: bool
+    message: str = ""
+
+
+def objective(fp: FieldProblem, regularizer, weight: float, c: np.ndarray) -> float:
+    """J(c) of eq. (I8)."""
+    return fp.forward(c).misfit + weight * regularizer.value(c)
+
+
+def _estimate(fp, regularizer, weight, c, iterations, begin, method, success, message):
+    return FieldEstimate(
+        np.asarray(c, dtype=float).copy(),
+        float(weight),
+        2.0 * fp.forward(c).misfit,
+        float(regularizer.value(c)),
+        fp.rms_um(c),
+        int(iterations),
+        time.perf_counter() - begin,
+        method,
+        bool(success),
+        message,
+    )
+
+
+def gauss_newton(
+    fp: FieldProblem,
+    regularizer,
+    weight: float,
+    start: np.ndarray | None = None,
+    hessian: str = "adjoint",
+    tolerance: float = 1e-13,
+    max_iterations: int = 60,
+) -> FieldEstimate:
+    """Gauss-Newton on eq. (I8) with a backtracking line search.
+
+    Stops when the Newton decrement -grad . p / 2 falls below ``tolerance`` times
+    J(c) (the objective can fall by no more than that).
+    """
+    if hessian not in ("adjoint", "sensitivity"):
+        raise ValueError("hessian must be 'adjoint' or 'sensitivity'")
+    begin = time.perf_counter()
+    c = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float).copy()
+    value = objective(fp, regularizer, weight, c)
+    first = None
+    for iteration in range(1, max_iterations + 1):
+        gradient = fp.gradient(c) + weight * regularizer.gradient(c)
+        prior = weight * regularizer.hessian(c)
+        first = np.linalg.norm(gradient) if first is None else first
+        if hessian == "sensitivity":
+            jac = fp.sensitivities(c)
+            step = np.linalg.solve(jac.T @ jac + prior.toarray(), -gradient)
+        else:
+
+            def product(v, c=c, prior=prior):
+                return fp.vjp(c, fp.jvp(c, v)) + prior @ v
+
+            operator = spla.LinearOperator((fp.size, fp.size), matvec=product)
+            forcing = min(0.1, np.sqrt(np.linalg.norm(gradient) / first))
+            step, _ = spla.cg(operator, -gradient, rtol=forcing * 1e-2, maxiter=4 * fp.size)
+        decrement = -0.5 * float(gradient @ step)
+        if decrement <= tolerance * max(value, 1.0):
+            return _estimate(
+                fp, regularizer, weight, c, iteration, begin, f"gn-{hessian}", True, "converged"
+            )
+        length = 1.0
+        while length > 1e-8:
+            trial = c + length * step
+            trial_value = objective(fp, regularizer, weight, trial)
+            if trial_value <= value - 1e-4 * length * 2.0 * decrement:
+                break
+            length *= 0.5
+        else:
+            return _estimate(
+                fp,
+                regularizer,
+                weight,
+                c,
+                iteration,
+                begin,
+                f"gn-{hessian}",
+                False,
+                "line search failed",
+            )
+        c, value = trial, trial_value
+    return _estimate(
+        fp, regularizer, weight, c, max_iterations, begin, f"gn-{hessian}", False, "iteration limit"
+    )
+
+
+def lbfgs(fp, regularizer, weight, start=None, tolerance=1e-12, max_iterations=2000):
+    """L-BFGS-B on eq. (I8) with the adjoint gradient (no bounds)."""
+    begin = time.perf_counter()
+    c0 = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float)
+
+    def value_and_gradient(c):
+        total = objective(fp, regularizer, weight, c)
+        return total, fp.gradient(c) + weight * regularizer.gradient(c)
+
+    result = so.minimize(
+        value_and_gradient,
+        c0,
+        jac=True,
+        method="L-BFGS-B",
+        options={"ftol": tolerance, "gtol": 1e-9, "maxiter": max_iterations, "maxcor": 30},
+    )
+    return _estimate(
+        fp,
+        regularizer,
+        weight,
+        result.x,
+        result.nit,
+        begin,
+        "l-bfgs-b",
+        result.success,
+        str(result.message),
+    )
+
+
+def simultaneous(fp, regularizer, weight, start=None, tolerance=1e-10, options=None):
+    """One IPOPT NLP over c and every case's state s_k, eq. (I3) as constraints."""
+    begin = time.perf_counter()
+    c0 = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float)
+    n_state = fp.right_hand_sides.shape[0]
+    n_cases = fp.right_hand_sides.shape[1]
+    c = ca.MX.sym("c", fp.size)
+    states = ca.MX.sym("s", n_state, n_cases)
+    g_matrix = to_casadi_sparse(fp.G)
+    per_point = ca.DM(fp.volume * KPA * fp.reference_kpa) * ca.exp(
+        ca.mtimes(to_casadi_sparse(fp.Phi), c)
+    )
+    h = ca.vertcat(*[float(f) * per_point for f in fp.moduli])
+    n = fp.n_displacement
+    coupling = to_casadi_sparse(fp.coupling) if fp.coupling.shape[0] else None
+    constraints, raw = [], []
+    for k in range(n_cases):
+        delta = states[:n, k]
+        force = ca.mtimes(g_matrix.T, h * ca.mtimes(g_matrix, delta))
+        if coupling is None:
+            constraints.append(force)
+        else:  # the rows of eq. (I3): K Delta + C^T lam = F, C Delta = Q d
+            constraints.append(force + ca.mtimes(coupling.T, states[n:, k]))
+            constraints.append(ca.mtimes(coupling, delta))
+        raw.append(ca.mtimes(to_casadi_sparse(fp.A[k]), states[:, k]) + ca.DM(fp.b[k]))
+    # the residual lifted too: the whitening couples every case through the shared
+    # rest markers, and W^T W on the residual is far sparser than A^T W^T W A on states
+    markers = ca.MX.sym("r", fp.n_residuals)
+    residual = ca.mtimes(to_casadi_sparse(fp.whitening), markers)
+    f = 0.5 * ca.dot(residual, residual) + weight * regularizer.expression(c)
+    g = ca.vertcat(
+        ca.vertcat(*constraints) - ca.DM(np.ravel(fp.right_hand_sides, order="F")),
+        markers - ca.vertcat(*raw),
+    )
+    variables = ca.vertcat(c, ca.vec(states), markers)
+    options = {
+        **static_defaults(variables.numel()),  # MUMPS ordering and pivoting by size
+        "ipopt.print_level": 0,
+        "print_time": False,
+        "ipopt.tol": tolerance,
+        "ipopt.max_iter": 200,
+        "ipopt.sb": "yes",
+        **(options or {}),
+    }
+    solver = ca.nlpsol("imaging", "ipopt", {"x": variables, "f": f, "g": g}, options)
+    built = time.perf_counter() - begin
+    start_states = np.column_stack(fp.forward(c0).states)
+    start_raw = np.concatenate([a @ state + b for a, state, b in zip(fp.A, start_states.T, fp.b)])
+    x0 = np.concatenate([c0, np.ravel(start_states, order="F"), start_raw])
+    solution = solver(x0=x0, lbg=0.0, ubg=0.0)
+    stats = solver.stats()
+    coefficients = np.asarray(solution["x"]).ravel()[: fp.size]
+    message = f"{stats['return_status']} (NLP built in {built:.1f} s)"
+    return _estimate(
+        fp,
+        regularizer,
+        weight,
+        coefficients,
+        stats["iter_count"],
+        begin,
+        "simultaneous",
+        stats["success"],
+        message,
+    )
+
+
+SOLVERS = {
+    "simultaneous": simultaneous,
+    "nested-adjoint": lambda fp, r, w, start=None: gauss_newton(fp, r, w, start, "adjoint"),
+    "nested-sensitivity": lambda fp, r, w, start=None: gauss_newton(fp, r, w, start, "sensitivity"),
+    "l-bfgs-b": lbfgs,
+}
+"""The formulations by name (``dvs image --method``)."""
+
+
+@dataclass
+class WeightChoice:
+    """Morozov's choice of beta, with the path that found it."""
+
+    estimate: FieldEstimate
+    target: float
+    reached: bool
+    path: list[tuple[float, float]]
+    """(beta, chi^2) of every solve, in order."""
+    note: str
+
+
+def discrepancy_weight(
+    fp: FieldProblem,
+    regularizer,
+    solve=None,
+    target: float | None = None,
+    bounds: tuple[float, float] = (1e-2, 1e10),
+    tolerance: float = 0.02,
+    log=None,
+) -> WeightChoice:
+    """beta with chi^2(beta) = target (default n_residuals), by bisection in log beta.
+
+    chi^2 grows with beta. From the largest beta (nearly homogeneous) the weight falls
+    a decade at a time until chi^2 drops below the target, then bisects to
+    ``tolerance`` decades, each solve warm-started from the nearest one before. When
+    even the largest beta meets the target, the data ask for no field (returned,
+    ``reached`` False); when the smallest does not, the model cannot reach the noise.
+    """
+    solve = solve or SOLVERS["nested-adjoint"]
+    target = float(fp.n_residuals if target is None else target)
+    path, estimates = [], {}
+
+    def run(beta, start):
+        estimate = solve(fp, regularizer, beta, start)
+        estimates[beta] = estimate
+        path.append((beta, estimate.chi2))
+        if log:
+            log(
+                f"  beta {beta:.3g} mm^2: chi2 {estimate.chi2:.1f} (target {target:.0f}), "
+                f"rms {estimate.rms_um:.1f} um, {estimate.seconds:.1f} s"
+            )
+        return estimate
+
+    high = bounds[1]
+    above = run(high, None)
+    if above.chi2 <= target:
+        return WeightChoice(above, target, False, path, "the data need no field")
+    low = high
+    below = above
+    while below.chi2 > target:
+        high, above = low, below
+        low = low / 10.0
+        if low < bounds[0]:
+            return WeightChoice(
+                below, target, False, path, "chi2 above target at the smallest weight"
+            )
+        below = run(low, above.coefficients)
+    while np.log10(high / low) > tolerance:
+        middle = np.sqrt(high * low)
+        estimate = run(middle, below.coefficients)
+        if estimate.chi2 > target:
+            high, above = middle, estimate
+        else:
+            low, below = middle, estimate
+    best = below if abs(below.chi2 - target) <= abs(above.chi2 - target) else above
+    return WeightChoice(best, target, True, path, "chi2 = target")
+
+
+@dataclass
+class Laplace:
+    """The Laplace approximation around an estimate: Gauss-Newton Hessian of eq. (I8)."""
+
+    std: np.ndarray
+    """Pointwise standard deviation of s = log(E / E_ref) at the nodes."""
+    effective_dof: float
+    """tr((J^T J + beta R'')^-1 J^T J): parameters the data determine."""
+    rank: int
+    """Eigenpairs kept (N when dense)."""
+
+
+def laplace(fp, regularizer, estimate: FieldEstimate, rank: int | None = None) -> Laplace:
+    """Posterior standard deviations and effective dof.
+
+    Dense (J formed) when ``rank`` is None; otherwise low rank: the ``rank`` largest
+    eigenpairs of J^T J v = lambda P v, P = beta R'' + delta I (delta: 1e-6 of P's
+    largest diagonal, for the constant mode R does not see), found with matrix-free
+    products (one forward and one adjoint solve per case each), so that
+    H^-1 ~ P^-1 - V diag(lambda / (1 + lambda)) V^T.
+    """
+    c = estimate.coefficients
+    prior = (estimate.weight * regularizer.hessian(c)).toarray()
+    if rank is None:
+        jac = fp.sensitivities(c)
+        data = jac.T @ jac
+        covariance = np.linalg.inv(data + prior)
+        return Laplace(np.sqrt(np.diag(covariance)), float(np.trace(covariance @ data)), fp.size)
+    delta = 1e-6 * max(np.max(np.diag(prior)), 1e-12)
+    precision = prior + delta * np.eye(fp.size)
+    operator = spla.LinearOperator(
+        (fp.size, fp.size), matvec=lambda v: fp.vjp(c, fp.jvp(c, np.ravel(v)))
+    )
+    values, vectors = spla.eigsh(operator, k=min(rank, fp.size - 1), M=sp.csr_matrix(precision))
+    values = np.maximum(values, 0.0)
+    inverse = np.linalg.inv(precision)
+    correction = (vectors * (values / (1.0 + values))) @ vectors.T
+    variance = np.diag(inverse) - np.diag(correction)
+    return Laplace(
+        np.sqrt(np.maximum(variance, 0.0)), float(np.sum(values / (1 + values))), len(values)
+    )
