@@ -343,3 +343,22 @@ def test_detection_command_rejects_an_unknown_effect(capsys):
     assert detection_main(["--effects", "gravity"]) == 2
     err = capsys.readouterr().err
     assert "gravity" in err and err.count("\n") == 1
+
+
+def test_shared_cache_keeps_only_the_most_recent_functions():
+    """The loop's store of CasADi Functions is bounded (least recently used out); the
+    small entries (case data, noise models) are never evicted."""
+    from solvers.diagnosis.problem import SharedCache
+
+    cache = SharedCache(limit=3)
+    cache[("case", 0)] = "case data"
+    for k in range(3):
+        cache[("functions", k)] = k
+    _ = cache[("functions", 0)]  # used again: now the most recent
+    cache[("numeric", 9)] = 9
+    assert ("functions", 1) not in cache  # the least recently used went
+    assert {("functions", 0), ("functions", 2), ("numeric", 9)} <= set(cache)
+    for k in range(10, 20):
+        cache[("functions", k)] = k
+    assert sum(1 for key in cache if key[0] in SharedCache.HEAVY) == 3
+    assert cache[("case", 0)] == "case data"

@@ -20,6 +20,8 @@ nested least squares over any subset of p (scipy trf, exact Jacobian).
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -31,6 +33,40 @@ from solvers.noise import Whitening, rest_noise_map
 from solvers.problem import LOG_PARAMETERS, InverseProblem, LoadCase
 from symbolic.effects.base import CaseData, Effect
 from symbolic.effects.library import ExtendedModel
+
+
+class SharedCache(dict):
+    """The store that problems derived with ``with_effects`` share, bounded.
+
+    Case data and noise models are small and kept. The CasADi Functions of every
+    effect set and their numeric wrappers are not: at 27 x 27 x 4 each embeds the
+    stiffness terms, and a loop that tests nine effects, refits and holds out
+    contacts builds dozens of them (the continuum loop grew to 13-24 GB and was
+    killed). The ``limit`` most recently used of those are kept; an evicted one is
+    rebuilt when it is needed again.
+    """
+
+    HEAVY = ("functions", "numeric")
+
+    def __init__(self, limit: int = 24):
+        super().__init__()
+        self.limit = int(limit)
+        self._order: OrderedDict = OrderedDict()
+
+    def __getitem__(self, key):
+        value = super().__getitem__(key)
+        if key in self._order:
+            self._order.move_to_end(key)
+        return value
+
+    def __setitem__(self, key, value) -> None:
+        super().__setitem__(key, value)
+        if isinstance(key, tuple) and key and key[0] in self.HEAVY:
+            self._order[key] = None
+            self._order.move_to_end(key)
+            while len(self._order) > self.limit:
+                oldest, _ = self._order.popitem(last=False)
+                super().pop(oldest, None)
 
 
 class StateJacobian:
@@ -105,7 +141,7 @@ class ExtendedProblem:
         self.indices = list(range(len(base.cases)) if indices is None else indices)
         self.model = base.model
         self.names = tuple(n for n, a in zip(base.names, base.active) if a)
-        self.cache = {} if cache is None else cache
+        self.cache = SharedCache() if cache is None else cache
         key = ("model", tuple(id(e) for e in effects), tuple(self.positions))
         if key not in self.cache:
             cases = [self._case(k) for k in self.positions]
