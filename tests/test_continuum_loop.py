@@ -157,6 +157,21 @@ def test_a_stiffness_gradient_makes_the_stiff_side_stiffer(solution):
     assert _deflection(graded, force, (0.0, 0.0))[2] == pytest.approx(centre, rel=0.05)
 
 
+def test_a_stiff_inclusion_stiffens_only_where_it_is(solution):
+    """A disc 2x stiffer, 8 mm across at (8, -6) mm (stiffness imaging's phantom)."""
+    lesion = SlabSolution(ReferenceSlab(elements=(12, 12, 2), inclusion=(8.0, -6.0, 8.0, 2.0)))
+    force = (0.0, 0.0, -0.25)
+    over = _deflection(lesion, force, (8.0, -6.0))[2]
+    away = _deflection(lesion, force, (-8.0, 6.0))[2]
+    plain = _deflection(solution, force, (8.0, -6.0))[2]
+    assert over > 1.2 * plain  # less deep (z negative) over the stiff disc
+    assert away == pytest.approx(_deflection(solution, force, (-8.0, 6.0))[2], rel=0.05)
+    same = SlabSolution(ReferenceSlab(elements=(12, 12, 2), inclusion=(8.0, -6.0, 8.0, 1.0)))
+    assert _deflection(same, force, (8.0, -6.0))[2] == pytest.approx(plain, rel=1e-10)
+    with pytest.raises(ValueError, match="inclusion"):
+        ReferenceSlab(inclusion=(0.0, 0.0, -1.0, 2.0))
+
+
 def test_a_compliant_base_deflects_more_and_moves_the_base(solution):
     soft = SlabSolution(ReferenceSlab(elements=(12, 12, 2), base_spring=0.01))
     force = (0.0, 0.0, -0.25)

@@ -57,6 +57,10 @@ class ReferenceSlab:
     base_spring : float or None
         None fixes the base; a number rests it on a Winkler foundation of this
         stiffness [N/mm^3] instead (a compliant base: muscle under the fat).
+    inclusion : tuple of float or None
+        (x, y, diameter, ratio): a disc through the thickness, centred at (x, y) [mm],
+        whose E is ``ratio`` times the rest (a lesion; stiffness imaging). The mesh
+        does not follow its edge: E jumps between quadrature points.
     """
 
     lengths: tuple[float, float, float] = (60.0, 60.0, 5.0)
@@ -67,12 +71,17 @@ class ReferenceSlab:
     fix_lateral: bool = True
     gradient: float = 0.0
     base_spring: float | None = None
+    inclusion: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.poisson < 0.5) or self.young_kpa <= 0:
             raise ValueError("need E > 0 kPa and 0 <= nu < 0.5")
         if not abs(self.gradient) < 1.0 or (self.base_spring is not None and self.base_spring <= 0):
             raise ValueError("need |gradient| < 1 and a positive base_spring (or None)")
+        if self.inclusion is not None and (
+            len(self.inclusion) != 4 or self.inclusion[2] <= 0 or self.inclusion[3] <= 0
+        ):
+            raise ValueError("an inclusion is (x, y, diameter > 0, ratio > 0)")
         if any(m > extent for m, extent in zip(self.marked, self.lengths)):
             raise ValueError("the marked area must lie inside the slab")
 
@@ -98,6 +107,10 @@ class SlabSolution:
         @skfem.BilinearForm
         def elasticity(u, v, w):
             factor = np.maximum(1.0 + slab.gradient * 2.0 * w.x[0] / slab.marked[0], 0.05)
+            if slab.inclusion is not None:
+                x0, y0, diameter, ratio = slab.inclusion
+                inside = (w.x[0] - x0) ** 2 + (w.x[1] - y0) ** 2 <= (diameter / 2.0) ** 2
+                factor = factor * np.where(inside, ratio, 1.0)
             return factor * (2.0 * mu_l * ddot(sym_grad(u), sym_grad(v)) + lam * div(u) * div(v))
 
         matrix = elasticity.assemble(self.basis)
