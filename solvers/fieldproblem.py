@@ -50,7 +50,12 @@ class Forward:
 
     coefficients: np.ndarray
     states: list[np.ndarray]
+    raw: np.ndarray
+    """Stacked marker residuals [A_k s_k + b_k]_k [mm], not whitened."""
     residual: np.ndarray
+    """The whitened residual r = W raw / sigma."""
+    point_moduli: np.ndarray = field(repr=False)
+    """w_q E(q) at the Gauss points [N/mm^2 mm^3] (eq. I2 without f)."""
     solve: object = field(repr=False)
 
     @property
@@ -88,13 +93,14 @@ class FieldProblem:
             gradient.points,
         )
         blocks = free.strain() + [free.divergence()]
-        self.n_points = len(gradient.volume)
         self.G = sp.vstack(blocks).tocsr()
         mu_unit, lam_unit = lame(1.0, float(model.parameters["nu"]))
         self.moduli = np.array([2.0 * mu_unit] * 6 + [lam_unit]) / KPA
         """f of eq. (I2): moduli per unit E [N/mm^2 per N/mm^2]."""
         self.volume = gradient.volume
         self.Phi = stiffness_field.collocation(gradient.points)
+        self._phi_stacked = sp.kron(np.ones((7, 1)), self.Phi).tocsr()
+        """Phi repeated for the 7 rows of G at each point, (7 n_q, N)."""
         coupling = sp.kron(sp.identity(3), model._constraint_free).tocsr()
         self.coupling = coupling
         self.n_displacement = 3 * model.n_free
@@ -105,6 +111,8 @@ class FieldProblem:
         self.whitening = Whitening.of(problem.rest_noise_map(), n).matrix / self.sigma
         """W / sigma of eq. (I4), (n_residuals, n_residuals)."""
         self._cache: Forward | None = None
+        self.nlp_cache: dict = {}
+        """Simultaneous NLPs built for this problem (``solvers.imaging.simultaneous``)."""
 
     @property
     def size(self) -> int:
@@ -131,8 +139,7 @@ class FieldProblem:
 
     def weights(self, c: np.ndarray) -> np.ndarray:
         """h(c) of eq. (I2), (7 n_q,) [N/mm^2 mm^3]."""
-        per_point = self.volume * self.modulus(c) * KPA
-        return np.kron(self.moduli, per_point)
+        return np.kron(self.moduli, self.volume * self.modulus(c) * KPA)
 
     def stiffness(self, c: np.ndarray) -> sp.csc_matrix:
         """K(c) on the free control points, stacked (eq. I2) [N/mm]."""
@@ -154,24 +161,21 @@ class FieldProblem:
         states = solve(self.right_hand_sides)
         states = [states[:, k] for k in range(states.shape[1])]
         raw = np.concatenate([a @ s + b for a, s, b in zip(self.A, states, self.b)])
-        self._cache = Forward(c.copy(), states, self.whitening @ raw, solve)
+        moduli = self.volume * self.modulus(c) * KPA
+        self._cache = Forward(c.copy(), states, raw, self.whitening @ raw, moduli, solve)
         return self._cache
 
-    def _strain_products(self, c, left: list[np.ndarray], right: list[np.ndarray]) -> np.ndarray:
-        """Phi^T (w_q E(q) sum_b f_b (G_b l)(G_b r)), summed over the cases [N mm]."""
-        total = np.zeros(self.n_points)
-        for lhs, rhs in zip(left, right):
-            g_left = (self.G @ lhs[: self.n_displacement]).reshape(7, -1)
-            g_right = (self.G @ rhs[: self.n_displacement]).reshape(7, -1)
-            total += self.moduli @ (g_left * g_right)
-        return self.Phi.T @ (self.volume * self.modulus(c) * KPA * total)
+    def _scaled_strains(self, state: Forward, k: int) -> np.ndarray:
+        """h'(Delta_k) = f (x) (w_q E(q)) * (G Delta_k), (7 n_q,): with it eq. (I5) is
+        (dK/dc v) Delta_k = G^T (h' * (Phi_7 v)), Phi_7 the field repeated per row of G."""
+        strains = (self.G @ state.states[k][: self.n_displacement]).reshape(7, -1)
+        return (self.moduli[:, None] * strains * state.point_moduli).reshape(-1)
 
-    def _direction_force(self, c, direction: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """[(dK/dc v) Delta; 0] of eq. (I5)."""
-        scale = np.kron(self.moduli, self.volume * self.modulus(c) * KPA * (self.Phi @ direction))
-        force = self.G.T @ (scale * (self.G @ state[: self.n_displacement]))
-        out = np.zeros_like(state)
-        out[: self.n_displacement] = force
+    def _padded(self, displacement_part: np.ndarray) -> np.ndarray:
+        """[x; 0]: a force on the displacements, zero on the constraint rows of eq. (I3)."""
+        n_state = self.right_hand_sides.shape[0]
+        out = np.zeros((n_state,) + displacement_part.shape[1:])
+        out[: self.n_displacement] = displacement_part
         return out
 
     # ------------------------------------------------------------- derivatives
@@ -182,7 +186,13 @@ class FieldProblem:
     def jvp(self, c: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """J v, the stacked whitened residuals' change along v (one solve per case)."""
         state = self.forward(c)
-        forces = np.column_stack([self._direction_force(c, direction, s) for s in state.states])
+        field = self._phi_stacked @ direction
+        forces = np.column_stack(
+            [
+                self._padded(self.G.T @ (self._scaled_strains(state, k) * field))
+                for k in range(len(self.A))
+            ]
+        )
         changes = -state.solve(forces)
         return self.whitening @ np.concatenate([a @ changes[:, k] for k, a in enumerate(self.A)])
 
@@ -191,21 +201,19 @@ class FieldProblem:
         state = self.forward(c)
         parts = np.split(self.whitening.T @ vector, np.cumsum([len(b) for b in self.b])[:-1])
         adjoints = state.solve(np.column_stack([a.T @ y for a, y in zip(self.A, parts)]))
-        adjoints = [adjoints[:, k] for k in range(adjoints.shape[1])]
-        return -self._strain_products(c, adjoints, state.states)
+        total = sum(
+            self._scaled_strains(state, k) * (self.G @ adjoints[: self.n_displacement, k])
+            for k in range(len(self.A))
+        )
+        return -(self._phi_stacked.T @ total)
 
     def sensitivities(self, c: np.ndarray) -> np.ndarray:
         """J = d r / dc, all N columns (n_residuals, N): the implicit-function route."""
         state = self.forward(c)
-        modulus = self.volume * self.modulus(c) * KPA
         columns = []
-        for a, s in zip(self.A, state.states):
-            strains = (self.G @ s[: self.n_displacement]).reshape(7, -1)
-            scaled = (self.moduli[:, None] * strains * modulus).reshape(-1)
-            forces = self.G.T @ sp.diags(scaled) @ sp.kron(np.ones((7, 1)), self.Phi)
-            padded = np.zeros((len(s), self.size))
-            padded[: self.n_displacement] = forces.toarray()
-            columns.append(-(a @ state.solve(padded)))
+        for k, a in enumerate(self.A):
+            forces = self.G.T @ sp.diags(self._scaled_strains(state, k)) @ self._phi_stacked
+            columns.append(-(a @ state.solve(self._padded(forces.toarray()))))
         return self.whitening @ np.vstack(columns)
 
     def residual(self, c: np.ndarray) -> np.ndarray:
@@ -214,6 +222,4 @@ class FieldProblem:
 
     def rms_um(self, c: np.ndarray) -> float:
         """RMS marker distance [um] (unwhitened, as the reports give it)."""
-        state = self.forward(c)
-        raw = np.concatenate([a @ s + b for a, s, b in zip(self.A, state.states, self.b)])
-        return float(1e3 * np.sqrt(3.0 * np.mean(raw**2)))
+        return float(1e3 * np.sqrt(3.0 * np.mean(self.forward(c).raw ** 2)))

@@ -110,15 +110,22 @@ def gauss_newton(
     begin = time.perf_counter()
     c = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float).copy()
     value = objective(fp, regularizer, weight, c)
+
+    def finish(iterations: int, success: bool, message: str) -> FieldEstimate:
+        return _estimate(
+            fp, regularizer, weight, c, iterations, begin, f"gn-{hessian}", success, message
+        )
+
     first = None
     for iteration in range(1, max_iterations + 1):
-        gradient = fp.gradient(c) + weight * regularizer.gradient(c)
         prior = weight * regularizer.hessian(c)
-        first = np.linalg.norm(gradient) if first is None else first
         if hessian == "sensitivity":
             jac = fp.sensitivities(c)
+            gradient = jac.T @ fp.residual(c) + weight * regularizer.gradient(c)
             step = np.linalg.solve(jac.T @ jac + prior.toarray(), -gradient)
         else:
+            gradient = fp.gradient(c) + weight * regularizer.gradient(c)
+            first = np.linalg.norm(gradient) if first is None else first
 
             def product(v, c=c, prior=prior):
                 return fp.vjp(c, fp.jvp(c, v)) + prior @ v
@@ -128,9 +135,7 @@ def gauss_newton(
             step, _ = spla.cg(operator, -gradient, rtol=forcing * 1e-2, maxiter=4 * fp.size)
         decrement = -0.5 * float(gradient @ step)
         if decrement <= tolerance * max(value, 1.0):
-            return _estimate(
-                fp, regularizer, weight, c, iteration, begin, f"gn-{hessian}", True, "converged"
-            )
+            return finish(iteration, True, "converged")
         length = 1.0
         while length > 1e-8:
             trial = c + length * step
@@ -139,21 +144,9 @@ def gauss_newton(
                 break
             length *= 0.5
         else:
-            return _estimate(
-                fp,
-                regularizer,
-                weight,
-                c,
-                iteration,
-                begin,
-                f"gn-{hessian}",
-                False,
-                "line search failed",
-            )
+            return finish(iteration, False, "line search failed")
         c, value = trial, trial_value
-    return _estimate(
-        fp, regularizer, weight, c, max_iterations, begin, f"gn-{hessian}", False, "iteration limit"
-    )
+    return finish(max_iterations, False, "iteration limit")
 
 
 def lbfgs(fp, regularizer, weight, start=None, tolerance=1e-12, max_iterations=2000):
@@ -186,13 +179,43 @@ def lbfgs(fp, regularizer, weight, start=None, tolerance=1e-12, max_iterations=2
 
 
 def simultaneous(fp, regularizer, weight, start=None, tolerance=1e-10, options=None):
-    """One IPOPT NLP over c and every case's state s_k, eq. (I3) as constraints."""
+    """One IPOPT NLP over c and every case's state s_k, eq. (I3) as constraints.
+
+    The NLP takes beta as a parameter, so it is built once per problem, regulariser
+    and options (kept in ``fp.nlp_cache``) and reused for every weight Morozov tries.
+    """
     begin = time.perf_counter()
     c0 = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float)
-    n_state = fp.right_hand_sides.shape[0]
-    n_cases = fp.right_hand_sides.shape[1]
+    key = (id(regularizer), tolerance, repr(sorted((options or {}).items())))
+    if key not in fp.nlp_cache:
+        fp.nlp_cache[key] = (regularizer, _imaging_nlp(fp, regularizer, tolerance, options))
+    solver = fp.nlp_cache[key][1]
+    start_state = fp.forward(c0)
+    x0 = np.concatenate(
+        [c0, np.ravel(np.column_stack(start_state.states), order="F"), start_state.raw]
+    )
+    solution = solver(x0=x0, p=weight, lbg=0.0, ubg=0.0)
+    stats = solver.stats()
+    coefficients = np.asarray(solution["x"]).ravel()[: fp.size]
+    return _estimate(
+        fp,
+        regularizer,
+        weight,
+        coefficients,
+        stats["iter_count"],
+        begin,
+        "simultaneous",
+        stats["success"],
+        stats["return_status"],
+    )
+
+
+def _imaging_nlp(fp, regularizer, tolerance, options) -> ca.Function:
+    """The NLP of ``simultaneous``: variables [c; vec(s); r], parameter beta."""
+    n_state, n_cases = fp.right_hand_sides.shape
     c = ca.MX.sym("c", fp.size)
     states = ca.MX.sym("s", n_state, n_cases)
+    weight = ca.MX.sym("beta")
     g_matrix = to_casadi_sparse(fp.G)
     per_point = ca.DM(fp.volume * KPA * fp.reference_kpa) * ca.exp(
         ca.mtimes(to_casadi_sparse(fp.Phi), c)
@@ -220,7 +243,7 @@ def simultaneous(fp, regularizer, weight, start=None, tolerance=1e-10, options=N
         markers - ca.vertcat(*raw),
     )
     variables = ca.vertcat(c, ca.vec(states), markers)
-    options = {
+    settings = {
         **static_defaults(variables.numel()),  # MUMPS ordering and pivoting by size
         "ipopt.print_level": 0,
         "print_time": False,
@@ -229,26 +252,8 @@ def simultaneous(fp, regularizer, weight, start=None, tolerance=1e-10, options=N
         "ipopt.sb": "yes",
         **(options or {}),
     }
-    solver = ca.nlpsol("imaging", "ipopt", {"x": variables, "f": f, "g": g}, options)
-    built = time.perf_counter() - begin
-    start_states = np.column_stack(fp.forward(c0).states)
-    start_raw = np.concatenate([a @ state + b for a, state, b in zip(fp.A, start_states.T, fp.b)])
-    x0 = np.concatenate([c0, np.ravel(start_states, order="F"), start_raw])
-    solution = solver(x0=x0, lbg=0.0, ubg=0.0)
-    stats = solver.stats()
-    coefficients = np.asarray(solution["x"]).ravel()[: fp.size]
-    message = f"{stats['return_status']} (NLP built in {built:.1f} s)"
-    return _estimate(
-        fp,
-        regularizer,
-        weight,
-        coefficients,
-        stats["iter_count"],
-        begin,
-        "simultaneous",
-        stats["success"],
-        message,
-    )
+    nlp = {"x": variables, "p": weight, "f": f, "g": g}
+    return ca.nlpsol("imaging", "ipopt", nlp, settings)
 
 
 SOLVERS = {

@@ -114,6 +114,7 @@ def reachable(fp: FieldProblem, truth: np.ndarray, seed: int) -> FieldProblem:
     of their own at 7 x 7 x 2, and the continuum page shows why)."""
     made = copy.copy(fp)
     made._cache = None
+    made.nlp_cache = {}
     rng = np.random.default_rng(seed)
     states = fp.forward(truth).states
     made.b = [-(a @ s) + rng.normal(0.0, fp.sigma, a.shape[0]) for a, s in zip(fp.A, states)]
