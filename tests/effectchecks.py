@@ -44,11 +44,28 @@ def check_theta_zero(setting, name: str, solved_atol: float = 1e-13) -> None:
     np.testing.assert_allclose(r_solved, base_fit.residual, rtol=0, atol=solved_atol)
 
 
+def check_newton_jacobian(extended: ExtendedProblem, p: np.ndarray) -> None:
+    """The Newton dg/ds (closed-form blocks of the base and linear effects) against AD of g."""
+    import casadi as ca
+
+    functions = extended.functions(0)
+    rng = np.random.default_rng(1)
+    state = rng.normal(0.0, 0.05, functions.n_state)
+    reference = ca.Function(
+        "g", [functions.s, functions.p], [ca.jacobian(functions.g, functions.s)]
+    )
+    expected = np.array(ca.densify(reference(state, p)))
+    actual = extended.numeric(0, "newton")(state, p)[1].toarray()
+    np.testing.assert_allclose(actual, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
 def check_derivatives(setting, name: str) -> None:
-    """d r / d p of the problem extended by ``name`` against central differences."""
+    """d r / d p of the problem extended by ``name`` against central differences, and
+    the Newton Jacobian dg/ds against automatic differentiation of g."""
     problem, base_fit, library = setting
     extended = problem.with_effects([library[name]])
     n_x = base_fit.p.size
+    check_newton_jacobian(extended, _point(extended, base_fit.p, 0.7))
     for point in (_point(extended, base_fit.p, 0.0), _point(extended, base_fit.p, 0.7)):
         r, jacobian, _ = extended.evaluate(point)
         for j in range(point.size):

@@ -345,20 +345,20 @@ def test_detection_command_rejects_an_unknown_effect(capsys):
     assert "gravity" in err and err.count("\n") == 1
 
 
-def test_shared_cache_keeps_only_the_most_recent_functions():
-    """The loop's store of CasADi Functions is bounded (least recently used out); the
-    small entries (case data, noise models) are never evicted."""
+def test_shared_cache_keeps_only_the_most_recent_effect_sets():
+    """The loop's store of CasADi Functions is bounded by effect set (least recently used
+    out, whole); a set's entries stay together however many cases it has; the small
+    entries (case data, noise models) are never evicted."""
     from solvers.diagnosis.problem import SharedCache
 
-    cache = SharedCache(limit=3)
+    cache = SharedCache(limit=2)
     cache[("case", 0)] = "case data"
-    for k in range(3):
-        cache[("functions", k)] = k
-    _ = cache[("functions", 0)]  # used again: now the most recent
-    cache[("numeric", 9)] = 9
-    assert ("functions", 1) not in cache  # the least recently used went
-    assert {("functions", 0), ("functions", 2), ("numeric", 9)} <= set(cache)
-    for k in range(10, 20):
-        cache[("functions", k)] = k
-    assert sum(1 for key in cache if key[0] in SharedCache.HEAVY) == 3
+    for effect_set in ("a", "b"):
+        for case in range(10):  # more entries than the limit, one set
+            cache[("functions", effect_set, case)] = case
+    _ = cache[("functions", "a", 3)]  # "a" used again: now the most recent
+    cache[("functions", "c", 0)] = 0
+    assert not any(key[1] == "b" for key in cache if SharedCache.effect_set(key))
+    assert sum(1 for key in cache if SharedCache.effect_set(key) == "a") == 10
+    assert ("functions", "c", 0) in cache
     assert cache[("case", 0)] == "case data"

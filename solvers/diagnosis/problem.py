@@ -36,37 +36,51 @@ from symbolic.effects.library import ExtendedModel
 
 
 class SharedCache(dict):
-    """The store that problems derived with ``with_effects`` share, bounded.
+    """The store that problems derived with ``with_effects`` share, bounded by effect set.
 
-    Case data and noise models are small and kept. The CasADi Functions of every
-    effect set and their numeric wrappers are not: at 27 x 27 x 4 each embeds the
+    Case data and noise models are small and kept. The CasADi Functions of an
+    effect set and their numeric wrappers are not: at 27 x 27 x 4 they embed the
     stiffness terms, and a loop that tests nine effects, refits and holds out
-    contacts builds dozens of them (the continuum loop grew to 13-24 GB and was
-    killed). The ``limit`` most recently used of those are kept; an evicted one is
-    rebuilt when it is needed again.
+    contacts builds dozens of sets (the continuum loop grew to 13-24 GB and was
+    killed). Keys ``("functions", effect_set, ...)`` are grouped by their effect
+    set; the ``limit`` most recently used sets are kept whole, an older one is
+    dropped whole and rebuilt when it is needed again. (Counting single entries
+    instead evicted the Functions of one set's ten load cases while the same
+    evaluation still needed them: every evaluation rebuilt them all.)
     """
 
-    HEAVY = ("functions", "numeric")
+    HEAVY = "functions"
 
-    def __init__(self, limit: int = 24):
+    def __init__(self, limit: int = 4):
         super().__init__()
         self.limit = int(limit)
-        self._order: OrderedDict = OrderedDict()
+        self._sets: OrderedDict = OrderedDict()
+
+    @classmethod
+    def effect_set(cls, key):
+        """The group of a heavy key, None for a small entry."""
+        if isinstance(key, tuple) and len(key) > 1 and key[0] == cls.HEAVY:
+            return key[1]
+        return None
 
     def __getitem__(self, key):
         value = super().__getitem__(key)
-        if key in self._order:
-            self._order.move_to_end(key)
+        group = self.effect_set(key)
+        if group in self._sets:
+            self._sets.move_to_end(group)
         return value
 
     def __setitem__(self, key, value) -> None:
         super().__setitem__(key, value)
-        if isinstance(key, tuple) and key and key[0] in self.HEAVY:
-            self._order[key] = None
-            self._order.move_to_end(key)
-            while len(self._order) > self.limit:
-                oldest, _ = self._order.popitem(last=False)
-                super().pop(oldest, None)
+        group = self.effect_set(key)
+        if group is None:
+            return
+        self._sets.setdefault(group, set()).add(key)
+        self._sets.move_to_end(group)
+        while len(self._sets) > self.limit:
+            _, keys = self._sets.popitem(last=False)
+            for old in keys:
+                super().pop(old, None)
 
 
 class StateJacobian:
@@ -234,7 +248,8 @@ class ExtendedProblem:
     def numeric(self, position: int, name: str) -> NumericFunction:
         """A Function of the case at ``position`` wrapped for fast numeric calls."""
         function = getattr(self.functions(position), name)
-        key = ("numeric", id(function))
+        effect_set = tuple(id(e) for e in self.effects)
+        key = ("functions", effect_set, "numeric", id(function))
         if key not in self.cache:
             self.cache[key] = (function, NumericFunction(function))
         return self.cache[key][1]

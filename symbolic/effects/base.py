@@ -4,7 +4,10 @@ An effect adds CasADi expressions to one or more of four places of a load case
 (MODEL.md eq. 20, 22, 24):
 
 - ``internal_force``: a term added to the elastic force K(B; x)(B - B0) on the
-  free control points (a stiffness effect, e.g. bending, eq. 18);
+  free control points (a stiffness effect, e.g. bending, eq. 18); an effect whose
+  force is linear in Delta = B - B0 gives its matrix instead (``stiffness``), and
+  the Newton Jacobian then takes it in closed form rather than by automatic
+  differentiation (at 27 x 27 x 4 that took 20-40 s per load case);
 - ``load``: a change of the applied force f, its contact point or its spread,
   from which the generalised force F_B of eq. (20) is recomputed;
 - ``extra_points`` / ``extra_residual``: additional state (control points that
@@ -143,6 +146,9 @@ class Effect:
     energies : tuple of str
         The base energies (``symbolic.continuum_model.ENERGIES``) the effect extends;
         a continuum already contains bending and the volumetric term, say.
+    linear : bool
+        The internal force is ``stiffness(...)`` vec(Delta): set by the effects that
+        implement ``stiffness`` (never per case).
     """
 
     name = ""
@@ -156,6 +162,7 @@ class Effect:
     magnitude_unit = ""
     equation = ""
     energies: tuple[str, ...] = ("dnurbs", "linear-elastic", "neo-hookean")
+    linear = False
 
     def __init__(self) -> None:
         self._cache: dict = {}
@@ -215,8 +222,20 @@ class Effect:
         return 0
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
-        """Term added to K(B; x)(B - B0) on the free points, (n_free, 3) [N]."""
-        return None
+        """Term added to K(B; x)(B - B0) on the free points, (n_free, 3) [N].
+
+        A ``linear`` effect's is K_theta vec(Delta) with K_theta from ``stiffness``.
+        """
+        if not self.linear:
+            return None
+        return apply_stacked(self.stiffness(model, symbols.values, theta), symbols.delta)
+
+    def stiffness(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        """K_theta of a ``linear`` effect: (3 n_free)-square, stacked order [N/mm].
+
+        ``values`` maps parameter names to their (symbolic) values.
+        """
+        raise NotImplementedError(f"{self.name} is not linear in the state")
 
     def extra_residual(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
         """Equilibrium rows of the extra state, (k, 3)."""
@@ -253,6 +272,11 @@ def free_matrix(model: TissueModel, matrix: sp.spmatrix) -> ca.DM:
 def apply_stacked(matrix: ca.DM, delta: ca.MX) -> ca.MX:
     """A (3 n_free)-square matrix acting on vec(delta) (columns stacked), as (n_free, 3)."""
     return ca.reshape(ca.mtimes(matrix, ca.vec(delta)), delta.shape[0], 3)
+
+
+def componentwise(matrix: sp.spmatrix) -> sp.csr_matrix:
+    """An (n, n) matrix acting on each of x, y, z alike, (3n, 3n) in stacked order."""
+    return sp.csr_matrix(sp.kron(sp.identity(3), matrix))
 
 
 def stacked_free_block(model: TissueModel, matrix: sp.spmatrix) -> sp.csr_matrix:

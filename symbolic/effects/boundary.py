@@ -25,6 +25,7 @@ from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import (
     CaseSymbols,
     Effect,
+    componentwise,
     face_rule,
     linear_coefficient,
     surface_rule,
@@ -157,6 +158,7 @@ class SurroundingTissue(Effect):
     default_magnitude = 0.002
     magnitude_unit = "N/mm^3"
     equation = "k_s integral_lateral |u|^2 dA (Winkler support of the lateral faces)"
+    linear = True
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
         """M_L on all control points, (n, n) [mm^2]."""
@@ -168,8 +170,10 @@ class SurroundingTissue(Effect):
 
         return self.cached(model, "M_L", build)
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+    def stiffness(self, model: TissueModel, values: dict, theta):
         block = self.cached(
-            model, "M_L_free", lambda: to_casadi_sparse(model.free_block(self.matrix(model)))
+            model,
+            "M_L_free",
+            lambda: to_casadi_sparse(componentwise(model.free_block(self.matrix(model)))),
         )
-        return theta[0] * ca.mtimes(block, symbols.delta)
+        return theta[0] * block

@@ -38,7 +38,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState
+from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState, apply_stacked
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection, load_change
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
@@ -236,9 +236,15 @@ class ExtendedModel:
         thetas = [effect.block(p[self.slices[effect.name]], position) for effect in self.effects]
         base, rest = self._equilibrium(case, symbols, thetas)
         r = self._observation(case, symbols, thetas)
+        linear = self._linear_effects()
+        if linear is not None:
+            force, _ = linear
+            padding = rest.shape[0] - 3 * n_free
+            base = base + ca.vertcat(ca.vec(force(symbols.delta, p)), ca.MX(padding, 1))
         g = base + rest
         # the base model's block of dg/ds in closed form (a linear model's K(x), one
-        # sparse product) or numerically (the neo-Hookean tangent); AD does the effects
+        # sparse product) or numerically (the neo-Hookean tangent), the linear
+        # effects' K_theta in closed form too; AD does the other effects
         x = ca.vertcat(*[symbols.values[n] for n in self.names])
         if self.model.is_linear(self.names):
             stiffness = self._base_stiffness()(x)
@@ -247,9 +253,33 @@ class ExtendedModel:
             if tangent is None:
                 return CaseFunctions(s, p, g, r)
             stiffness = tangent(s[: 3 * n_free], x)
+        if linear is not None:
+            stiffness = stiffness + linear[1](p)
         padding = n_state - stiffness.shape[0]
         dg_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
         return CaseFunctions(s, p, g, r, dg_ds)
+
+    def _linear_effects(self) -> tuple[ca.Function, ca.Function] | None:
+        """The ``linear`` effects' (Delta, p) -> sum K_theta vec(Delta) and p -> sum K_theta.
+
+        Built once per effect set (not per case), so the stiffness constants are
+        stored once; None when no effect is linear.
+        """
+        chosen = [e for e in self.effects if e.linear]
+        if not chosen:
+            return None
+        key = ("functions", tuple(id(e) for e in self.effects), "linear", tuple(self.labels))
+        if key not in self._functions:
+            p = ca.MX.sym("p", self.n_parameters)
+            delta = ca.MX.sym("delta", self.model.n_free, 3)
+            values = dict(self.model.parameters)
+            values.update({name: p[i] for i, name in enumerate(self.names)})
+            total = sum(e.stiffness(self.model, values, p[self.slices[e.name]]) for e in chosen)
+            self._functions[key] = (
+                ca.Function("linear_force", [delta, p], [apply_stacked(total, delta)]),
+                ca.Function("linear_stiffness", [p], [total]),
+            )
+        return self._functions[key]
 
     def _base_force(self) -> ca.Function:
         """K(B; x)(B - B0) of the base model as a Function of (Delta, x) (built once)."""
@@ -289,6 +319,7 @@ class ExtendedModel:
 
         Returned in two parts: the base model's elastic force (zero on the extra rows)
         and the rest, so that a linear base model's Jacobian can be the closed form.
+        The ``linear`` effects' forces are in neither (``_build`` adds them).
         """
         model = self.model
         load = LoadState(np.asarray(case.force_vector, dtype=float))
@@ -298,7 +329,7 @@ class ExtendedModel:
         extra_rows = []
         for effect, theta in zip(self.effects, thetas):
             load = effect.load(model, case, load, theta)
-            term = effect.internal_force(model, symbols, theta)
+            term = None if effect.linear else effect.internal_force(model, symbols, theta)
             if term is not None:
                 force = force + term
             rows = effect.extra_residual(model, symbols, theta)

@@ -22,7 +22,6 @@ paper's model only (the continuum has them).
 
 from __future__ import annotations
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
@@ -30,9 +29,8 @@ from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.continuum import PhysicalGradient
 from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import (
-    CaseSymbols,
     Effect,
-    apply_stacked,
+    componentwise,
     stacked_free_block,
     surface_rule,
 )
@@ -62,6 +60,7 @@ class Heterogeneity(Effect):
     """
 
     energies = ("dnurbs", "linear-elastic")  # scales the linear K of eq. (C3)
+    linear = True
     name = "heterogeneity"
     parameter_names = ("h_u", "h_v", "h_uv")
     units = ("1", "1", "1")
@@ -103,25 +102,23 @@ class Heterogeneity(Effect):
                         return shape(p) * scale
 
                     gram = weighted_gram(model.volume.basis, derivative, field, name=term)
-                    out[term, j] = to_casadi_sparse(model.free_block(gram))
+                    out[term, j] = to_casadi_sparse(componentwise(model.free_block(gram)))
             return out
 
         return self.cached(model, "grams", build)
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+    def stiffness(self, model: TissueModel, values: dict, theta):
         if model.energy != "dnurbs":
-            lame_pair = model.coefficients(symbols.values)
-            force = 0
-            for j, blocks in self._continuum(model).items():
-                for coefficient, block in zip(lame_pair, blocks):
-                    force = force + theta[j] * coefficient * apply_stacked(block, symbols.delta)
-            return force
-        matrices = self._matrices(model)
-        force = 0
-        for (term, j), matrix in matrices.items():
-            coefficient = symbols.values[term] * theta[j]
-            force = force + coefficient * ca.mtimes(matrix, symbols.delta)
-        return force
+            lame_pair = model.coefficients(values)
+            terms = self._continuum(model).items()
+            return sum(
+                theta[j] * coefficient * block
+                for j, blocks in terms
+                for coefficient, block in zip(lame_pair, blocks)
+            )
+        return sum(
+            values[term] * theta[j] * matrix for (term, j), matrix in self._matrices(model).items()
+        )
 
 
 class Bending(Effect):
@@ -131,6 +128,7 @@ class Bending(Effect):
     (the probe then moves about 15 % less).
     """
 
+    linear = True
     name = "bending"
     parameter_names = ("beta",)
     units = ("N/mm",)
@@ -142,12 +140,12 @@ class Bending(Effect):
     equation = "beta integral sum_{i<=j} |d_ij V|^2 (eq. 18)"
     energies = ("dnurbs",)
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+    def stiffness(self, model: TissueModel, values: dict, theta):
         def build():
             total = sum(m for t, m in model.terms.items() if t.startswith("beta_"))
-            return to_casadi_sparse(model.free_block(total))
+            return to_casadi_sparse(componentwise(model.free_block(total)))
 
-        return theta[0] * ca.mtimes(self.cached(model, "K_beta", build), symbols.delta)
+        return theta[0] * self.cached(model, "K_beta", build)
 
 
 class StackedStiffness(Effect):
@@ -157,13 +155,15 @@ class StackedStiffness(Effect):
         """K on all control points, (3n, 3n) in stacked order."""
         raise NotImplementedError
 
-    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+    linear = True
+
+    def stiffness(self, model: TissueModel, values: dict, theta):
         block = self.cached(
             model,
             "free_block",
             lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
         )
-        return theta[0] * apply_stacked(block, symbols.delta)
+        return theta[0] * block
 
 
 class PreTension(StackedStiffness):
