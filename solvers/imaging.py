@@ -16,8 +16,8 @@ over the N field coefficients (``solvers.fieldproblem``, ``solvers.regularizatio
 - ``simultaneous``: the coefficients and every case's state are the variables of one
   IPOPT NLP, the equilibria (eq. I3) its equality constraints.
 
-``discrepancy_weight`` chooses beta by Morozov's principle: the whitened chi^2 equals
-its expectation under the noise, n (the number of residuals).
+``laplace`` gives the posterior standard deviations around an estimate; the weight
+beta is chosen in ``solvers.weight``.
 """
 
 from __future__ import annotations
@@ -266,75 +266,6 @@ SOLVERS = {
 
 
 @dataclass
-class WeightChoice:
-    """Morozov's choice of beta, with the path that found it."""
-
-    estimate: FieldEstimate
-    target: float
-    reached: bool
-    path: list[tuple[float, float]]
-    """(beta, chi^2) of every solve, in order."""
-    note: str
-
-
-def discrepancy_weight(
-    fp: FieldProblem,
-    regularizer,
-    solve=None,
-    target: float | None = None,
-    bounds: tuple[float, float] = (1e-2, 1e10),
-    tolerance: float = 0.02,
-    log=None,
-) -> WeightChoice:
-    """beta with chi^2(beta) = target (default n_residuals), by bisection in log beta.
-
-    chi^2 grows with beta. From the largest beta (nearly homogeneous) the weight falls
-    a decade at a time until chi^2 drops below the target, then bisects to
-    ``tolerance`` decades, each solve warm-started from the nearest one before. When
-    even the largest beta meets the target, the data ask for no field (returned,
-    ``reached`` False); when the smallest does not, the model cannot reach the noise.
-    """
-    solve = solve or SOLVERS["nested-adjoint"]
-    target = float(fp.n_residuals if target is None else target)
-    path, estimates = [], {}
-
-    def run(beta, start):
-        estimate = solve(fp, regularizer, beta, start)
-        estimates[beta] = estimate
-        path.append((beta, estimate.chi2))
-        if log:
-            log(
-                f"  beta {beta:.3g} mm^2: chi2 {estimate.chi2:.1f} (target {target:.0f}), "
-                f"rms {estimate.rms_um:.1f} um, {estimate.seconds:.1f} s"
-            )
-        return estimate
-
-    high = bounds[1]
-    above = run(high, None)
-    if above.chi2 <= target:
-        return WeightChoice(above, target, False, path, "the data need no field")
-    low = high
-    below = above
-    while below.chi2 > target:
-        high, above = low, below
-        low = low / 10.0
-        if low < bounds[0]:
-            return WeightChoice(
-                below, target, False, path, "chi2 above target at the smallest weight"
-            )
-        below = run(low, above.coefficients)
-    while np.log10(high / low) > tolerance:
-        middle = np.sqrt(high * low)
-        estimate = run(middle, below.coefficients)
-        if estimate.chi2 > target:
-            high, above = middle, estimate
-        else:
-            low, below = middle, estimate
-    best = below if abs(below.chi2 - target) <= abs(above.chi2 - target) else above
-    return WeightChoice(best, target, True, path, "chi2 = target")
-
-
-@dataclass
 class Laplace:
     """The Laplace approximation around an estimate: Gauss-Newton Hessian of eq. (I8)."""
 
@@ -344,6 +275,14 @@ class Laplace:
     """tr((J^T J + beta R'')^-1 J^T J): parameters the data determine."""
     rank: int
     """Eigenpairs kept (N when dense)."""
+    covariance: np.ndarray
+    """(J^T J + beta R'')^-1 (low rank: P^-1 - V diag(lambda / (1 + lambda)) V^T), (N, N)."""
+
+    def pointwise_std(self, phi) -> np.ndarray:
+        """Standard deviation of s at points with field basis rows ``phi`` (n, N)."""
+        phi = sp.csr_matrix(phi)
+        variance = np.asarray(phi.multiply(phi @ self.covariance).sum(axis=1)).ravel()
+        return np.sqrt(np.maximum(variance, 0.0))
 
 
 def laplace(fp, regularizer, estimate: FieldEstimate, rank: int | None = None) -> Laplace:
@@ -361,7 +300,9 @@ def laplace(fp, regularizer, estimate: FieldEstimate, rank: int | None = None) -
         jac = fp.sensitivities(c)
         data = jac.T @ jac
         covariance = np.linalg.inv(data + prior)
-        return Laplace(np.sqrt(np.diag(covariance)), float(np.trace(covariance @ data)), fp.size)
+        return Laplace(
+            np.sqrt(np.diag(covariance)), float(np.trace(covariance @ data)), fp.size, covariance
+        )
     delta = 1e-6 * max(np.max(np.diag(prior)), 1e-12)
     precision = prior + delta * np.eye(fp.size)
     operator = spla.LinearOperator(
@@ -371,7 +312,10 @@ def laplace(fp, regularizer, estimate: FieldEstimate, rank: int | None = None) -
     values = np.maximum(values, 0.0)
     inverse = np.linalg.inv(precision)
     correction = (vectors * (values / (1.0 + values))) @ vectors.T
-    variance = np.diag(inverse) - np.diag(correction)
+    covariance = inverse - correction
     return Laplace(
-        np.sqrt(np.maximum(variance, 0.0)), float(np.sum(values / (1 + values))), len(values)
+        np.sqrt(np.maximum(np.diag(covariance), 0.0)),
+        float(np.sum(values / (1 + values))),
+        len(values),
+        covariance,
     )

@@ -16,8 +16,9 @@ from experiments.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
 from solvers.fieldproblem import FieldProblem
-from solvers.imaging import discrepancy_weight, gauss_newton, laplace, lbfgs, simultaneous
+from solvers.imaging import gauss_newton, laplace, lbfgs, simultaneous
 from solvers.regularization import Tikhonov, TotalVariation
+from solvers.weight import discrepancy_weight, lcurve_weight
 from symbolic.field import StiffnessField
 
 LENGTHS = (40.0, 40.0, 5.0)
@@ -142,3 +143,19 @@ def test_discrepancy_principle_meets_its_target(field_problem):
     low_rank = laplace(fp, regularizer, choice.estimate, rank=fp.size - 1)
     assert low_rank.effective_dof == pytest.approx(dense.effective_dof, rel=0.05)
     assert np.allclose(low_rank.std, dense.std, rtol=0.1)
+
+
+def test_lcurve_corner_lies_inside_its_range_and_near_the_noise(field_problem):
+    """The L-curve needs no noise level; on data the model can fit to the noise its
+    corner should leave a residual of about the noise (chi^2 near n), as Morozov's does;
+    and the pointwise standard deviation at the nodes is the Laplace std itself."""
+    fp = reachable(field_problem, 2.0 * truth_field(field_problem.field), seed=5)
+    regularizer = Tikhonov(fp.field, LENGTHS)
+    solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    choice = lcurve_weight(fp, regularizer, solve)
+    betas = [beta for beta, _ in choice.path]
+    assert min(betas) < choice.estimate.weight < max(betas)
+    assert 0.8 * fp.n_residuals <= choice.estimate.chi2 <= 1.5 * fp.n_residuals, choice.path
+    posterior = laplace(fp, regularizer, choice.estimate)
+    at_nodes = posterior.pointwise_std(fp.field.collocation(fp.field.nodes()))
+    assert np.allclose(at_nodes, posterior.std, rtol=1e-10)

@@ -1,0 +1,124 @@
+"""The regularisation weight beta of eq. (I8): Morozov's discrepancy principle, or the L-curve.
+
+- ``discrepancy_weight`` (the default): the whitened chi^2 of the estimate equals its
+  expectation under pure noise, n (the number of residuals). It needs the noise level,
+  which the dataset declares.
+- ``lcurve_weight``: the corner of the curve (log chi^2, log R) traced over beta, the
+  point of largest curvature; it needs no noise level and serves as a check on it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from solvers.fieldproblem import FieldProblem
+from solvers.imaging import SOLVERS, FieldEstimate
+
+
+@dataclass
+class WeightChoice:
+    """A choice of beta, with the path of (beta, chi^2) that found it."""
+
+    estimate: FieldEstimate
+    target: float
+    reached: bool
+    path: list[tuple[float, float]]
+    """(beta, chi^2) of every solve, in order."""
+    note: str
+    rule: str = "morozov"
+
+
+def discrepancy_weight(
+    fp: FieldProblem,
+    regularizer,
+    solve=None,
+    target: float | None = None,
+    bounds: tuple[float, float] = (1e-2, 1e10),
+    tolerance: float = 0.02,
+    log=None,
+) -> WeightChoice:
+    """beta with chi^2(beta) = target (default n_residuals), by bisection in log beta.
+
+    chi^2 grows with beta. From the largest beta (nearly homogeneous) the weight falls
+    a decade at a time until chi^2 drops below the target, then bisects to
+    ``tolerance`` decades, each solve warm-started from the nearest one before. When
+    even the largest beta meets the target, the data ask for no field (returned,
+    ``reached`` False); when the smallest does not, the model cannot reach the noise.
+    """
+    solve = solve or SOLVERS["nested-adjoint"]
+    target = float(fp.n_residuals if target is None else target)
+    path, estimates = [], {}
+
+    def run(beta, start):
+        estimate = solve(fp, regularizer, beta, start)
+        estimates[beta] = estimate
+        path.append((beta, estimate.chi2))
+        if log:
+            log(
+                f"  beta {beta:.3g} mm^2: chi2 {estimate.chi2:.1f} (target {target:.0f}), "
+                f"rms {estimate.rms_um:.1f} um, {estimate.seconds:.1f} s"
+            )
+        return estimate
+
+    high = bounds[1]
+    above = run(high, None)
+    if above.chi2 <= target:
+        return WeightChoice(above, target, False, path, "the data need no field")
+    low = high
+    below = above
+    while below.chi2 > target:
+        high, above = low, below
+        low = low / 10.0
+        if low < bounds[0]:
+            return WeightChoice(
+                below, target, False, path, "chi2 above target at the smallest weight"
+            )
+        below = run(low, above.coefficients)
+    while np.log10(high / low) > tolerance:
+        middle = np.sqrt(high * low)
+        estimate = run(middle, below.coefficients)
+        if estimate.chi2 > target:
+            high, above = middle, estimate
+        else:
+            low, below = middle, estimate
+    best = below if abs(below.chi2 - target) <= abs(above.chi2 - target) else above
+    return WeightChoice(best, target, True, path, "chi2 = target")
+
+
+def lcurve_weight(
+    fp: FieldProblem,
+    regularizer,
+    solve=None,
+    bounds: tuple[float, float] = (1e-2, 1e10),
+    per_decade: int = 2,
+    log=None,
+) -> WeightChoice:
+    """beta at the L-curve's corner: largest curvature of (log chi^2, log R) over log beta.
+
+    The estimates are made from the largest beta down, each warm-started from the
+    last; the curvature of the parametric curve (x(t), y(t)), t = log10 beta, is
+    |x'y'' - y'x''| / (x'^2 + y'^2)^(3/2) by finite differences. Ends are excluded.
+    """
+    solve = solve or SOLVERS["nested-adjoint"]
+    count = int(round(np.log10(bounds[1] / bounds[0]) * per_decade)) + 1
+    betas = np.logspace(np.log10(bounds[1]), np.log10(bounds[0]), count)
+    estimates, start = [], None
+    for beta in betas:
+        estimate = solve(fp, regularizer, beta, start)
+        estimates.append(estimate)
+        start = estimate.coefficients
+        if log:
+            chi2, value = estimate.chi2, estimate.regularization
+            log(f"  beta {beta:.3g} mm^2: chi2 {chi2:.1f}, R {value:.3g}")
+    t = np.log10(betas)
+    x = np.log([e.chi2 for e in estimates])
+    y = np.log([max(e.regularization, 1e-300) for e in estimates])
+    dx, dy = np.gradient(x, t), np.gradient(y, t)
+    ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
+    curvature = np.abs(dx * ddy - dy * ddx) / np.maximum((dx**2 + dy**2) ** 1.5, 1e-300)
+    curvature[[0, -1]] = -np.inf
+    best = estimates[int(np.argmax(curvature))]
+    path = [(float(b), e.chi2) for b, e in zip(betas, estimates)]
+    return WeightChoice(best, float(fp.n_residuals), True, path, "L-curve corner", "lcurve")
