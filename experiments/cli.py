@@ -35,6 +35,7 @@ RESEARCH = {
     "detection": ("experiments.diagnosis.detection", "how large an effect must be to be found"),
     "outoflibrary": ("experiments.diagnosis.outoflibrary", "data from a linear-elastic FE slab"),
     "continuum-loop": ("experiments.diagnosis.continuum", "the loop on scikit-fem continuum data"),
+    "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
     "realskin": ("experiments.realskin.study", "real in vivo skin: fit and close the loop"),
     "realskin-twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),

@@ -91,6 +91,19 @@ def _estimate(fp, regularizer, weight, c, iterations, begin, method, success, me
     )
 
 
+MAX_STEP = 1.0
+"""Largest change of s = log(E / E_ref) at any node in one Gauss-Newton step (E x e)."""
+
+
+def _safe_objective(fp, regularizer, weight, c) -> float:
+    """J(c), or infinity where the equilibrium cannot be solved (E under- or overflows)."""
+    try:
+        value = objective(fp, regularizer, weight, c)
+    except RuntimeError:  # SuperLU: "Factor is exactly singular"
+        return np.inf
+    return value if np.isfinite(value) else np.inf
+
+
 def gauss_newton(
     fp: FieldProblem,
     regularizer,
@@ -103,7 +116,9 @@ def gauss_newton(
     """Gauss-Newton on eq. (I8) with a backtracking line search.
 
     Stops when the Newton decrement -grad . p / 2 falls below ``tolerance`` times
-    J(c) (the objective can fall by no more than that).
+    J(c) (the objective can fall by no more than that). A step is shortened to
+    ``MAX_STEP`` at its largest node, and a trial whose equilibrium cannot be solved
+    counts as an increase.
     """
     if hessian not in ("adjoint", "sensitivity"):
         raise ValueError("hessian must be 'adjoint' or 'sensitivity'")
@@ -136,10 +151,10 @@ def gauss_newton(
         decrement = -0.5 * float(gradient @ step)
         if decrement <= tolerance * max(value, 1.0):
             return finish(iteration, True, "converged")
-        length = 1.0
+        length = min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))
         while length > 1e-8:
             trial = c + length * step
-            trial_value = objective(fp, regularizer, weight, trial)
+            trial_value = _safe_objective(fp, regularizer, weight, trial)
             if trial_value <= value - 1e-4 * length * 2.0 * decrement:
                 break
             length *= 0.5

@@ -39,6 +39,7 @@ DIRECTORY_OUTPUT = {
     "realcheck": ["--data", "{tmp}"],
     "continuum-loop": [],
     "realskin-continuum": [],
+    "image": ["{data}"],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
 
@@ -157,6 +158,10 @@ OUT_OF_RANGE = [
     (["detection", "--factors", "0", "--out", "o"], "--factors"),
     (["outoflibrary", "--noise", "5", "--out", "x.npz"], "--noise"),
     (["continuum-loop", "--scenarios", "gravity", "--out", "o"], "--scenarios"),
+    (["image", "{data}", "--field", "1x1", "--out", "o"], "--field"),
+    (["image", "{data}", "--weight", "-3", "--out", "o"], "--weight"),
+    (["image", "{data}", "--field", "5x5", "--over", "layers", "--out", "o"], "--field"),
+    (["image", "{data}", "--noise", "0", "--out", "o"], "--noise"),
     (["diagnose", "{data}", "--degrees", "9x9x9", "--out", "o"], "--degrees"),
     (["realskin", "--grid", "1", "1", "--out", "o"], "--grid"),
     (["realskin-twin", "--ratios", "-1"], "--ratios"),

@@ -1,0 +1,1 @@
+"""Stiffness imaging from a dataset: ``dvs image`` and the imaging benchmark (docs/imaging.md)."""

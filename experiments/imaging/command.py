@@ -1,0 +1,184 @@
+"""``dvs image``: a dataset in, a map of Young's modulus with its uncertainty out.
+
+Writes image.json, map.png, std.png and map.vtu (ParaView) into ``--out``
+(docs/cli.md, docs/formats.md; the method in docs/imaging.md).
+"""
+
+from __future__ import annotations
+
+from experiments.imaging.run import REGULARIZERS
+from solvers.imaging import SOLVERS
+
+MAX_FIELD_SIZE = 2000
+"""Largest number of field coefficients ``dvs image`` accepts."""
+
+
+def parse_field(text: str, over: str) -> tuple[int, ...]:
+    """'5x5' (surface) or '5x5x3' (layers, volume): nodes per direction, at least 2 along u, v."""
+    from experiments.options import UsageError
+
+    wanted = 2 if over == "surface" else 3
+    try:
+        shape = tuple(int(part) for part in text.lower().split("x"))
+    except ValueError:
+        shape = ()
+    least = (2, 2, 2 if over == "volume" else 1)
+    if len(shape) != wanted or any(n < m for n, m in zip(shape, least)):
+        example = "5x5" if wanted == 2 else "5x5x2"
+        raise UsageError(
+            f"--field must look like {example} for --over {over} "
+            f"(at least {'x'.join(map(str, least[:wanted]))} nodes), got {text!r}"
+        )
+    size = 1
+    for n in shape:
+        size *= n
+    if size > MAX_FIELD_SIZE:
+        raise UsageError(f"--field {text}: at most {MAX_FIELD_SIZE} coefficients, got {size}")
+    return shape
+
+
+def parse_weight(text: str) -> str | float:
+    """'morozov', 'lcurve' or a positive beta [mm^2]."""
+    from experiments.options import UsageError
+
+    if text in ("morozov", "lcurve"):
+        return text
+    try:
+        beta = float(text)
+    except ValueError:
+        beta = float("nan")
+    if not beta > 0 or beta == float("inf"):
+        raise UsageError(
+            f"--weight must be morozov, lcurve or a positive number [mm^2], got {text!r}"
+        )
+    return beta
+
+
+def build_parser(prog: str = "python -m experiments.imaging.command"):
+    """The options of ``dvs image`` (docs/cli.md)."""
+    from experiments.options import add_margin_argument, make_parser, path_argument
+
+    parser = make_parser(
+        prog, "Image Young's modulus as a field, with its uncertainty (writes image.json)."
+    )
+    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz) with noise_mm")
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
+    parser.add_argument("--field", default="5x5", help="nodes of the field: MxN, or MxNxL")
+    parser.add_argument("--over", choices=("surface", "layers", "volume"), default="surface")
+    parser.add_argument("--regularizer", choices=tuple(REGULARIZERS), default="h1")
+    parser.add_argument(
+        "--weight", default="morozov", help="morozov (needs the noise), lcurve, or beta [mm^2]"
+    )
+    parser.add_argument(
+        "--method",
+        choices=("auto", *SOLVERS),
+        default="auto",
+        help="auto: nested-sensitivity for small fields, nested-adjoint for large",
+    )
+    parser.add_argument(
+        "--noise", type=float, default=None, help="marker noise [mm] (default: the dataset's)"
+    )
+    parser.add_argument(
+        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
+    )
+    parser.add_argument("--degrees", default="3x3x1", help="degrees PxQxR")
+    add_margin_argument(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.imaging.command") -> int:
+    """``dvs image FILE.npz --out DIR``: exit 0, 2 for bad input, 3 if a solve failed."""
+    import sys
+    from dataclasses import replace
+
+    from experiments.options import (
+        EXIT_NOT_CONVERGED,
+        UsageError,
+        check_grid,
+        check_margin,
+        check_noise,
+        check_output_dir,
+        parse_degrees,
+        parse_grid,
+        run_guarded,
+    )
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        from experiments.dataset import load_dataset
+        from experiments.fitting import FitSettings
+        from experiments.imaging.outputs import document, plot_maps, write_vtu
+        from experiments.imaging.run import ImageSettings, image_dataset
+
+        shape = parse_field(args.field, args.over)
+        weight = parse_weight(args.weight)
+        degrees = parse_degrees(args.degrees)
+        grid = (
+            None if args.grid == "auto" else check_grid(parse_grid(args.grid), degrees, args.grid)
+        )
+        noise = None if args.noise is None else check_noise(args.noise)
+        if noise == 0:
+            raise UsageError("--noise must be positive: the misfit is whitened by it")
+        fit = FitSettings(
+            names=("E", "nu"),
+            energy="linear-elastic",
+            grid=grid,
+            degrees=degrees,
+            margin=check_margin(args.margin),
+        )
+        settings = ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit)
+        check_output_dir(args.out)
+        dataset = load_dataset(args.dataset)
+        if noise is not None:
+            dataset = replace(dataset, noise_mm=noise)
+        if not dataset.noise_mm or dataset.noise_mm <= 0:
+            raise UsageError(
+                f"{args.dataset} declares no noise level; give it with --noise MM "
+                "(the misfit is whitened by it)"
+            )
+        print(f"imaging {args.dataset} ({dataset.n_loads} load cases)", flush=True)
+        image = image_dataset(dataset, settings, log=lambda line: print(line, flush=True))
+        args.out.mkdir(parents=True, exist_ok=True)
+        plot_maps(image, dataset.outer_rest, args.out / "map.png", args.out / "std.png")
+        if not write_vtu(image, args.out / "map.vtu"):
+            print(f"{prog}: warning: map.vtu not written: pip install meshio", file=sys.stderr)
+        record = document(image, str(args.dataset))
+        from experiments.atomic import atomic_write_json
+
+        atomic_write_json(args.out / "image.json", record)
+        residual, strongest = record["residual"], record["strongest_departure"]
+        print(
+            f"  beta {record['weight']['beta_mm2']:.3g} mm^2 ({record['weight']['note']}), "
+            f"chi2/n {residual['chi2_over_n']:.3f}, rms {residual['rms_um']:.1f} um, "
+            f"{record['effective_dof']:.1f} effective dof; E "
+            f"{min(record['field']['E_kPa']):.3g}-{max(record['field']['E_kPa']):.3g} kPa"
+        )
+        verdict = "significant" if strongest["significant"] else "not significant"
+        print(
+            f"  strongest departure: E x {strongest['E_ratio_to_mean']:.2f} of the mean at "
+            f"({strongest['node_xyz_mm'][0]:.1f}, {strongest['node_xyz_mm'][1]:.1f}) mm, "
+            f"{strongest['z']:.1f} std ({verdict}) -> {args.out / 'image.json'}"
+        )
+        if record["weight"]["note"].startswith("chi2 above target"):
+            print(
+                f"{prog}: warning: no field brings the residual down to the noise "
+                f"(chi2/n {residual['chi2_over_n']:.2f} at the smallest weight): the model "
+                "lacks something and the map absorbs it (docs/imaging.md; try --margin, "
+                "a finer --grid, or dvs diagnose)",
+                file=sys.stderr,
+            )
+        if not record["success"]:
+            print(
+                f"{prog}: error: the field estimate did not converge ({record['message']}); "
+                f"{args.out / 'image.json'} has success: false",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_CONVERGED
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,143 @@
+"""From a dataset to a regularised map of Young's modulus (docs/imaging.md).
+
+1. Fit the homogeneous linear-elastic model (E, nu) by the nested method; its E is
+   E_ref of eq. (I1) and its nu is held.
+2. Estimate the field s = log(E / E_ref) (eq. I8) with the weight chosen by
+   Morozov's principle (default), the L-curve, or given.
+3. The Laplace approximation around the estimate: standard deviations and the
+   effective number of parameters.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from experiments.dataset import Dataset
+from experiments.fitting import FitSettings, build_problem, fit_dataset
+from solvers.fieldproblem import FieldProblem
+from solvers.imaging import SOLVERS, Laplace, laplace
+from solvers.regularization import Tikhonov, TotalVariation
+from solvers.weight import WeightChoice, discrepancy_weight, lcurve_weight
+from symbolic.field import StiffnessField
+
+REGULARIZERS = {"h1": Tikhonov, "tv": TotalVariation}
+"""``--regularizer`` -> class (solvers/regularization.py)."""
+
+DENSE_LAPLACE_MAX_N = 400
+"""Up to this N the Laplace approximation forms J; above it, low rank (``LOW_RANK``)."""
+
+LOW_RANK = 100
+"""Eigenpairs of the low-rank Laplace approximation."""
+
+AUTO_SENSITIVITY_MAX_N = 256
+"""``--method auto``: nested-sensitivity up to this N, nested-adjoint above
+(docs/inverse.md, "Stiffness imaging: which method")."""
+
+
+@dataclass(frozen=True)
+class ImageSettings:
+    """What ``dvs image`` does (lengths in mm).
+
+    Attributes
+    ----------
+    shape : tuple of int
+        Nodes of the field: (M, N) for ``over="surface"``, (M, N, L) otherwise.
+    over : {"surface", "layers", "volume"}
+        Layout of the field (``symbolic.field.StiffnessField``).
+    regularizer : {"h1", "tv"}
+    weight : str or float
+        "morozov", "lcurve", or beta [mm^2].
+    method : str
+        A key of ``solvers.imaging.SOLVERS``, or "auto".
+    fit : FitSettings
+        The model: grid, degrees, margin (energy linear-elastic).
+    """
+
+    shape: tuple = (5, 5)
+    over: str = "surface"
+    regularizer: str = "h1"
+    weight: str | float = "morozov"
+    method: str = "auto"
+    fit: FitSettings = field(
+        default_factory=lambda: FitSettings(names=("E", "nu"), energy="linear-elastic")
+    )
+
+    def solver_name(self, size: int) -> str:
+        """The method used for a field of ``size`` coefficients."""
+        if self.method != "auto":
+            return self.method
+        return "nested-sensitivity" if size <= AUTO_SENSITIVITY_MAX_N else "nested-adjoint"
+
+
+@dataclass
+class Image:
+    """The result: the problem, the estimate, its weight and its uncertainty."""
+
+    field_problem: FieldProblem
+    regularizer: object
+    choice: WeightChoice
+    posterior: Laplace
+    homogeneous: dict
+    method: str
+    seconds: float
+
+    @property
+    def estimate(self):
+        """The chosen ``FieldEstimate``."""
+        return self.choice.estimate
+
+
+def tissue_lengths(model) -> tuple[float, float, float]:
+    """Lengths of the volume's mid-lines along u, v and w [mm] (the regulariser's scale)."""
+    t = np.linspace(0.0, 1.0, 41)
+    lengths = []
+    for axis in range(3):
+        points = np.full((t.size, 3), 0.5)
+        points[:, axis] = t
+        xyz = model.volume.collocation(points) @ model.rest
+        lengths.append(float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()))
+    return tuple(lengths)
+
+
+def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image:
+    """Fit the homogeneous model, then the field; see the module docstring."""
+    begin = time.perf_counter()
+    base = replace(settings.fit, names=("E", "nu"), energy="linear-elastic")
+    _, result, _, document = fit_dataset(dataset, base, "nested")
+    if not result.success:
+        raise RuntimeError(f"the homogeneous fit did not converge ({result.status})")
+    homogeneous = {n: float(v) for n, v in zip(result.names, result.x)}
+    homogeneous["rms_um"] = 1e3 * float(document["rms_mm"])
+    log(
+        f"  homogeneous: E {homogeneous['E']:.4g} kPa, nu {homogeneous['nu']:.4f}, "
+        f"rms {homogeneous['rms_um']:.1f} um"
+    )
+    fixed = dict(base.fixed or {}, E=homogeneous["E"], nu=homogeneous["nu"])
+    problem = build_problem(dataset, replace(base, names=("E",), fixed=fixed))
+    stiffness_field = StiffnessField(tuple(settings.shape), settings.over)
+    fp = FieldProblem(problem, stiffness_field)
+    regularizer = REGULARIZERS[settings.regularizer](stiffness_field, tissue_lengths(problem.model))
+    method = settings.solver_name(fp.size)
+    solve = SOLVERS[method]
+    log(
+        f"  field {'x'.join(map(str, settings.shape))} over the {settings.over} "
+        f"(N = {fp.size}), {settings.regularizer}, {method}, {fp.n_residuals} residuals"
+    )
+    if settings.weight == "morozov":
+        choice = discrepancy_weight(fp, regularizer, solve, log=log)
+    elif settings.weight == "lcurve":
+        choice = lcurve_weight(fp, regularizer, solve, log=log)
+    else:
+        beta = float(settings.weight)
+        estimate = solve(fp, regularizer, beta, None)
+        choice = WeightChoice(
+            estimate, float(fp.n_residuals), True, [(beta, estimate.chi2)], "given", "given"
+        )
+    rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
+    posterior = laplace(fp, regularizer, choice.estimate, rank)
+    return Image(
+        fp, regularizer, choice, posterior, homogeneous, method, time.perf_counter() - begin
+    )

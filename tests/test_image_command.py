@@ -1,0 +1,69 @@
+"""``dvs image`` end to end on scikit-fem data (another code and mesh than the model)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from experiments.dataset import save_dataset
+from experiments.imaging.command import main
+from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
+from experiments.phantom.simulate import SimulationSettings
+
+
+@pytest.fixture(scope="module")
+def fe_dataset(tmp_path_factory):
+    """A slab with a stiff disc (E x 2, 10 mm) on the 10-load design, 0.02 mm noise."""
+    folder = tmp_path_factory.mktemp("image")
+    slab = ReferenceSlab(elements=(12, 12, 2), inclusion=(6.0, -5.0, 10.0, 2.0))
+    forces, contacts = design_cases("diagnosis", slab)
+    data = reference_dataset(
+        slab, forces, contacts, 4.0, (7, 7), SimulationSettings(noise_mm=0.02, seed=3)
+    )
+    path = folder / "slab.npz"
+    save_dataset(path, data)
+    unlabelled = folder / "no_noise.npz"
+    save_dataset(unlabelled, replace(data, noise_mm=None))
+    return path, unlabelled
+
+
+def test_image_writes_the_map_its_uncertainty_and_a_consistent_record(fe_dataset, tmp_path, capsys):
+    import json
+
+    import meshio
+
+    path, _ = fe_dataset
+    out = tmp_path / "image"
+    argv = [str(path), "--out", str(out), "--grid", "7x7x2", "--field", "4x4", "--weight", "100"]
+    assert main(argv) == 0, capsys.readouterr().err
+    written = {p.name for p in out.iterdir()}
+    assert {"image.json", "map.png", "std.png", "map.vtu"} <= written, written
+    record = json.loads((out / "image.json").read_text())
+    assert record["schema"] == "dvs-image/1"
+    field = record["field"]
+    s = np.array(field["coefficients"])
+    reference = record["model"]["E_ref_kPa"]
+    np.testing.assert_allclose(field["E_kPa"], reference * np.exp(s), rtol=1e-12)
+    assert record["weight"] == {**record["weight"], "rule": "given", "beta_mm2": 100.0}
+    assert 1.0 <= record["effective_dof"] <= len(s)
+    assert all(v > 0 for v in field["std_log_E"])
+    residual = record["residual"]
+    assert residual["chi2_over_n"] == pytest.approx(residual["chi2"] / residual["n"])
+    mesh = meshio.read(out / "map.vtu")
+    np.testing.assert_allclose(
+        mesh.point_data["E_kPa"], reference * np.exp(mesh.point_data["log_E_ratio"])
+    )
+    # the nodal values of a degree-1 field are the map's values at the nodes
+    assert np.nanmin(mesh.point_data["E_kPa"]) >= min(field["E_kPa"]) * (1 - 1e-9)
+    assert "strongest departure" in capsys.readouterr().out
+
+
+def test_image_without_a_noise_level_is_a_usage_error(fe_dataset, tmp_path, capsys):
+    _, unlabelled = fe_dataset
+    out = tmp_path / "none"
+    assert main([str(unlabelled), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--noise" in err and err.count("\n") == 1
+    assert not out.exists()
