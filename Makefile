@@ -28,6 +28,7 @@ slow: $(STAMP)
 bench: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
 	$(BIN)/dvs boardbench
+	$(BIN)/dvs imagebench
 
 lint: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests

@@ -36,6 +36,7 @@ RESEARCH = {
     "outoflibrary": ("experiments.diagnosis.outoflibrary", "data from a linear-elastic FE slab"),
     "continuum-loop": ("experiments.diagnosis.continuum", "the loop on scikit-fem continuum data"),
     "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
+    "imagebench": ("experiments.imaging.bench", "stiffness imaging: fit time against N"),
     "realskin": ("experiments.realskin.study", "real in vivo skin: fit and close the loop"),
     "realskin-twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),

@@ -40,6 +40,7 @@ DIRECTORY_OUTPUT = {
     "continuum-loop": [],
     "realskin-continuum": [],
     "image": ["{data}"],
+    "imagebench": [],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
 
@@ -63,6 +64,7 @@ EXPENSIVE = (
     "bench",
     "continuum-loop",
     "realskin-continuum",
+    "imagebench",
 )
 
 
@@ -162,6 +164,8 @@ OUT_OF_RANGE = [
     (["image", "{data}", "--weight", "-3", "--out", "o"], "--weight"),
     (["image", "{data}", "--field", "5x5", "--over", "layers", "--out", "o"], "--field"),
     (["image", "{data}", "--noise", "0", "--out", "o"], "--noise"),
+    (["imagebench", "--sizes", "15"], "--sizes"),
+    (["imagebench", "--methods", "magic"], "--methods"),
     (["diagnose", "{data}", "--degrees", "9x9x9", "--out", "o"], "--degrees"),
     (["realskin", "--grid", "1", "1", "--out", "o"], "--grid"),
     (["realskin-twin", "--ratios", "-1"], "--ratios"),

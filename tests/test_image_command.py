@@ -67,3 +67,25 @@ def test_image_without_a_noise_level_is_a_usage_error(fe_dataset, tmp_path, caps
     err = capsys.readouterr().err
     assert "--noise" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_every_key_of_image_json_is_documented(fe_dataset, tmp_path):
+    import json
+    from pathlib import Path
+
+    path, _ = fe_dataset
+    out = tmp_path / "keys"
+    assert (
+        main([str(path), "--out", str(out), "--grid", "7x7x2", "--field", "3x3", "--weight", "10"])
+        == 0
+    )
+    record = json.loads((out / "image.json").read_text())
+    formats = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
+    section = formats.split("## image.json", 1)[1].split("\n## ", 1)[0]
+
+    def keys(document):
+        if isinstance(document, dict):
+            return set(document) | set().union(*map(keys, document.values()))
+        return set()
+
+    assert sorted(k for k in keys(record) if f"`{k}`" not in section) == []

@@ -1,0 +1,165 @@
+"""``dvs imagebench``: fit time of stiffness imaging against the field size N, three methods.
+
+One run, side by side: for each model grid and each N (a square field over the skin,
+sqrt(N) nodes a side), the same regularised problem (eq. I8, H1, one fixed weight) is
+solved by the simultaneous NLP (IPOPT), nested Gauss-Newton with adjoint products
+(matrix-free CG) and nested Gauss-Newton with the implicit-function sensitivities
+(J formed). Data: the scikit-fem slab with a stiff disc on the 10-load design, 0.02 mm
+noise. A method whose run exceeds ``--budget`` seconds is not run at larger N.
+Prints the table (and writes ``imagebench.json`` and ``imagebench.md`` with ``--out``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+METHODS = ("simultaneous", "nested-adjoint", "nested-sensitivity")
+WEIGHT_MM2 = 1000.0
+"""beta of every run [mm^2]: the same problem for every method."""
+
+MARGIN_MM = 10.0
+"""Tissue beyond the markers in the model (docs/continuum.md: without it the field
+absorbs the free sides' model error, and the methods stop at different maps)."""
+
+
+def bench_problem(grid: tuple[int, int, int], side: int):
+    """FieldProblem and H1 regulariser: scikit-fem slab with an inclusion, 10 loads."""
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.fitting import build_problem
+    from experiments.imaging.run import tissue_lengths
+    from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
+    from experiments.phantom.simulate import SimulationSettings
+    from solvers.fieldproblem import FieldProblem
+    from solvers.regularization import Tikhonov
+    from symbolic.field import StiffnessField
+
+    slab = ReferenceSlab(elements=(12, 12, 2), inclusion=(6.0, -5.0, 10.0, 2.0))
+    forces, contacts = design_cases("diagnosis", slab)
+    data = reference_dataset(
+        slab, forces, contacts, 4.0, (9, 9), SimulationSettings(noise_mm=0.02, seed=3)
+    )
+    problem = build_problem(data, base_settings(grid, "linear-elastic", margin=MARGIN_MM))
+    field = StiffnessField((side, side))
+    return FieldProblem(problem, field), Tikhonov(field, tissue_lengths(problem.model))
+
+
+def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list[dict]:
+    """Rows {grid, N, method, seconds, iterations, success, max_diff_log_E}."""
+    from solvers.imaging import SOLVERS
+
+    rows, over_budget = [], set()
+    for grid in grids:
+        for size in sizes:
+            side = int(round(np.sqrt(size)))
+            fp, regularizer = bench_problem(grid, side)
+            maps = {}
+            for method in methods:
+                if (grid, method) in over_budget:
+                    log(f"  {'x'.join(map(str, grid))} N={fp.size} {method}: skipped (budget)")
+                    continue
+                begin = time.perf_counter()
+                estimate = SOLVERS[method](fp, regularizer, WEIGHT_MM2, None)
+                seconds = time.perf_counter() - begin
+                maps[method] = estimate.coefficients
+                if seconds > budget:
+                    over_budget.add((grid, method))
+                rows.append(
+                    {
+                        "grid": "x".join(map(str, grid)),
+                        "N": fp.size,
+                        "method": method,
+                        "seconds": seconds,
+                        "iterations": estimate.iterations,
+                        "success": estimate.success,
+                    }
+                )
+                log(
+                    f"  {rows[-1]['grid']} N={fp.size} {method}: {seconds:.1f} s, "
+                    f"{estimate.iterations} iterations, {estimate.message}"
+                )
+            reference = next(iter(maps.values()), None)
+            for row in rows[-len(maps) :]:
+                row["max_diff_log_E"] = float(np.abs(maps[row["method"]] - reference).max())
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    """Markdown: one line per grid and N, seconds per method, the fastest named."""
+    methods = sorted({r["method"] for r in rows}, key=lambda m: METHODS.index(m))
+    lines = [
+        "| grid | N | " + " | ".join(methods) + " | fastest | max diff in log E |",
+        "|---|---|" + "---|" * len(methods) + "---|---|",
+    ]
+    keys = sorted({(r["grid"], r["N"]) for r in rows}, key=lambda k: (k[0], k[1]))
+    for grid, size in keys:
+        chosen = {r["method"]: r for r in rows if (r["grid"], r["N"]) == (grid, size)}
+        cells = [
+            f"{chosen[m]['seconds']:.1f} s" + ("" if chosen[m]["success"] else " (failed)")
+            if m in chosen
+            else "-"
+            for m in methods
+        ]
+        fastest = min(chosen.values(), key=lambda r: r["seconds"])["method"]
+        spread = max(r["max_diff_log_E"] for r in chosen.values())
+        lines.append(f"| {grid} | {size} | " + " | ".join(cells) + f" | {fastest} | {spread:.1e} |")
+    return "\n".join(lines)
+
+
+def build_parser(prog: str = "python -m experiments.imaging.bench"):
+    """The options of ``dvs imagebench`` (docs/cli.md)."""
+    from experiments.options import make_parser, path_argument
+
+    parser = make_parser(prog, "Stiffness imaging: fit time against N for three methods.")
+    parser.add_argument("--grids", default="9x9x2,17x17x3", help="model grids, comma list")
+    parser.add_argument("--sizes", default="16,64,256,1024", help="field sizes N (squares)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma list")
+    parser.add_argument("--budget", type=float, default=900.0, help="seconds; no larger N after")
+    parser.add_argument("--out", type=path_argument, default=None, help="output directory")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.imaging.bench") -> int:
+    """``dvs imagebench``: exit 0, or 2 with one line for bad input."""
+    from experiments.options import (
+        UsageError,
+        check_output_dir,
+        parse_grid,
+        parse_numbers,
+        run_guarded,
+    )
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        grids = [parse_grid(g, "--grids") for g in args.grids.split(",") if g.strip()]
+        if not grids:
+            raise UsageError("--grids needs at least one grid, e.g. 9x9x2")
+        sizes = parse_numbers(args.sizes, "--sizes", int)
+        if any(n < 4 or n > 4096 or round(np.sqrt(n)) ** 2 != n for n in sizes):
+            raise UsageError(f"--sizes must be squares in 4-4096, got {args.sizes!r}")
+        methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+        unknown = sorted(set(methods) - set(METHODS))
+        if unknown:
+            raise UsageError(f"--methods: unknown {', '.join(unknown)}; use {', '.join(METHODS)}")
+        if not args.budget > 0:
+            raise UsageError(f"--budget must be positive seconds, got {args.budget}")
+        if args.out is not None:
+            check_output_dir(args.out)
+        rows = run(grids, sizes, methods, args.budget, log=lambda line: print(line, flush=True))
+        text = table(rows)
+        print(text)
+        if args.out is not None:
+            from experiments.atomic import atomic_write_json, atomic_write_text
+
+            args.out.mkdir(parents=True, exist_ok=True)
+            atomic_write_json(args.out / "imagebench.json", rows)
+            atomic_write_text(args.out / "imagebench.md", text + "\n")
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
