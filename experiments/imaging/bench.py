@@ -147,6 +147,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
             raise UsageError(f"--budget must be positive seconds, got {args.budget}")
         if args.out is not None:
             check_output_dir(args.out)
+        from experiments.phantom.fe import require_skfem
+
+        require_skfem()
         rows = run(grids, sizes, methods, args.budget, log=lambda line: print(line, flush=True))
         text = table(rows)
         print(text)
