@@ -46,12 +46,15 @@ class SharedCache(dict):
     set; the ``limit`` most recently used sets are kept whole, an older one is
     dropped whole and rebuilt when it is needed again. (Counting single entries
     instead evicted the Functions of one set's ten load cases while the same
-    evaluation still needed them: every evaluation rebuilt them all.)
+    evaluation still needed them: every evaluation rebuilt them all.) Two sets are
+    what a refit and its left-out-contact guard alternate between (the current
+    model and the candidate); with 4 the diagnosis design's compliant-base scenario
+    at 27 x 27 x 4 was killed at 23 GB.
     """
 
     HEAVY = "functions"
 
-    def __init__(self, limit: int = 4):
+    def __init__(self, limit: int = 2):
         super().__init__()
         self.limit = int(limit)
         self._sets: OrderedDict = OrderedDict()
