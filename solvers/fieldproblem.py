@@ -74,9 +74,18 @@ class FieldProblem:
         residual (eq. I4). Its model's E is E_ref and its nu is held.
     field : StiffnessField
         The basis of s = log(E / E_ref).
+    reference_kpa, poisson : float, optional
+        E_ref [kPa] and the held nu (default: the model's own), e.g. a homogeneous
+        fit's, without rebuilding the problem.
     """
 
-    def __init__(self, problem: InverseProblem, stiffness_field: StiffnessField):
+    def __init__(
+        self,
+        problem: InverseProblem,
+        stiffness_field: StiffnessField,
+        reference_kpa: float | None = None,
+        poisson: float | None = None,
+    ):
         model = problem.model
         if getattr(model, "energy", "dnurbs") != "linear-elastic":
             raise ValueError("stiffness imaging needs the linear-elastic model (--energy)")
@@ -85,7 +94,9 @@ class FieldProblem:
         self.problem = problem
         self.field = stiffness_field
         self.sigma = float(problem.noise_mm)
-        self.reference_kpa = float(model.parameters["E"])
+        self.reference_kpa = float(
+            model.parameters["E"] if reference_kpa is None else reference_kpa
+        )
         gradient = model.gradient
         free = PhysicalGradient(
             tuple(op[:, model.free].tocsr() for op in gradient.operators),
@@ -94,7 +105,8 @@ class FieldProblem:
         )
         blocks = free.strain() + [free.divergence()]
         self.G = sp.vstack(blocks).tocsr()
-        mu_unit, lam_unit = lame(1.0, float(model.parameters["nu"]))
+        self.poisson = float(model.parameters["nu"] if poisson is None else poisson)
+        mu_unit, lam_unit = lame(1.0, self.poisson)
         self.moduli = np.array([2.0 * mu_unit] * 6 + [lam_unit]) / KPA
         """f of eq. (I2): moduli per unit E [N/mm^2 per N/mm^2]."""
         self.volume = gradient.volume

@@ -45,6 +45,8 @@ def test_image_writes_the_map_its_uncertainty_and_a_consistent_record(fe_dataset
     field = record["field"]
     s = np.array(field["coefficients"])
     reference = record["model"]["E_ref_kPa"]
+    homogeneous = record["model"]["homogeneous_fit"]  # the field is about the homogeneous fit
+    assert (reference, record["model"]["nu"]) == (homogeneous["E"], homogeneous["nu"])
     np.testing.assert_allclose(field["E_kPa"], reference * np.exp(s), rtol=1e-12)
     assert record["weight"] == {**record["weight"], "rule": "given", "beta_mm2": 100.0}
     assert 1.0 <= record["effective_dof"] <= len(s)

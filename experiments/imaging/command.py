@@ -6,6 +6,8 @@ Writes image.json, map.png, std.png and map.vtu (ParaView) into ``--out``
 
 from __future__ import annotations
 
+import math
+
 from experiments.imaging.run import REGULARIZERS
 from solvers.imaging import SOLVERS
 
@@ -29,9 +31,7 @@ def parse_field(text: str, over: str) -> tuple[int, ...]:
             f"--field must look like {example} for --over {over} "
             f"(at least {'x'.join(map(str, least[:wanted]))} nodes), got {text!r}"
         )
-    size = 1
-    for n in shape:
-        size *= n
+    size = math.prod(shape)
     if size > MAX_FIELD_SIZE:
         raise UsageError(f"--field {text}: at most {MAX_FIELD_SIZE} coefficients, got {size}")
     return shape
@@ -160,7 +160,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
             f"({strongest['node_xyz_mm'][0]:.1f}, {strongest['node_xyz_mm'][1]:.1f}) mm, "
             f"{strongest['z']:.1f} std ({verdict}) -> {args.out / 'image.json'}"
         )
-        if record["weight"]["note"].startswith("chi2 above target"):
+        if not record["weight"]["reached"] and residual["chi2_over_n"] > 1.0:
             print(
                 f"{prog}: warning: no field brings the residual down to the noise "
                 f"(chi2/n {residual['chi2_over_n']:.2f} at the smallest weight): the model "

@@ -52,6 +52,7 @@ def document(image: Image, dataset_path: str) -> dict:
     """image.json (schema ``dvs-image/1``, docs/formats.md)."""
     fp, estimate, posterior = image.field_problem, image.estimate, image.posterior
     nodes = fp.field.nodes()
+    nodes_xyz = _physical(image, nodes)
     s = estimate.coefficients
     departure = (s - s.mean()) / np.maximum(posterior.std, 1e-300)
     strongest = int(np.argmax(np.abs(departure)))
@@ -60,7 +61,7 @@ def document(image: Image, dataset_path: str) -> dict:
         "dataset": dataset_path,
         "model": {
             "E_ref_kPa": fp.reference_kpa,
-            "nu": float(fp.problem.model.parameters["nu"]),
+            "nu": fp.poisson,
             "homogeneous_fit": image.homogeneous,
         },
         "field": {
@@ -68,7 +69,7 @@ def document(image: Image, dataset_path: str) -> dict:
             "shape": list(fp.field.shape),
             "degree": fp.field.degree,
             "nodes_uvw": nodes.tolist(),
-            "nodes_xyz_mm": _physical(image, nodes).tolist(),
+            "nodes_xyz_mm": nodes_xyz.tolist(),
             "coefficients": s.tolist(),
             "E_kPa": (fp.reference_kpa * np.exp(s)).tolist(),
             "std_log_E": posterior.std.tolist(),
@@ -90,7 +91,7 @@ def document(image: Image, dataset_path: str) -> dict:
         "effective_dof": posterior.effective_dof,
         "laplace_rank": posterior.rank,
         "strongest_departure": {
-            "node_xyz_mm": _physical(image, nodes[[strongest]])[0].tolist(),
+            "node_xyz_mm": nodes_xyz[strongest].tolist(),
             "E_ratio_to_mean": float(np.exp(s[strongest] - s.mean())),
             "z": float(departure[strongest]),
             "significant": bool(abs(departure[strongest]) > 2.0),

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from experiments.dataset import Dataset
-from experiments.fitting import FitSettings, build_problem, fit_dataset
+from experiments.fitting import FitSettings, build_problem, solve
 from solvers.fieldproblem import FieldProblem
 from solvers.imaging import SOLVERS, Laplace, laplace
 from solvers.regularization import Tikhonov, TotalVariation
@@ -106,33 +106,33 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image
     """Fit the homogeneous model, then the field; see the module docstring."""
     begin = time.perf_counter()
     base = replace(settings.fit, names=("E", "nu"), energy="linear-elastic")
-    _, result, _, document = fit_dataset(dataset, base, "nested")
+    problem = build_problem(dataset, base)
+    result = solve(problem, "nested")
     if not result.success:
         raise RuntimeError(f"the homogeneous fit did not converge ({result.status})")
     homogeneous = {n: float(v) for n, v in zip(result.names, result.x)}
-    homogeneous["rms_um"] = 1e3 * float(document["rms_mm"])
+    errors = np.concatenate(problem.point_errors(result.states))
+    homogeneous["rms_um"] = 1e3 * float(np.sqrt(np.mean(errors**2)))
     log(
         f"  homogeneous: E {homogeneous['E']:.4g} kPa, nu {homogeneous['nu']:.4f}, "
         f"rms {homogeneous['rms_um']:.1f} um"
     )
-    fixed = dict(base.fixed or {}, E=homogeneous["E"], nu=homogeneous["nu"])
-    problem = build_problem(dataset, replace(base, names=("E",), fixed=fixed))
     stiffness_field = StiffnessField(tuple(settings.shape), settings.over)
-    fp = FieldProblem(problem, stiffness_field)
+    fp = FieldProblem(problem, stiffness_field, homogeneous["E"], homogeneous["nu"])
     regularizer = REGULARIZERS[settings.regularizer](stiffness_field, tissue_lengths(problem.model))
     method = settings.solver_name(fp.size)
-    solve = SOLVERS[method]
+    estimator = SOLVERS[method]
     log(
         f"  field {'x'.join(map(str, settings.shape))} over the {settings.over} "
         f"(N = {fp.size}), {settings.regularizer}, {method}, {fp.n_residuals} residuals"
     )
     if settings.weight == "morozov":
-        choice = discrepancy_weight(fp, regularizer, solve, log=log)
+        choice = discrepancy_weight(fp, regularizer, estimator, log=log)
     elif settings.weight == "lcurve":
-        choice = lcurve_weight(fp, regularizer, solve, log=log)
+        choice = lcurve_weight(fp, regularizer, estimator, log=log)
     else:
         beta = float(settings.weight)
-        estimate = solve(fp, regularizer, beta, None)
+        estimate = estimator(fp, regularizer, beta, None)
         choice = WeightChoice(
             estimate, float(fp.n_residuals), True, [(beta, estimate.chi2)], "given", "given"
         )

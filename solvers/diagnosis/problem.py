@@ -251,8 +251,7 @@ class ExtendedProblem:
     def numeric(self, position: int, name: str) -> NumericFunction:
         """A Function of the case at ``position`` wrapped for fast numeric calls."""
         function = getattr(self.functions(position), name)
-        effect_set = tuple(id(e) for e in self.effects)
-        key = ("functions", effect_set, "numeric", id(function))
+        key = ("functions", self.extended.effect_set, "numeric", id(function))
         if key not in self.cache:
             self.cache[key] = (function, NumericFunction(function))
         return self.cache[key][1]

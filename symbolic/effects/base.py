@@ -224,11 +224,9 @@ class Effect:
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
         """Term added to K(B; x)(B - B0) on the free points, (n_free, 3) [N].
 
-        A ``linear`` effect's is K_theta vec(Delta) with K_theta from ``stiffness``.
+        A ``linear`` effect gives ``stiffness`` instead; the builder applies it.
         """
-        if not self.linear:
-            return None
-        return apply_stacked(self.stiffness(model, symbols.values, theta), symbols.delta)
+        return None
 
     def stiffness(self, model: TissueModel, values: dict, theta) -> ca.MX:
         """K_theta of a ``linear`` effect: (3 n_free)-square, stacked order [N/mm].

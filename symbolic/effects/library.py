@@ -204,12 +204,17 @@ class ExtendedModel:
             for v in (effect.lower, effect.upper, effect.scales)
         )
 
+    @property
+    def effect_set(self) -> tuple[int, ...]:
+        """The identity of the active effects: the group of their entries in ``cache``."""
+        return tuple(id(e) for e in self.effects)
+
     def functions(self, position: int) -> CaseFunctions:
         """The Functions of the case at ``position`` (built once, shared through ``cache``)."""
         per_case = any(e.per_case for e in self.effects)
         key = (
             "functions",
-            tuple(id(e) for e in self.effects),
+            self.effect_set,
             id(self.cases[position]),
             position if per_case else 0,
             tuple(self.labels),
@@ -268,7 +273,7 @@ class ExtendedModel:
         chosen = [e for e in self.effects if e.linear]
         if not chosen:
             return None
-        key = ("functions", tuple(id(e) for e in self.effects), "linear", tuple(self.labels))
+        key = ("functions", self.effect_set, "linear", tuple(self.labels))
         if key not in self._functions:
             p = ca.MX.sym("p", self.n_parameters)
             delta = ca.MX.sym("delta", self.model.n_free, 3)
@@ -329,7 +334,7 @@ class ExtendedModel:
         extra_rows = []
         for effect, theta in zip(self.effects, thetas):
             load = effect.load(model, case, load, theta)
-            term = None if effect.linear else effect.internal_force(model, symbols, theta)
+            term = effect.internal_force(model, symbols, theta)
             if term is not None:
                 force = force + term
             rows = effect.extra_residual(model, symbols, theta)
