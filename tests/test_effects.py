@@ -129,6 +129,35 @@ def test_load_effects_keep_the_total_force(setting):
     np.testing.assert_allclose(-g.sum(axis=0), expected, atol=1e-12)
 
 
+def test_contact_patch_on_a_declared_probe_is_the_wider_gaussian(setting):
+    """On a probe of radius r0 the patch is exact at any width: F_B(theta) is the probe
+    of variance r0^2 / 4 + theta (``ProbeForce`` of that radius), and F_B(0) is the
+    declared load to the last bit."""
+    from symbolic.loads import ProbeForce
+
+    problem, _, library = setting
+    radius = 4.0
+    loads = [ProbeForce(load.force, radius, uv=load.uv) for load in problem.loads]
+    probed = ExtendedProblem(problem.base, loads, [])
+    patched = probed.with_effects([library["contact_patch"]])
+    model = problem.model
+    state = np.zeros(patched.functions(0).n_state)
+    declared = loads[0].generalized(model.volume)[model.free]
+    for theta in (0.0, 3.0, 12.0):
+        p = np.concatenate([problem.start()[: len(problem.names)], [theta]])
+        load = -patched.numeric(0, "equilibrium")(state, p)[0].reshape(3, -1).T
+        change = load - probed.extended.cases[0].force
+        wider = ProbeForce(loads[0].force, 2.0 * np.sqrt(radius**2 / 4 + theta), uv=loads[0].uv)
+        expected = wider.generalized(model.volume)[model.free] - declared
+        if theta == 0.0:
+            assert np.max(np.abs(change)) == 0.0
+        else:
+            assert np.max(np.abs(change)) > 1e-3 * np.max(np.abs(declared))
+            error = np.max(np.abs(change - expected)) / np.abs(declared).max()
+            print(f"theta {theta}: error {error:.1e} of the largest entry")
+            assert error < 1e-6
+
+
 def _frame(problem, case):
     return surface_frame(problem.model, case.contact_uv)
 

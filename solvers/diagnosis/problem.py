@@ -120,6 +120,7 @@ def case_data(problem: InverseProblem, loads: list, index: int, position: int) -
         rest_points=case.rest_points,
         offset=case.offset,
         weights=case.weights,
+        probe_variance=0.25 * float(getattr(load, "radius", 0.0)) ** 2,
     )
 
 

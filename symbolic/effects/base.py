@@ -57,6 +57,9 @@ class CaseData:
         S B0 - Y, (n_obs, 3) [mm].
     weights : numpy.ndarray
         W, one weight per observed marker, (n_obs,).
+    probe_variance : float
+        sigma_0^2 = (r / 2)^2 of the declared probe of radius r [mm^2]; 0 for a point
+        force.
     """
 
     index: int
@@ -68,6 +71,7 @@ class CaseData:
     rest_points: np.ndarray
     offset: np.ndarray
     weights: np.ndarray
+    probe_variance: float = 0.0
 
     @property
     def centroid(self) -> np.ndarray:
