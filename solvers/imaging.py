@@ -111,12 +111,19 @@ def gauss_newton(
     start: np.ndarray | None = None,
     hessian: str = "adjoint",
     tolerance: float = 1e-13,
-    max_iterations: int = 60,
+    max_iterations: int = 200,
+    step_tolerance: float = 1e-7,
 ) -> FieldEstimate:
     """Gauss-Newton on eq. (I8) with a backtracking line search.
 
     Stops when the Newton decrement -grad . p / 2 falls below ``tolerance`` times
-    J(c) (the objective can fall by no more than that). A step is shortened to
+    J(c) (the objective can fall by no more than that), or when a full step, taken,
+    changes no node by more than ``step_tolerance`` in s = log(E / E_ref) (E by a
+    relative 1e-7). The second test is the one that ends most runs: with noise and
+    model error in the data the Gauss-Newton Hessian leaves out the residual's
+    curvature and the iteration converges linearly (a factor of about 0.7 per step on
+    the 9 x 9 x 2 benchmark), so the decrement test alone needed over 60 iterations
+    to reach a map that no longer changed in the sixth digit. A step is shortened to
     ``MAX_STEP`` at its largest node, and a trial whose equilibrium cannot be solved
     counts as an increase.
     """
@@ -151,6 +158,11 @@ def gauss_newton(
         decrement = -0.5 * float(gradient @ step)
         if decrement <= tolerance * max(value, 1.0):
             return finish(iteration, True, "converged")
+        if float(np.abs(step).max()) <= step_tolerance:
+            trial_value = _safe_objective(fp, regularizer, weight, c + step)
+            if trial_value <= value:
+                c, value = c + step, trial_value
+                return finish(iteration, True, "converged (step)")
         length = min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))
         while length > 1e-8:
             trial = c + length * step

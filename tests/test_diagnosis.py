@@ -147,6 +147,54 @@ def test_verdict_never_presents_a_stand_in_as_the_cause(unexplained, selected):
         assert "rigid_motion" in sentence
 
 
+def test_rivals_are_the_candidates_whose_refit_drops_chi2_as_much(monkeypatch):
+    """The rule of ``_rivals`` on stand-in fits: refit the significant candidates whose
+    score reaches half the accepted drop; a rival is one whose drop comes within the
+    margin, off its bounds and with a better BIC."""
+    from types import SimpleNamespace as NS
+
+    from solvers.diagnosis import loop
+
+    drops = {"b": 18.0, "c": 10.0, "e": 19.0}
+    refitted = []
+
+    def refit(current, effect, test):
+        refitted.append(test.effect)
+        return test.effect
+
+    def step(effect, fit, sigma, statistic, p_value):
+        residual = NS(statistic=100.0 - drops[fit])
+        return NS(effect=effect, residual=residual, bic=150.0 if fit != "e" else 250.0)
+
+    monkeypatch.setattr(loop, "_refit", refit)
+    monkeypatch.setattr(loop, "_step", step)
+    monkeypatch.setattr(loop, "_pushed_to_bounds", lambda current, fit: [])
+    previous = NS(residual=NS(statistic=100.0), bic=200.0)
+    accepted = NS(effect="a", residual=NS(statistic=80.0))
+    ranked = [
+        NS(effect=n, statistic=t, p_value=0.0)
+        for n, t in (("a", 20.0), ("b", 18.0), ("c", 15.0), ("e", 12.0), ("d", 5.0))
+    ]
+    library = dict.fromkeys("abcde")
+    rivals = loop._rivals(None, accepted, previous, ranked, library, 0.02, 3.84)
+    assert [r["effect"] for r in rivals] == ["b"]  # c drops 10 (> 3.84 short), e: BIC worse
+    assert rivals[0]["chi2_drop"] == 18.0 and rivals[0]["accepted_drop"] == 20.0
+    assert refitted == ["b", "c", "e"]  # d's score 5 is under half the drop of 20
+    assert loop._rivals(None, accepted, previous, ranked, library, 0.02, 0.0) == []
+
+
+@pytest.mark.parametrize("unexplained", [False, True])
+def test_verdict_names_no_cause_among_rivals(unexplained):
+    document = {
+        "unexplained": unexplained,
+        "selected": ["pre_tension"],
+        "rivals": {"pre_tension": ["contact_patch"]},
+    }
+    sentence = verdict(document)
+    assert "pre_tension or contact_patch" in sentence and "neither is established" in sentence
+    assert sentence.startswith("unexplained" if unexplained else "explained")
+
+
 def test_command_line_rejects_a_missing_file(tmp_path, capsys):
     assert main([str(tmp_path / "missing.npz"), "--out", str(tmp_path / "out")]) == 2
     assert "diagnose: error" in capsys.readouterr().err

@@ -89,6 +89,7 @@ def run_scenario(name: str, study: ContinuumStudy, solvers=None, log=None) -> di
     hidden = SCENARIOS[name][2]
     selected = list(document["selected"])
     allowed = set(PHYSICS_OF_EVERY_SLAB) | ({hidden} if hidden else set())
+    rivals = document.get("rivals", {})
     noise = document["noise_rms_mm"]
     return {
         "scenario": name,
@@ -96,7 +97,11 @@ def run_scenario(name: str, study: ContinuumStudy, solvers=None, log=None) -> di
         "hidden_effect": hidden,
         "selected": selected,
         "hidden_selected": hidden in selected if hidden else None,
-        "stand_ins": [e for e in selected if e not in allowed],
+        # an effect the data cannot tell from the hidden one is reported as "X or
+        # hidden", not as a cause: ambiguous, not a stand-in
+        "stand_ins": [e for e in selected if e not in allowed and hidden not in rivals.get(e, [])],
+        "rivals": rivals,
+        "hidden_among_rivals": bool(hidden) and any(hidden in r for r in rivals.values()),
         "rms_before_um": 1e3 * document["rms_before_mm"],
         "rms_after_um": 1e3 * document["rms_after_mm"],
         "noise_rms_um": 1e3 * noise,
@@ -199,9 +204,13 @@ def table(rows: list[dict]) -> str:
     ]
     for row in rows:
         found = "-" if row["hidden_effect"] is None else ("yes" if row["hidden_selected"] else "no")
+        if row.get("hidden_among_rivals") and not row["hidden_selected"]:
+            found = "ambiguous"
+        rivals = row.get("rivals", {})
+        selected = [" or ".join([e, *rivals[e]]) if e in rivals else e for e in row["selected"]]
         verdict = "unexplained" if row["unexplained"] else "explained"
         lines.append(
-            f"| {row['design']} | {row['scenario']} | {', '.join(row['selected']) or '-'} | "
+            f"| {row['design']} | {row['scenario']} | {', '.join(selected) or '-'} | "
             f"{row['rms_before_um']:.1f} -> {row['rms_after_um']:.1f} | "
             f"{row['noise_rms_um']:.1f} | {found} | {', '.join(row['stand_ins']) or '-'} | "
             f"{verdict} |"

@@ -24,7 +24,18 @@ def verdict(document: dict) -> str:
     When the residual stays significant the added effects are reported as the library's
     closest approximations, not as the cause of the discrepancy.
     """
-    selected = ", ".join(document["selected"])
+    rivals = document.get("rivals", {})
+    selected = ", ".join(
+        " or ".join([name, *rivals[name]]) if name in rivals else name
+        for name in document["selected"]
+    )
+    if rivals:
+        return (
+            f"{'unexplained' if document['unexplained'] else 'explained'}: the residual "
+            f"{'is not noise even' if document['unexplained'] else 'is consistent with noise'}"
+            f" with {selected} added; where the effects are joined by 'or' this design "
+            "cannot tell them apart, so neither is established as the cause"
+        )
     if not document["unexplained"]:
         if selected:
             return f"explained: the residual is consistent with noise once {selected} is added"
@@ -103,6 +114,15 @@ def report(diagnosis, document: dict) -> str:
                 f"after charging nuisance parameters)."
             )
             lines.append("")
+    if document.get("rivals"):
+        lines += ["## Explanations the design cannot tell apart", ""]
+        for step in steps[1:]:
+            lines += [
+                f"- {step['effect']} (chi^2 drop {r['accepted_drop']:.1f}) or {r['effect']} "
+                f"(chi^2 drop {r['chi2_drop']:.1f})"
+                for r in step.get("rivals", [])
+            ]
+        lines.append("")
     if document["rejected"]:
         lines += ["## Candidates tried and rejected", ""]
         lines += [f"- {r['effect']}: {r['reason']}" for r in document["rejected"]] + [""]
