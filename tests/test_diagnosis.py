@@ -147,10 +147,9 @@ def test_verdict_never_presents_a_stand_in_as_the_cause(unexplained, selected):
         assert "rigid_motion" in sentence
 
 
-def test_rivals_are_the_candidates_whose_refit_drops_chi2_as_much(monkeypatch):
-    """The rule of ``_rivals`` on stand-in fits: refit the significant candidates whose
-    score reaches half the accepted drop; a rival is one whose drop comes within the
-    margin, off its bounds and with a better BIC."""
+def test_contenders_are_refitted_from_the_screen_and_keep_the_rules(monkeypatch):
+    """Refit the significant candidates whose score reaches half the accepted drop;
+    keep those off their bounds and with a better BIC."""
     from types import SimpleNamespace as NS
 
     from solvers.diagnosis import loop
@@ -175,12 +174,29 @@ def test_rivals_are_the_candidates_whose_refit_drops_chi2_as_much(monkeypatch):
         NS(effect=n, statistic=t, p_value=0.0)
         for n, t in (("a", 20.0), ("b", 18.0), ("c", 15.0), ("e", 12.0), ("d", 5.0))
     ]
-    library = dict.fromkeys("abcde")
-    rivals = loop._rivals(None, accepted, previous, ranked, library, 0.02, 3.84)
-    assert [r["effect"] for r in rivals] == ["b"]  # c drops 10 (> 3.84 short), e: BIC worse
-    assert rivals[0]["chi2_drop"] == 18.0 and rivals[0]["accepted_drop"] == 20.0
+    contenders = loop._contenders(None, accepted, previous, ranked, dict.fromkeys("abcde"), 0.02)
+    assert [c.effect for c in contenders] == ["b", "c"]  # e: BIC worse
     assert refitted == ["b", "c", "e"]  # d's score 5 is under half the drop of 20
-    assert loop._rivals(None, accepted, previous, ranked, library, 0.02, 0.0) == []
+
+
+def test_settle_takes_the_contender_that_explains_far_more():
+    """Within the margin: rivals; beyond it and through the guard: taken instead."""
+    from types import SimpleNamespace as NS
+
+    from solvers.diagnosis.loop import _settle
+
+    def step(name, chi2):
+        return NS(effect=name, residual=NS(statistic=chi2), rivals=[])
+
+    previous = step(None, 100.0)
+    accepted, close, far = step("a", 80.0), step("b", 78.0), step("c", 40.0)
+    chosen = _settle(accepted, [close], previous, 3.84, lambda s: True)
+    assert chosen is accepted and [r["effect"] for r in chosen.rivals] == ["b"]
+    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: True)
+    assert chosen is far and chosen.rivals == []  # a and b drop 20-22, c drops 60
+    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: s is not far)
+    assert chosen is accepted  # the guard rejects c; b is still within the margin
+    assert [r["effect"] for r in chosen.rivals] == ["b"]
 
 
 @pytest.mark.parametrize("unexplained", [False, True])
