@@ -197,7 +197,10 @@ class FieldProblem:
 
     def jvp(self, c: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """J v, the stacked whitened residuals' change along v (one solve per case)."""
-        state = self.forward(c)
+        return self.jvp_at(self.forward(c), direction)
+
+    def jvp_at(self, state: Forward, direction: np.ndarray) -> np.ndarray:
+        """``jvp`` at the c of a kept ``forward`` result (its factorisation reused)."""
         field = self._phi_stacked @ direction
         forces = np.column_stack(
             [
@@ -210,7 +213,10 @@ class FieldProblem:
 
     def vjp(self, c: np.ndarray, vector: np.ndarray) -> np.ndarray:
         """J^T y for a stacked residual-sized y (one adjoint solve per case)."""
-        state = self.forward(c)
+        return self.vjp_at(self.forward(c), vector)
+
+    def vjp_at(self, state: Forward, vector: np.ndarray) -> np.ndarray:
+        """``vjp`` at the c of a kept ``forward`` result (its factorisation reused)."""
         parts = np.split(self.whitening.T @ vector, np.cumsum([len(b) for b in self.b])[:-1])
         adjoints = state.solve(np.column_stack([a.T @ y for a, y in zip(self.A, parts)]))
         total = sum(

@@ -127,11 +127,13 @@ def secant_update(S: np.ndarray, step, y, y_sharp) -> np.ndarray:
     )
 
 
-def _cg_step(fp, c, prior, curvature, gradient, forcing) -> np.ndarray:
-    """p from (J^T J + S + beta R'') p = -grad by CG, J^T J v by a jvp and a vjp."""
+def _cg_step(fp, state, prior, curvature, gradient, forcing) -> np.ndarray:
+    """p from (J^T J + S + beta R'') p = -grad by CG, J^T J v by a jvp and a vjp at the
+    kept ``state`` (``FieldProblem.forward``); S is left out when None."""
 
     def product(v):
-        return fp.vjp(c, fp.jvp(c, v)) + prior @ v + curvature @ v
+        out = fp.vjp_at(state, fp.jvp_at(state, v)) + prior @ v
+        return out if curvature is None else out + curvature @ v
 
     operator = spla.LinearOperator((fp.size, fp.size), matvec=product)
     step, _ = spla.cg(operator, -gradient, rtol=forcing * 1e-2, maxiter=4 * fp.size)
@@ -173,33 +175,41 @@ def gauss_newton(
             fp, regularizer, weight, c, iterations, begin, f"gn-{hessian}", success, message
         )
 
-    first, curvature, last, augmented = None, np.zeros((fp.size, fp.size)), None, False
+    first, last, augmented = None, None, False
+    curvature = np.zeros((fp.size, fp.size)) if secant else None
     for iteration in range(1, max_iterations + 1):
+        # the factorisation at c is kept: the line search's trials replace the problem's
+        # cached one, and the secant update needs the previous c's as well
+        state = fp.forward(c)
         prior = weight * regularizer.hessian(c)
-        residual = fp.residual(c)
         jac = fp.sensitivities(c) if hessian == "sensitivity" else None
-        misfit_gradient = jac.T @ residual if jac is not None else fp.gradient(c)
+        misfit_gradient = (
+            fp.vjp_at(state, state.residual) if jac is None else jac.T @ state.residual
+        )
         if secant and last is not None:
-            old_c, old_jac, old_gradient = last
-            old_product = old_jac.T @ residual if old_jac is not None else fp.vjp(old_c, residual)
+            old_c, old_state, old_jac, old_gradient = last
+            old_product = (
+                fp.vjp_at(old_state, state.residual)
+                if old_jac is None
+                else old_jac.T @ state.residual
+            )
             curvature = secant_update(
                 curvature, c - old_c, misfit_gradient - old_gradient, misfit_gradient - old_product
             )
-        last = (c.copy(), jac, misfit_gradient)
+        last = (c.copy(), state, jac, misfit_gradient)
         gradient = misfit_gradient + weight * regularizer.gradient(c)
-        extra = curvature if augmented else np.zeros_like(curvature)
+        extra = curvature if augmented else None
         if hessian == "sensitivity":
             base = jac.T @ jac + prior.toarray()
-            step = np.linalg.solve(base + extra, -gradient)
+            step = np.linalg.solve(base if extra is None else base + extra, -gradient)
             if float(gradient @ step) >= 0:  # not a descent direction: plain GN
                 step, augmented = np.linalg.solve(base, -gradient), False
         else:
             first = np.linalg.norm(gradient) if first is None else first
             forcing = min(0.1, np.sqrt(np.linalg.norm(gradient) / first))
-            step = _cg_step(fp, c, prior, extra, gradient, forcing)
-            if float(gradient @ step) >= 0:  # S made the operator indefinite: plain GN
-                step = _cg_step(fp, c, prior, 0 * extra, gradient, forcing)
-                augmented = False
+            step = _cg_step(fp, state, prior, extra, gradient, forcing)
+            if extra is not None and float(gradient @ step) >= 0:  # indefinite: plain GN
+                step, augmented = _cg_step(fp, state, prior, None, gradient, forcing), False
         decrement = -0.5 * float(gradient @ step)
         if decrement <= tolerance * max(value, 1.0):
             return finish(iteration, True, "converged")
@@ -214,7 +224,7 @@ def gauss_newton(
             return finish(iteration, False, "line search failed")
         if secant:  # the next step uses the model that predicted this one's decrease better
             taken = length * step
-            linear = jac @ taken if jac is not None else fp.jvp(c, taken)
+            linear = jac @ taken if jac is not None else fp.jvp_at(state, taken)
             plain = float(gradient @ taken + 0.5 * (linear @ linear + taken @ (prior @ taken)))
             with_s = plain + 0.5 * float(taken @ curvature @ taken)
             actual = trial_value - value
