@@ -333,6 +333,14 @@ def diagnose(
     log(_line(steps[-1]))
     rejected: list[dict] = []
     guard_cache: dict = {}
+
+    def predicts_better(step: Step, current: EffectFit) -> bool:
+        """The overfitting guard (two or more load cases); records ``step.prediction``."""
+        if not (settings.cross_validate and len(base.cases) >= 2):
+            return True
+        step.prediction = prediction_check(current, step.fit, sigma, guard_cache)
+        return step.prediction.improves
+
     while len(steps) - 1 < settings.max_effects:
         if settings.stop_when_consistent and not steps[-1].residual.significant(settings.level):
             break
@@ -358,27 +366,24 @@ def diagnose(
             if candidate.bic >= steps[-1].bic:
                 rejected.append({"effect": test.effect, "reason": "BIC did not improve"})
                 continue
-            if settings.cross_validate and len(base.cases) >= 2:
-                check = prediction_check(current, refit, sigma, guard_cache)
-                candidate.prediction = check
-                if not check.improves:
-                    rejected.append({"effect": test.effect, "reason": check.reason()})
-                    log(f"  {test.effect} rejected: {check.reason()}")
-                    continue
+            if not predicts_better(candidate, current):
+                reason = candidate.prediction.reason()
+                rejected.append({"effect": test.effect, "reason": reason})
+                log(f"  {test.effect} rejected: {reason}")
+                continue
             accepted = candidate
             break
         if accepted is None:
             break
         if settings.rival_margin > 0:
-
-            def guard(step, current=current):
-                if not (settings.cross_validate and len(base.cases) >= 2):
-                    return True
-                step.prediction = prediction_check(current, step.fit, sigma, guard_cache)
-                return step.prediction.improves
-
             contenders = _contenders(current, accepted, steps[-1], ranked, library, sigma)
-            chosen = _settle(accepted, contenders, steps[-1], settings.rival_margin, guard)
+            chosen = _settle(
+                accepted,
+                contenders,
+                steps[-1],
+                settings.rival_margin,
+                lambda step, current=current: predicts_better(step, current),
+            )
             if chosen is not accepted:
                 log(f"  {chosen.effect} lowers chi2 by far more than {accepted.effect}: taken")
             accepted = chosen

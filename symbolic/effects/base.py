@@ -254,11 +254,19 @@ class Effect:
     # ---------------------------------------------------------------- helpers
     def cached(self, model: TissueModel, key: str, build):
         """A numeric object built once per model instance."""
-        entry = self._cache.get((id(model), key))
-        if entry is None or entry[0] is not model:
-            entry = (model, build())
-            self._cache[(id(model), key)] = entry
-        return entry[1]
+        return per_model(self._cache, model, key, build)
+
+
+def per_model(store: dict, model: TissueModel, key, build):
+    """``build()`` once per (model instance, key) in ``store``.
+
+    Entries keep their model, so an id reused by a later model is not mistaken for it.
+    """
+    entry = store.get((id(model), key))
+    if entry is None or entry[0] is not model:
+        entry = (model, build())
+        store[(id(model), key)] = entry
+    return entry[1]
 
 
 def linear_coefficient(values: dict, term: str):
@@ -290,12 +298,8 @@ def stacked_free_block(model: TissueModel, matrix: sp.spmatrix) -> sp.csr_matrix
 
 def surface_frame(model: TissueModel, uv: np.ndarray) -> tuple[np.ndarray, ...]:
     """At (u, v) on the rest skin: V_u, V_v [mm], unit tangents e1, e2 and normal n."""
-    key = (id(model), tuple(np.asarray(uv, dtype=float).ravel()))
-    entry = _FRAMES.get(key)
-    if entry is None or entry[0] is not model:
-        entry = (model, _surface_frame(model, uv))
-        _FRAMES[key] = entry
-    return entry[1]
+    key = tuple(np.asarray(uv, dtype=float).ravel())
+    return per_model(_FRAMES, model, key, lambda: _surface_frame(model, uv))
 
 
 _FRAMES: dict = {}

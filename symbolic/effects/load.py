@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from symbolic.basis import BSplineBasis
-from symbolic.effects.base import CaseData, Effect, LoadState, surface_frame
+from symbolic.effects.base import CaseData, Effect, LoadState, per_model, surface_frame
 from symbolic.loads import surface_quadrature
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
@@ -92,14 +92,14 @@ def load_change(model: TissueModel, case: CaseData, load: LoadState) -> ca.MX | 
     f = load.force_vector if isinstance(load.force_vector, ca.MX) else ca.DM(load.force_vector)
     f = ca.reshape(f, 1, 3)
     declared = ca.DM(case.load_row[model.free])
+    if load.variance is not None and case.probe_variance > 0:
+        reference, moved = patch_rows(model, case, load.uv_shift, load.variance, frame)
+        return ca.mtimes(declared, f - f0) + ca.mtimes(moved - reference, f)
     u0, v0 = (float(t) for t in case.contact_uv)
     point = load_row(model, (u0, v0), None, frame)
     change = ca.mtimes(declared - point, f - f0)
     if load.uv_shift is None and load.variance is None:
         return change + ca.mtimes(point, f - f0)
-    if load.variance is not None and case.probe_variance > 0:
-        reference, moved = patch_rows(model, case, load.uv_shift, load.variance, frame)
-        return ca.mtimes(declared, f - f0) + ca.mtimes(moved - reference, f)
     uv = (u0, v0) if load.uv_shift is None else (u0 + load.uv_shift[0], v0 + load.uv_shift[1])
     moved = load_row(model, uv, load.variance, frame)
     return change + ca.mtimes(moved, f) - ca.mtimes(point, f0)
@@ -122,10 +122,11 @@ _PATCHES: dict = {}
 
 def _patch_function(model: TissueModel, case: CaseData, frame) -> ca.Function:
     """(uv shift, added variance) -> a on the free points, (n_free, 1) (built once per case)."""
-    key = (id(model), tuple(np.asarray(case.contact_uv, float)), case.probe_variance)
-    entry = _PATCHES.get(key)
-    if entry is not None and entry[0] is model:
-        return entry[1]
+    key = (tuple(np.asarray(case.contact_uv, float)), case.probe_variance)
+    return per_model(_PATCHES, model, key, lambda: _build_patch(model, case, frame))
+
+
+def _build_patch(model: TissueModel, case: CaseData, frame) -> ca.Function:
     volume = model.volume
     params, area = surface_quadrature(volume, spacing=np.sqrt(case.probe_variance) / 3.0)
     keep = area > 0
@@ -139,9 +140,7 @@ def _patch_function(model: TissueModel, case: CaseData, frame) -> ca.Function:
     # exp(-min) scales numerator and denominator alike: finite weights at any width
     weights = ca.exp(ca.mmin(exponent) - exponent) * ca.DM(area[keep])
     row = ca.mtimes(rows, weights) / ca.sum1(weights)
-    function = ca.Function("patch", [shift, added], [row])
-    _PATCHES[key] = (model, function)
-    return function
+    return ca.Function("patch", [shift, added], [row])
 
 
 class ForceDirection(Effect):
