@@ -120,8 +120,11 @@ class FieldProblem:
         self.A = [problem.case_residual_jacobian(c) for c in problem.cases]
         self.b = [problem.case_offset(c) for c in problem.cases]
         n = sum(len(b) for b in self.b)
-        self.whitening = Whitening.of(problem.rest_noise_map(), n).matrix / self.sigma
+        noise = Whitening.of(problem.rest_noise_map(), n)
+        self.whitening = noise.matrix / self.sigma
         """W / sigma of eq. (I4), (n_residuals, n_residuals)."""
+        self.noise_rms_mm = noise.noise_rms(self.sigma)
+        """The RMS marker distance of a pure-noise residual [mm]."""
         self._cache: Forward | None = None
         self.nlp_cache: dict = {}
         """Simultaneous NLPs built for this problem (``solvers.imaging.simultaneous``)."""

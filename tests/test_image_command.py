@@ -60,6 +60,15 @@ def test_image_writes_the_map_its_uncertainty_and_a_consistent_record(fe_dataset
     # the nodal values of a degree-1 field are the map's values at the nodes
     assert np.nanmin(mesh.point_data["E_kPa"]) >= min(field["E_kPa"]) * (1 - 1e-9)
     assert "strongest departure" in capsys.readouterr().out
+    # DESIGN.md keys: the peak lies over the markers and is the map's largest E there
+    from experiments.dataset import load_dataset
+
+    markers = load_dataset(path).outer_rest.reshape(-1, 3)
+    low, high = markers[:, :2].min(axis=0), markers[:, :2].max(axis=0)
+    assert np.all(record["peak_mm"] >= low) and np.all(record["peak_mm"] <= high)
+    assert 1.0 <= record["contrast"] <= max(field["E_kPa"]) / min(field["E_kPa"])
+    assert record["rms_mm"] == pytest.approx(residual["rms_um"] * 1e-3)
+    assert 0.0 < record["noise_rms_mm"] < 3 * 0.02
 
 
 def test_image_without_a_noise_level_is_a_usage_error(fe_dataset, tmp_path, capsys):

@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
         plot_maps(image, dataset.outer_rest, args.out / "map.png", args.out / "std.png")
         if not write_vtu(image, args.out / "map.vtu"):
             print(f"{prog}: warning: map.vtu not written: pip install meshio", file=sys.stderr)
-        record = document(image, str(args.dataset))
+        record = document(image, str(args.dataset), dataset.outer_rest)
         from experiments.atomic import atomic_write_json
 
         atomic_write_json(args.out / "image.json", record)

@@ -48,7 +48,26 @@ def sample(image: Image, w: float, count: int = 61) -> dict:
     }
 
 
-def document(image: Image, dataset_path: str) -> dict:
+def peak(image: Image, markers: np.ndarray | None = None) -> tuple[list[float], float]:
+    """The stiffest point of the map, [x, y] [mm], and its E over the median.
+
+    Sampled over every depth drawn; with ``markers`` (rest positions, (..., 3) [mm]) only
+    within their x-y bounding box, where the data see the tissue (the margin beyond the
+    markers is prior, not measurement).
+    """
+    samples = [sample(image, w) for w in layer_depths(image)]
+    x, y, e = (np.concatenate([s[k].ravel() for s in samples]) for k in ("x", "y", "E"))
+    inside = np.ones(x.size, dtype=bool)
+    if markers is not None and np.isfinite(markers).any():
+        markers = np.asarray(markers, dtype=float).reshape(-1, 3)
+        low, high = np.nanmin(markers[:, :2], axis=0), np.nanmax(markers[:, :2], axis=0)
+        inside = (x >= low[0]) & (x <= high[0]) & (y >= low[1]) & (y <= high[1])
+        inside = inside if inside.any() else np.ones(x.size, dtype=bool)
+    best = int(np.flatnonzero(inside)[np.argmax(e[inside])])
+    return [float(x[best]), float(y[best])], float(e[best] / np.median(e[inside]))
+
+
+def document(image: Image, dataset_path: str, markers: np.ndarray | None = None) -> dict:
     """image.json (schema ``dvs-image/1``, docs/formats.md)."""
     fp, estimate, posterior = image.field_problem, image.estimate, image.posterior
     nodes = fp.field.nodes()
@@ -56,6 +75,7 @@ def document(image: Image, dataset_path: str) -> dict:
     s = estimate.coefficients
     departure = (s - s.mean()) / np.maximum(posterior.std, 1e-300)
     strongest = int(np.argmax(np.abs(departure)))
+    peak_mm, contrast = peak(image, markers)
     return {
         "schema": SCHEMA,
         "dataset": dataset_path,
@@ -88,7 +108,11 @@ def document(image: Image, dataset_path: str) -> dict:
             "rms_um": estimate.rms_um,
             "noise_mm": fp.sigma,
         },
+        "rms_mm": estimate.rms_um * 1e-3,
+        "noise_rms_mm": fp.noise_rms_mm,
         "effective_dof": posterior.effective_dof,
+        "peak_mm": peak_mm,
+        "contrast": contrast,
         "laplace_rank": posterior.rank,
         "strongest_departure": {
             "node_xyz_mm": nodes_xyz[strongest].tolist(),
