@@ -104,6 +104,13 @@ class StiffnessField:
         grid = np.stack(np.meshgrid(u, v, w, indexing="ij"), axis=-1)
         return grid.reshape(-1, 3)
 
+    def rule(self) -> tuple[np.ndarray, np.ndarray]:
+        """The field's Gauss rule over the parameter cube: points (n_q, 3), weights (sum 1)."""
+        rules = [gauss_rule(basis, basis.degree + 1) for basis in self.bases()]
+        grids = np.meshgrid(*[points for points, _ in rules], indexing="ij")
+        points = np.stack(grids, axis=-1).reshape(-1, 3)
+        return points, np.einsum("i,j,k->ijk", *[w for _, w in rules]).ravel()
+
     def gradient_rule(
         self, lengths: tuple[float, float, float]
     ) -> tuple[list[sp.csr_matrix], np.ndarray]:
@@ -122,13 +129,23 @@ class StiffnessField:
         weights : numpy.ndarray
             Quadrature weight times the cell volume at each point [mm^3].
         """
-        rules = [gauss_rule(basis, basis.degree + 1) for basis in self.bases()]
-        grids = np.meshgrid(*[points for points, _ in rules], indexing="ij")
-        points = np.stack(grids, axis=-1).reshape(-1, 3)
-        weights = np.einsum("i,j,k->ijk", *[w for _, w in rules]).ravel() * np.prod(lengths)
+        points, weights = self.rule()
+        weights = weights * np.prod(lengths)
         directions = (0, 1, 2) if self.over == "volume" else (0, 1)
         operators = []
         for axis in directions:
             order = tuple(int(a == axis) for a in range(3))
             operators.append(self.collocation(points, order) / lengths[axis])
         return operators, weights
+
+
+def tissue_lengths(model) -> tuple[float, float, float]:
+    """Lengths of the volume's mid-lines along u, v and w [mm] (a field's physical scale)."""
+    t = np.linspace(0.0, 1.0, 41)
+    lengths = []
+    for axis in range(3):
+        points = np.full((t.size, 3), 0.5)
+        points[:, axis] = t
+        xyz = model.volume.collocation(points) @ model.rest
+        lengths.append(float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()))
+    return tuple(lengths)

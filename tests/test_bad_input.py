@@ -149,6 +149,19 @@ def test_geometry_scaled_by_1e150_is_refused_by_diagnose(phantom, capsys):
     _one_line_exit(argv, capsys, fragment="outer_rest")
 
 
+def test_an_unknown_candidate_effect_is_refused_by_diagnose(phantom, capsys):
+    argv = [
+        "diagnose",
+        str(phantom),
+        "--out",
+        str(phantom.parent / "c"),
+        "--candidates",
+        "x,gravity",
+    ]
+    _one_line_exit(argv, capsys, fragment="--candidates: unknown x, gravity")
+    assert not (phantom.parent / "c").exists()
+
+
 # ----------------------------------------------------- valid data, default settings
 @pytest.mark.parametrize("markers", [(11, 8), (9, 4)])
 def test_a_non_square_marker_grid_fits_and_diagnoses_with_the_defaults(markers, tmp_path, capsys):

@@ -10,7 +10,7 @@ from experiments.diagnosis.diagnose import base_settings
 from experiments.fitting import build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.problem import ExtendedProblem
-from symbolic.effects.library import EFFECT_NAMES, effect_library, make_effect
+from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
 
 pytest.importorskip("skfem")
 
@@ -42,7 +42,7 @@ def fitted_setting(dataset, energy: str):
     """The dataset's fitted base problem on ``energy`` and that energy's library."""
     base = build_problem(dataset, base_settings(energy=energy))
     problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
-    return problem, fit(problem), effect_library(energy=energy)
+    return problem, fit(problem), effect_library(ALL_EFFECT_NAMES, energy=energy)
 
 
 @pytest.fixture(scope="module")
@@ -61,12 +61,12 @@ def test_the_continuum_library_leaves_out_what_a_continuum_has():
     assert set(effect_library(energy="dnurbs")) == set(EFFECT_NAMES)
 
 
-@pytest.mark.parametrize("name", CONTINUUM_EFFECTS)
+@pytest.mark.parametrize("name", CONTINUUM_EFFECTS + ["stiffness_field"])
 def test_theta_zero_reproduces_the_continuum_base_model(setting, name):
     check_theta_zero(setting, name)
 
 
-@pytest.mark.parametrize("name", CONTINUUM_EFFECTS)
+@pytest.mark.parametrize("name", CONTINUUM_EFFECTS + ["stiffness_field"])
 def test_continuum_effect_derivatives_match_finite_differences(setting, name):
     check_derivatives(setting, name)
 

@@ -137,6 +137,25 @@ def plot_residuals(diagnosis, path: Path) -> None:
     plt.close(fig)
 
 
+def parse_candidates(text: str) -> tuple[str, ...]:
+    """``--candidates``: effect names, where ``default`` stands for ``EFFECT_NAMES``."""
+    from experiments.options import UsageError
+    from symbolic.effects.library import ALL_EFFECT_NAMES
+
+    names: list[str] = []
+    for name in (n.strip() for n in text.split(",")):
+        for chosen in EFFECT_NAMES if name == "default" else (name,):
+            if chosen and chosen not in names:
+                names.append(chosen)
+    unknown = [n for n in names if n not in ALL_EFFECT_NAMES]
+    if unknown or not names:
+        raise UsageError(
+            f"--candidates: unknown {', '.join(unknown) or 'empty list'}; choose from "
+            f"default, {', '.join(ALL_EFFECT_NAMES)}"
+        )
+    return tuple(names)
+
+
 def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     """The options of ``dvs diagnose``."""
     from experiments.options import add_margin_argument, make_parser, path_argument
@@ -161,6 +180,12 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
     parser.add_argument(
         "--max-effects", type=int, default=3, help=f"most effects added (0-{len(EFFECT_NAMES)})"
+    )
+    parser.add_argument(
+        "--candidates",
+        default="default",
+        help="comma list of effects to search, 'default' (every effect but the opt-in "
+        "stiffness_field) or 'default,stiffness_field' (docs/diagnosis.md)",
     )
     parser.add_argument(
         "--no-refinement-check",
@@ -191,6 +216,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         most = len(EFFECT_NAMES)
         if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= most:
             raise UsageError(f"--level must lie in (0, 0.5] and --max-effects in 0-{most}")
+        candidates = parse_candidates(args.candidates)
         degrees = None if args.degrees is None else parse_degrees(args.degrees)
         grid = None
         if args.grid != "auto":
@@ -198,7 +224,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
             grid = check_grid(parse_grid(args.grid), checked, args.grid)
         base = base_settings(grid, args.energy, degrees, check_margin(args.margin))
         check_output_dir(args.out)
-        settings = DiagnosisSettings(level=args.level, max_effects=args.max_effects)
+        settings = DiagnosisSettings(
+            level=args.level,
+            max_effects=args.max_effects,
+            candidates=candidates,
+        )
         document = run(
             args.dataset,
             args.out,

@@ -43,11 +43,10 @@ def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list
     """
     from experiments.diagnosis.diagnose import base_settings
     from experiments.fitting import build_problem
-    from experiments.imaging.run import tissue_lengths
     from solvers.fieldproblem import FieldProblem
     from solvers.imaging import SOLVERS
     from solvers.regularization import Tikhonov
-    from symbolic.field import StiffnessField
+    from symbolic.field import StiffnessField, tissue_lengths
 
     data = bench_data()
     rows, over_budget = [], set()

@@ -21,7 +21,7 @@ from solvers.fieldproblem import FieldProblem
 from solvers.imaging import SOLVERS, Laplace, laplace
 from solvers.regularization import Tikhonov, TotalVariation
 from solvers.weight import WeightChoice, discrepancy_weight, lcurve_weight
-from symbolic.field import StiffnessField
+from symbolic.field import StiffnessField, tissue_lengths
 
 REGULARIZERS = {"h1": Tikhonov, "tv": TotalVariation}
 """``--regularizer`` -> class (solvers/regularization.py)."""
@@ -88,18 +88,6 @@ class Image:
     def estimate(self):
         """The chosen ``FieldEstimate``."""
         return self.choice.estimate
-
-
-def tissue_lengths(model) -> tuple[float, float, float]:
-    """Lengths of the volume's mid-lines along u, v and w [mm] (the regulariser's scale)."""
-    t = np.linspace(0.0, 1.0, 41)
-    lengths = []
-    for axis in range(3):
-        points = np.full((t.size, 3), 0.5)
-        points[:, axis] = t
-        xyz = model.volume.collocation(points) @ model.rest
-        lengths.append(float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()))
-    return tuple(lengths)
 
 
 def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image:

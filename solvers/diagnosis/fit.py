@@ -42,6 +42,9 @@ class EffectFit:
         d rho / dp (natural units).
     state_jacobians : list of StateJacobian
         dg/ds of every case at the solution.
+    prior : numpy.ndarray, optional
+        The rows P of the effects' priors (``ExtendedProblem.prior_matrix``), whose
+        |P p|^2 the fit added to |rho|^2; None without priors.
     """
 
     problem: ExtendedProblem
@@ -56,11 +59,40 @@ class EffectFit:
     evaluations: int = 0
     wall_time_s: float = 0.0
     state_jacobians: list = field(default_factory=list)
+    prior: np.ndarray | None = None
 
     @property
     def cost(self) -> float:
-        """|rho|^2 [mm^2]."""
+        """|rho|^2 [mm^2] (the data's part; ``penalty`` is the prior's)."""
         return float(self.whitened @ self.whitened)
+
+    @property
+    def penalty(self) -> float:
+        """|P p|^2 [mm^2], the prior's part of the cost (0 without priors)."""
+        return 0.0 if self.prior is None else float(np.sum((self.prior @ self.p) ** 2))
+
+    def information(self) -> tuple[np.ndarray, np.ndarray]:
+        """J^T J and P^T P over the estimated entries (whitened, natural units) [mm^2]."""
+        chosen = self.estimated()
+        sub = self.jacobian[:, chosen]
+        gram = sub.T @ sub
+        if self.prior is None:
+            return gram, np.zeros_like(gram)
+        rows = self.prior[:, chosen]
+        return gram, rows.T @ rows
+
+    def effective_dof(self) -> float:
+        """The parameters the data determine: tr((J^T J + P^T P)^-1 J^T J).
+
+        Without a prior the count of estimated entries (each is one degree of
+        freedom); with one, a field of N coefficients counts fewer than N.
+        """
+        if self.prior is None:
+            return float(self.estimated().sum())
+        gram, prior = self.information()
+        if not gram.size:
+            return 0.0
+        return float(np.trace(np.linalg.lstsq(gram + prior, gram, rcond=1e-12)[0]))
 
     def at_bound(self, tolerance: float = 1e-6) -> np.ndarray:
         """Entries of p on a bound (by a fraction of the range)."""
@@ -74,13 +106,14 @@ class EffectFit:
         return self.free & ~self.at_bound()
 
     def standard_errors(self, sigma: float) -> np.ndarray:
-        """sigma sqrt(diag((J^T J)^-1)) over the estimated entries (NaN elsewhere) [natural]."""
+        """sigma sqrt(diag((J^T J + P^T P)^-1)) over the estimated entries (NaN elsewhere)
+        [natural]: with a prior, the posterior's (Laplace) standard deviations."""
         out = np.full(self.p.size, np.nan)
         chosen = self.estimated()
         if chosen.any():
-            sub = self.jacobian[:, chosen]
+            gram, prior = self.information()
             try:
-                covariance = np.linalg.pinv(sub.T @ sub, rcond=1e-12)
+                covariance = np.linalg.pinv(gram + prior, rcond=1e-12)
                 out[chosen] = sigma * np.sqrt(np.maximum(np.diag(covariance), 0.0))
             except np.linalg.LinAlgError:
                 pass
@@ -119,6 +152,7 @@ def fit(
     z_full = problem.to_internal(p0)
     lower, upper = (problem.to_internal(b)[free] for b in (problem.lower, problem.upper))
     cache: dict = {"states": states}
+    prior = problem.prior_matrix()
 
     def evaluate(z_free: np.ndarray):
         if cache.get("z") is not None and np.array_equal(cache["z"], z_free):
@@ -130,6 +164,10 @@ def fit(
         cache.update(z=np.array(z_free), states=new_states, r=r)
         cache["rho"] = problem.whiten(r)
         cache["jac"] = problem.whiten(jac)[:, free] * problem.natural_derivative(z)[free]
+        if prior is not None:  # the prior's rows: the cost is the negative log posterior
+            cache["rho"] = np.concatenate([cache["rho"], prior @ p])
+            derivative = prior[:, free] * problem.natural_derivative(z)[free]
+            cache["jac"] = np.vstack([cache["jac"], derivative])
         return cache["rho"], cache["jac"]
 
     evaluations, success, status = 0, True, "no free parameters"
@@ -169,4 +207,5 @@ def fit(
         evaluations=int(evaluations),
         wall_time_s=time.perf_counter() - begin,
         state_jacobians=state_jacobians,
+        prior=prior,
     )

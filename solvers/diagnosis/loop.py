@@ -45,7 +45,7 @@ from solvers.diagnosis.stats import (
     score_test,
 )
 from solvers.problem import InverseProblem
-from symbolic.effects.library import EFFECT_NAMES, effect_library
+from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library
 from symbolic.model import PARAMETERS
 
 SCHEMA = "dvs-diagnosis/1"
@@ -63,7 +63,8 @@ class DiagnosisSettings:
     max_effects : int
         Most effects added.
     candidates : tuple of str
-        The library searched (default all effects).
+        The library searched (default ``EFFECT_NAMES``: all effects but the opt-in
+        ``stiffness_field``).
     cross_validate : bool
         Require a better prediction of left-out load cases (needs >= 2 cases).
     stop_when_consistent : bool
@@ -90,9 +91,9 @@ class DiagnosisSettings:
     def __post_init__(self) -> None:
         if not 0 < self.level < 1:
             raise ValueError(f"level must lie in (0, 1), got {self.level}")
-        unknown = set(self.candidates) - set(EFFECT_NAMES)
+        unknown = set(self.candidates) - set(ALL_EFFECT_NAMES)
         if unknown:
-            raise ValueError(f"unknown candidate effects {sorted(unknown)}; use {EFFECT_NAMES}")
+            raise ValueError(f"unknown candidate effects {sorted(unknown)}; use {ALL_EFFECT_NAMES}")
 
 
 @dataclass
@@ -140,6 +141,7 @@ class Step:
             "residual_dof": self.residual.dof,
             "residual_p_value": self.residual.p_value,
             "bic": self.bic,
+            "effective_dof": self.fit.effective_dof(),
             "prediction": None if self.prediction is None else self.prediction.record(),
             "rivals": self.rivals,
             "score_tests": [
@@ -296,7 +298,8 @@ def _refit(current: EffectFit, effect, test: ScoreTest) -> EffectFit:
     problem = current.problem.with_effects(current.problem.effects + [effect])
     block = problem.slice_of(effect.name)
     start = np.concatenate([current.p, np.zeros(block.stop - block.start)])
-    start[block] = np.clip(test.step, problem.lower[block], problem.upper[block])
+    if effect.prior(problem.model) is None:  # a field starts flat, not at the raw GN step
+        start[block] = np.clip(test.step, problem.lower[block], problem.upper[block])
     refit = fit(problem, start, states=None)
     if not refit.success:
         start[block] = 0.0
@@ -329,6 +332,7 @@ def diagnose(
         sigma, source = float(base.noise_mm), "given"
     else:
         sigma, source = robust_sigma(current), "estimated (1.4826 median |W r|)"
+    current.problem.sigma = sigma  # scales the priors of the problems derived from it
     steps = [_step(None, current, sigma)]
     log(_line(steps[-1]))
     rejected: list[dict] = []

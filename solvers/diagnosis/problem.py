@@ -142,6 +142,9 @@ class ExtendedProblem:
     cache : dict, optional
         Store shared by problems derived with ``with_effects``: case data, noise
         model, extended models and their CasADi Functions.
+    sigma : float, optional
+        Noise level [mm] (default the base problem's ``noise_mm``); kept by
+        ``with_effects``.
     """
 
     def __init__(
@@ -152,8 +155,11 @@ class ExtendedProblem:
         positions=None,
         indices=None,
         cache: dict | None = None,
+        sigma: float | None = None,
     ):
         self.base = base
+        self.sigma = base.noise_mm if sigma is None else sigma
+        """The noise level [mm] that scales the effects' priors (``prior_matrix``)."""
         self.loads = loads
         self.positions = list(range(len(base.cases)) if positions is None else positions)
         self.indices = list(range(len(base.cases)) if indices is None else indices)
@@ -364,4 +370,26 @@ class ExtendedProblem:
     def with_effects(self, effects: list[Effect], positions=None) -> ExtendedProblem:
         """The same base problem with other effects (or cases)."""
         chosen = self.positions if positions is None else positions
-        return ExtendedProblem(self.base, self.loads, effects, chosen, self.indices, self.cache)
+        return ExtendedProblem(
+            self.base, self.loads, effects, chosen, self.indices, self.cache, self.sigma
+        )
+
+    def prior_matrix(self) -> np.ndarray | None:
+        """P with |P p|^2 = sigma^2 sum_e |R_e theta_e|^2 [mm^2], (q, len(p)); None without
+        priors.
+
+        Appended to the whitened residual rho, these rows make the least-squares cost the
+        negative log posterior of the effects with a prior (``Effect.prior``) in rho's units.
+        """
+        blocks = [(e, e.prior(self.model)) for e in self.effects]
+        blocks = [(e, r) for e, r in blocks if r is not None]
+        if not blocks:
+            return None
+        if not self.sigma:
+            raise ValueError("an effect with a prior needs the noise level (sigma)")
+        rows = []
+        for effect, factor in blocks:
+            row = np.zeros((factor.shape[0], len(self.labels)))
+            row[:, self.slice_of(effect.name)] = self.sigma * factor
+            rows.append(row)
+        return np.vstack(rows)

@@ -20,7 +20,9 @@ Jacobian (implicit function theorem through the equilibrium, eq. 22).
   A parameter bounded below by 0 makes the test one-sided: T counts only when
   the one-step estimate -(A^T A)^+ A^T rho points into the allowed side, and the
   p-value is 1/2 P(chi^2_1 > T) (chi-bar-squared).
-- **BIC** = |rho|^2/sigma^2 + k log m (known sigma).
+- **BIC** = |rho|^2/sigma^2 + k log m (known sigma), k the effective degrees of freedom
+  (``EffectFit.effective_dof``: the count of estimated parameters, fewer for an effect
+  with a prior such as ``stiffness_field``).
 """
 
 from __future__ import annotations
@@ -88,7 +90,7 @@ class ScoreTest:
 
 def residual_test(fit: EffectFit, sigma: float) -> ResidualTest:
     """T = |rho|^2 / sigma^2 against chi^2(m - k)."""
-    dof = max(fit.whitened.size - int(fit.estimated().sum()), 1)
+    dof = max(int(round(fit.whitened.size - fit.effective_dof())), 1)
     statistic = fit.cost / sigma**2
     return ResidualTest(float(statistic), int(dof), float(stats.chi2.sf(statistic, dof)))
 
@@ -115,7 +117,7 @@ def log_chi2_sf_series(statistic: float, dof: int) -> float:
 
 def bic(fit: EffectFit, sigma: float) -> float:
     """Bayesian information criterion with known sigma: chi^2 + k log m."""
-    return fit.cost / sigma**2 + int(fit.estimated().sum()) * np.log(fit.whitened.size)
+    return fit.cost / sigma**2 + fit.effective_dof() * np.log(fit.whitened.size)
 
 
 def robust_sigma(fit: EffectFit) -> float:

@@ -251,6 +251,13 @@ class Effect:
         """Predicted marker positions after this effect, (n_obs, 3) [mm]."""
         return predicted
 
+    def prior(self, model: TissueModel) -> np.ndarray | None:
+        """R of a Gaussian prior theta ~ N(0, (R^T R)^-1): the fit adds |R theta|^2 to chi^2.
+
+        None (the default): theta is free, and counts one degree of freedom per entry.
+        """
+        return None
+
     # ---------------------------------------------------------------- helpers
     def cached(self, model: TissueModel, key: str, build):
         """A numeric object built once per model instance."""

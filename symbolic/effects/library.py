@@ -40,6 +40,7 @@ import numpy as np
 
 from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState, apply_stacked
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
+from symbolic.effects.field import StiffnessFieldEffect
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection, load_change
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
 from symbolic.effects.stiffening import NonlinearStiffening
@@ -69,15 +70,19 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     SurroundingTissue,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
-"""Every effect name of DESIGN.md, in the library's order."""
+"""The default library: every effect name of DESIGN.md but ``stiffness_field``, in order."""
+
+OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect,)
+"""Effects searched only when named (``DiagnosisSettings.candidates``)."""
+ALL_EFFECT_NAMES: tuple[str, ...] = EFFECT_NAMES + tuple(c.name for c in OPT_IN_CLASSES)
 
 
 def make_effect(name: str) -> Effect:
     """A fresh effect by name."""
-    for cls in EFFECT_CLASSES:
+    for cls in EFFECT_CLASSES + OPT_IN_CLASSES:
         if cls.name == name:
             return cls()
-    raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(EFFECT_NAMES)}")
+    raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(ALL_EFFECT_NAMES)}")
 
 
 def effect_library(names=None, energy: str | None = None) -> dict[str, Effect]:
