@@ -158,6 +158,41 @@ def test_contact_patch_on_a_declared_probe_is_the_wider_gaussian(setting):
             assert error < 1e-6
 
 
+def test_contact_offset_moves_a_declared_probe_whole(setting):
+    """On a probe, F_B(delta) is the probe at the moved contact (``ProbeForce`` there), to
+    second order in delta (the patch's centre moves in the tangent plane, the probe's on
+    the curved skin), and F_B(0) is the declared load exactly."""
+    from symbolic.loads import ProbeForce
+
+    problem, _, library = setting
+    radius = 4.0
+    loads = [ProbeForce(load.force, radius, uv=load.uv) for load in problem.loads]
+    probed = ExtendedProblem(problem.base, loads, [])
+    moved = probed.with_effects([library["contact_offset"]])
+    model = problem.model
+    state = np.zeros(moved.functions(0).n_state)
+    declared = loads[0].generalized(model.volume)[model.free]
+    case = moved.extended.cases[0]
+    du, dv, e1, e2, _ = surface_frame(model, case.contact_uv)
+    tangent = np.linalg.pinv(np.column_stack([du, dv]))
+    errors = []
+    for size in (0.0, 0.5, 1.0):
+        delta = size * np.array([0.6, 0.8])
+        p = np.concatenate([problem.start()[: len(problem.names)], delta])
+        load = -moved.numeric(0, "equilibrium")(state, p)[0].reshape(3, -1).T
+        change = load - case.force
+        if size == 0.0:
+            assert np.max(np.abs(change)) == 0.0
+            continue
+        uv = np.asarray(case.contact_uv) + tangent @ (delta[0] * e1 + delta[1] * e2)
+        there = ProbeForce(loads[0].force, radius, uv=uv).generalized(model.volume)[model.free]
+        expected = there - declared
+        assert np.max(np.abs(change - expected)) < 0.01 * np.max(np.abs(expected))
+        errors.append(np.max(np.abs(change - expected)) / np.max(np.abs(declared)))
+    print("errors at 0.5 and 1 mm, of the largest declared entry:", errors)
+    assert 3.0 < errors[1] / errors[0] < 5.0  # second order: the error quadruples
+
+
 def _frame(problem, case):
     return surface_frame(problem.model, case.contact_uv)
 

@@ -15,7 +15,11 @@ normalised Gaussian patch of variance sigma^2 [mm^2] to that order.
 - ``force_direction``: f = f0 + |f0| (tau_1 e_1 + tau_2 e_2) with unit tangents
   e_1 = V_u/|V_u|, e_2 = n x e_1 at the contact (shared by all cases).
 - ``contact_offset``: p moved by delta_1 e_1 + delta_2 e_2 [mm] on the skin,
-  (u, v) = (u0, v0) + [V_u V_v]^+ (delta_1 e_1 + delta_2 e_2) (shared).
+  (u, v) = (u0, v0) + [V_u V_v]^+ (delta_1 e_1 + delta_2 e_2) (shared). A declared
+  probe's Gaussian patch moves whole (the exact patch below, its variance unchanged);
+  before, the patch stayed and a point force moved from p0 to p, a dipole the size of
+  the load: on scikit-fem data with a 2 mm offset and 4 mm probes, 27x27x4, the fit
+  with it still left 67 um against 49 um of noise.
 - ``contact_patch``: theta [mm^2], the variance added to the declared patch; a probe
   of radius r has sigma = r/2 (the project's **choice**). For a declared point force
   the patch is the expansion above (exact to first order in theta). For a declared
@@ -92,8 +96,9 @@ def load_change(model: TissueModel, case: CaseData, load: LoadState) -> ca.MX | 
     f = load.force_vector if isinstance(load.force_vector, ca.MX) else ca.DM(load.force_vector)
     f = ca.reshape(f, 1, 3)
     declared = ca.DM(case.load_row[model.free])
-    if load.variance is not None and case.probe_variance > 0:
-        reference, moved = patch_rows(model, case, load.uv_shift, load.variance, frame)
+    if case.probe_variance > 0 and (load.variance is not None or load.uv_shift is not None):
+        added = 0.0 if load.variance is None else load.variance
+        reference, moved = patch_rows(model, case, load.uv_shift, added, frame)
         return ca.mtimes(declared, f - f0) + ca.mtimes(moved - reference, f)
     u0, v0 = (float(t) for t in case.contact_uv)
     point = load_row(model, (u0, v0), None, frame)
