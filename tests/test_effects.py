@@ -129,24 +129,38 @@ def test_load_effects_keep_the_total_force(setting):
     np.testing.assert_allclose(-g.sum(axis=0), expected, atol=1e-12)
 
 
+def _probed(setting, name: str, radius: float = 4.0):
+    """The setting's loads as probes of ``radius`` [mm] with effect ``name``: the problem,
+    the radius, the probes, case 0's declared F_B and theta -> F_B(theta) - F_B of case 0
+    (at the zero state, so F_B is minus the equilibrium residual)."""
+    from symbolic.loads import ProbeForce
+
+    problem, _, library = setting
+    loads = [ProbeForce(load.force, radius, uv=load.uv) for load in problem.loads]
+    probed = ExtendedProblem(problem.base, loads, [])
+    extended = probed.with_effects([library[name]])
+    model = problem.model
+    state = np.zeros(extended.functions(0).n_state)
+    declared = loads[0].generalized(model.volume)[model.free]
+
+    def change_at(theta) -> np.ndarray:
+        p = np.concatenate([problem.start()[: len(problem.names)], theta])
+        load = -extended.numeric(0, "equilibrium")(state, p)[0].reshape(3, -1).T
+        return load - probed.extended.cases[0].force
+
+    return problem, radius, loads, declared, change_at
+
+
 def test_contact_patch_on_a_declared_probe_is_the_wider_gaussian(setting):
     """On a probe of radius r0 the patch is exact at any width: F_B(theta) is the probe
     of variance r0^2 / 4 + theta (``ProbeForce`` of that radius), and F_B(0) is the
     declared load to the last bit."""
     from symbolic.loads import ProbeForce
 
-    problem, _, library = setting
-    radius = 4.0
-    loads = [ProbeForce(load.force, radius, uv=load.uv) for load in problem.loads]
-    probed = ExtendedProblem(problem.base, loads, [])
-    patched = probed.with_effects([library["contact_patch"]])
+    problem, radius, loads, declared, change_at = _probed(setting, "contact_patch")
     model = problem.model
-    state = np.zeros(patched.functions(0).n_state)
-    declared = loads[0].generalized(model.volume)[model.free]
     for theta in (0.0, 3.0, 12.0):
-        p = np.concatenate([problem.start()[: len(problem.names)], [theta]])
-        load = -patched.numeric(0, "equilibrium")(state, p)[0].reshape(3, -1).T
-        change = load - probed.extended.cases[0].force
+        change = change_at([theta])
         wider = ProbeForce(loads[0].force, 2.0 * np.sqrt(radius**2 / 4 + theta), uv=loads[0].uv)
         expected = wider.generalized(model.volume)[model.free] - declared
         if theta == 0.0:
@@ -164,27 +178,19 @@ def test_contact_offset_moves_a_declared_probe_whole(setting):
     the curved skin), and F_B(0) is the declared load exactly."""
     from symbolic.loads import ProbeForce
 
-    problem, _, library = setting
-    radius = 4.0
-    loads = [ProbeForce(load.force, radius, uv=load.uv) for load in problem.loads]
-    probed = ExtendedProblem(problem.base, loads, [])
-    moved = probed.with_effects([library["contact_offset"]])
+    problem, radius, loads, declared, change_at = _probed(setting, "contact_offset")
     model = problem.model
-    state = np.zeros(moved.functions(0).n_state)
-    declared = loads[0].generalized(model.volume)[model.free]
-    case = moved.extended.cases[0]
-    du, dv, e1, e2, _ = surface_frame(model, case.contact_uv)
+    contact = np.asarray(loads[0].uv, dtype=float)
+    du, dv, e1, e2, _ = surface_frame(model, contact)
     tangent = np.linalg.pinv(np.column_stack([du, dv]))
     errors = []
     for size in (0.0, 0.5, 1.0):
         delta = size * np.array([0.6, 0.8])
-        p = np.concatenate([problem.start()[: len(problem.names)], delta])
-        load = -moved.numeric(0, "equilibrium")(state, p)[0].reshape(3, -1).T
-        change = load - case.force
+        change = change_at(delta)
         if size == 0.0:
             assert np.max(np.abs(change)) == 0.0
             continue
-        uv = np.asarray(case.contact_uv) + tangent @ (delta[0] * e1 + delta[1] * e2)
+        uv = contact + tangent @ (delta[0] * e1 + delta[1] * e2)
         there = ProbeForce(loads[0].force, radius, uv=uv).generalized(model.volume)[model.free]
         expected = there - declared
         assert np.max(np.abs(change - expected)) < 0.01 * np.max(np.abs(expected))
