@@ -6,6 +6,8 @@ tests/test_continuum_loop.py; here the parts only this effect has.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -92,7 +94,7 @@ def test_the_field_counts_fewer_dof_than_coefficients(setting, field_fit):
     assert n_base == base_fit.estimated().sum()
     assert n_base < result.effective_dof() < n_base + make_effect("stiffness_field").dim - 1
     assert result.penalty > 0
-    flat = type(result)(**{**result.__dict__, "prior": None})
+    flat = replace(result, prior=None)
     assert np.all(result.standard_errors(SIGMA) <= flat.standard_errors(SIGMA) * (1 + 1e-9))
 
 

@@ -38,16 +38,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from symbolic.basis import FIRST_DERIVATIVES
-from symbolic.continuum import PhysicalGradient
-from symbolic.continuum_model import CONTINUUM_TERMS
-from symbolic.effects.base import Effect, componentwise, stacked_free_block
-from symbolic.energy import quadrature
+from symbolic.effects.base import Effect
+from symbolic.effects.stiffness import scaled_stiffness, weighted_stiffness
 from symbolic.field import StiffnessField, tissue_lengths
 from symbolic.model import TissueModel
-from symbolic.sparse import to_casadi_sparse
 
-ALPHA_TERMS = ("alpha_u", "alpha_v", "alpha_w")
 PRIOR_RMS = 0.5
 """tau of eq. (F2): the prior's RMS of s [1]."""
 MEAN_PIN = 1e3
@@ -88,77 +83,31 @@ class StiffnessFieldEffect(Effect):
         spot = np.argmin(np.linalg.norm(nodes - [1.0 / 3.0, 2.0 / 3.0], axis=1))
         return tuple(float(k == spot) for k in range(self.field.size))
 
-    def _weights(self, points: np.ndarray):
-        """phi_k at parameter points, (n_q, N) dense."""
-        return self.field.collocation(points).toarray()
-
-    def _matrices(self, model: TissueModel) -> list:
-        """Per node k, the base stiffness terms weighted by phi_k (CasADi sparse)."""
-
-        def build():
-            if model.energy != "dnurbs":
-                gradient = PhysicalGradient.of(model.volume, model.extra_points)
-                phi = self._weights(gradient.points)
-                out = []
-                for k in range(self.field.size):
-                    matrices = gradient.elasticity(lambda p, k=k: phi[:, k])
-                    blocks = [stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS]
-                    out.append([to_casadi_sparse(b) for b in blocks])
-                return out
-            basis = model.volume.basis
-            points, weights = quadrature(basis, model.extra_points)
-            phi = self._weights(points)
-            fields = dict(model.fields or {})
-            out = []
-            collocations = {
-                t: basis.collocation(points, FIRST_DERIVATIVES[t[-1]]) for t in ALPHA_TERMS
-            }
-            for k in range(self.field.size):
-                blocks = []
-                for term in ALPHA_TERMS:
-                    base = fields.get(term)
-                    scale = 1.0 if base is None else (base(points) if callable(base) else base)
-                    c = collocations[term]
-                    gram = c.T @ (c.multiply((weights * phi[:, k] * scale)[:, None]))
-                    gram = 0.5 * (gram + gram.T)
-                    blocks.append(to_casadi_sparse(componentwise(model.free_block(gram))))
-                out.append(blocks)
-            return out
-
-        return self.cached(model, "field", build)
-
     def stiffness(self, model: TissueModel, values: dict, theta):
-        coefficients = (
-            model.coefficients(values)
-            if model.energy != "dnurbs"
-            else tuple(values[t] for t in ALPHA_TERMS)
-        )
-        return sum(
-            theta[k] * coefficient * block
-            for k, blocks in enumerate(self._matrices(model))
-            for coefficient, block in zip(coefficients, blocks)
-        )
+        def build():
+            shapes = [
+                lambda p, k=k: self.field.collocation(p)[:, k].toarray().ravel()
+                for k in range(self.field.size)
+            ]
+            return weighted_stiffness(model, shapes)
+
+        return scaled_stiffness(model, values, theta, self.cached(model, "blocks", build))
 
     def prior(self, model: TissueModel) -> np.ndarray:
         """R with R^T R = Q of eq. (F2), and the mean's row, (N + 1, N) [1]."""
 
         def build():
             lengths = tissue_lengths(model)
-            operators, weights = self.field.gradient_rule(lengths)
             area = lengths[0] * lengths[1]
-            weights = weights / lengths[2]  # per unit area [mm^2]
-            rule_points, _ = self.field.rule()
-            phi = self.field.collocation(rule_points).toarray()
+            points, unit = self.field.rule()
+            weights = unit * area  # [mm^2]
+            phi = self.field.collocation(points).toarray()
             mass = phi.T @ (weights[:, None] * phi)
-            stiffness = sum(op.T @ (op.multiply(weights[:, None])) for op in operators)
-            spacing = min(
-                lengths[0] / (self.field.shape[0] - 1), lengths[1] / (self.field.shape[1] - 1)
-            )
-            precision = (
-                self.field.size
-                / (area * PRIOR_RMS**2)
-                * (mass + spacing**2 * np.asarray(stiffness.todense()))
-            )
+            operators, _ = self.field.gradient_rule(lengths)
+            stiffness = sum(op.T @ op.multiply(weights[:, None]) for op in operators).toarray()
+            spacing = min(length / (n - 1) for length, n in zip(lengths, self.field.shape))
+            scale = self.field.size / (area * PRIOR_RMS**2)
+            precision = scale * (mass + spacing**2 * stiffness)
             factor = np.linalg.cholesky(0.5 * (precision + precision.T)).T
             mean = mass.sum(axis=0) / area  # mean @ c is the area mean of s
             return np.vstack([factor, MEAN_PIN / PRIOR_RMS * mean])

@@ -50,6 +50,56 @@ def _bilinear_fields():
     )
 
 
+def weighted_stiffness(model: TissueModel, shapes) -> list[list]:
+    """Per field f_j (a callable of parameter points), the base stiffness terms weighted by
+    f_j on the free points (CasADi sparse, stacked order).
+
+    The paper's model: sum_i integral f_j J_i^T J_i for alpha_i (times the model's own
+    alpha field, if any; ``weighted_gram``), one block per alpha term. The continuum: K_mu
+    and K_lambda of eq. (C3) with both moduli scaled by f_j. ``scaled_stiffness`` combines
+    them with the model's coefficients: the stiffness of a material whose every modulus is
+    multiplied by 1 + sum_j theta_j f_j, minus the base's.
+    """
+    if model.energy != "dnurbs":
+        gradient = PhysicalGradient.of(model.volume, model.extra_points)
+        out = []
+        for shape in shapes:
+            matrices = gradient.elasticity(shape)
+            blocks = [stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS]
+            out.append([to_casadi_sparse(block) for block in blocks])
+        return out
+    fields = dict(model.fields or {})
+    out = []
+    for shape in shapes:
+        blocks = []
+        for term in ALPHA_TERMS:
+            base = fields.get(term)
+
+            def field(p, shape=shape, base=base):
+                scale = 1.0 if base is None else (base(p) if callable(base) else base)
+                return shape(p) * scale
+
+            derivative = FIRST_DERIVATIVES[term[-1]]
+            gram = weighted_gram(model.volume.basis, derivative, field, model.extra_points, term)
+            blocks.append(to_casadi_sparse(componentwise(model.free_block(gram))))
+        out.append(blocks)
+    return out
+
+
+def scaled_stiffness(model: TissueModel, values: dict, theta, blocks: list[list]):
+    """sum_j theta_j sum_t coefficient_t K_jt for the blocks of ``weighted_stiffness``
+    (coefficients: the alpha on the paper's model, the Lame pair on the continuum)."""
+    if model.energy != "dnurbs":
+        coefficients = model.coefficients(values)
+    else:
+        coefficients = tuple(values[term] for term in ALPHA_TERMS)
+    return sum(
+        theta[j] * coefficient * block
+        for j, terms in enumerate(blocks)
+        for coefficient, block in zip(coefficients, terms)
+    )
+
+
 class Heterogeneity(Effect):
     """alpha_i(u, v) = alpha_i (1 + h_u (2u-1) + h_v (2v-1) + h_uv (2u-1)(2v-1)), eq. (18).
 
@@ -74,51 +124,9 @@ class Heterogeneity(Effect):
     def direction(self):
         return (1.0, -0.5, 0.0)
 
-    def _continuum(self, model: TissueModel) -> dict:
-        """Per field j, mu_L- and lambda-terms of E (1 + f_j) on the free points (eq. C3)."""
-
-        def build():
-            out = {}
-            gradient = PhysicalGradient.of(model.volume, model.extra_points)
-            for j, shape in enumerate(_bilinear_fields()):
-                matrices = gradient.elasticity(shape)
-                blocks = [stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS]
-                out[j] = [to_casadi_sparse(block) for block in blocks]
-            return out
-
-        return self.cached(model, "continuum", build)
-
-    def _matrices(self, model: TissueModel) -> dict:
-        def build():
-            fields = dict(model.fields or {})
-            out = {}
-            for term in ALPHA_TERMS:
-                base = fields.get(term)
-                derivative = FIRST_DERIVATIVES[term[-1]]
-                for j, shape in enumerate(_bilinear_fields()):
-
-                    def field(p, shape=shape, base=base):
-                        scale = 1.0 if base is None else (base(p) if callable(base) else base)
-                        return shape(p) * scale
-
-                    gram = weighted_gram(model.volume.basis, derivative, field, name=term)
-                    out[term, j] = to_casadi_sparse(componentwise(model.free_block(gram)))
-            return out
-
-        return self.cached(model, "grams", build)
-
     def stiffness(self, model: TissueModel, values: dict, theta):
-        if model.energy != "dnurbs":
-            lame_pair = model.coefficients(values)
-            terms = self._continuum(model).items()
-            return sum(
-                theta[j] * coefficient * block
-                for j, blocks in terms
-                for coefficient, block in zip(lame_pair, blocks)
-            )
-        return sum(
-            values[term] * theta[j] * matrix for (term, j), matrix in self._matrices(model).items()
-        )
+        blocks = self.cached(model, "blocks", lambda: weighted_stiffness(model, _bilinear_fields()))
+        return scaled_stiffness(model, values, theta, blocks)
 
 
 class Bending(Effect):
