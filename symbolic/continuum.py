@@ -124,8 +124,11 @@ class PhysicalGradient:
         ``field`` f is a callable of the parameter points (n_q, 3), default 1.
         """
         scale = 1.0 if field is None else np.asarray(field(self.points), dtype=float)
-        weight = sp.diags(factor * scale * self.volume)
-        total = sum(row.T @ weight @ row for row in rows)
+        weight = factor * scale * self.volume
+        keep = np.flatnonzero(weight)  # a local field: only the points of its support
+        if keep.size < weight.size:
+            rows, weight = [row[keep] for row in rows], weight[keep]
+        total = sum(row.T @ sp.diags(weight) @ row for row in rows)
         return sp.csr_matrix(0.5 * (total + total.T))
 
 

@@ -43,18 +43,26 @@ def pattern_entries(pattern: sp.csc_matrix, matrix: sp.spmatrix) -> np.ndarray:
     return data
 
 
-def combined(blocks: list[sp.spmatrix], coefficients: ca.MX) -> ca.MX:
-    """sum_t c_t K_t as a sparse MX on the union pattern of the blocks.
-
-    Its nonzeros are a constant sparse map of the coefficients (``pattern_entries``),
-    so the expression costs one sparse product however many terms there are.
-    """
+def combination(blocks: list[sp.spmatrix]) -> tuple[ca.Sparsity, ca.DM]:
+    """The union pattern of the blocks and the constant map U from coefficients to its
+    nonzeros: sum_t c_t K_t has the nonzeros U c (``pattern_entries``)."""
     pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
     pattern.sort_indices()
     unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
     rows, cols = pattern.shape
     sparsity = ca.Sparsity(rows, cols, pattern.indptr.tolist(), pattern.indices.tolist())
-    return ca.MX(sparsity, ca.mtimes(to_casadi_sparse(unit), coefficients))
+    return sparsity, to_casadi_sparse(unit)
+
+
+def combined(blocks, coefficients: ca.MX) -> ca.MX:
+    """sum_t c_t K_t as a sparse MX on the union pattern of the blocks.
+
+    ``blocks`` is a list of scipy matrices or their ``combination``. The nonzeros are
+    one constant sparse product U c, however many terms there are: a CasADi Function
+    that evaluates it needs work memory for one matrix, not one per term.
+    """
+    sparsity, unit = combination(blocks) if isinstance(blocks, list) else blocks
+    return ca.MX(sparsity, ca.mtimes(unit, coefficients))
 
 
 class SparseCallback(ca.Callback):

@@ -426,3 +426,33 @@ def test_shared_cache_keeps_only_the_most_recent_effect_sets():
     assert sum(1 for key in cache if SharedCache.effect_set(key) == "a") == 10
     assert ("functions", "c", 0) in cache
     assert cache[("case", 0)] == "case data"
+
+
+def test_numeric_functions_free_a_large_work_vector_and_agree(monkeypatch):
+    """A Function whose work exceeds ``PERSISTENT_WORK`` gets a fresh buffer per call
+    (its constants are copied into the work): same values, results still valid after
+    the next call."""
+    import casadi as ca
+    import scipy.sparse as sp
+
+    from solvers.diagnosis import numeric
+
+    matrix = sp.random(40, 40, density=0.3, random_state=2, format="csc") + sp.identity(40)
+    x = ca.MX.sym("x", 40)
+    product = ca.DM(matrix.toarray()) @ x
+    function = ca.Function("f", [x], [product, ca.jacobian(ca.sin(product), x)])
+    kept = numeric.NumericFunction(function)
+    monkeypatch.setattr(numeric, "PERSISTENT_WORK", 0)
+    fresh = numeric.NumericFunction(function)
+    assert kept.persistent and not fresh.persistent
+    rng = np.random.default_rng(0)
+    first, second = rng.normal(size=40), rng.normal(size=40)
+    a = fresh(first)
+    b = fresh(second)
+    for got, want in zip(a + b, kept(first) + kept(second)):
+        assert np.array_equal(
+            got if isinstance(got, np.ndarray) else got.toarray(),
+            want if isinstance(want, np.ndarray) else want.toarray(),
+        )
+    assert np.allclose(a[0].ravel(), matrix @ first)
+    assert fresh._buffer is None

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import casadi as ca
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from experiments.diagnosis.diagnose import BASE_NAMES
-from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
 from solvers.diagnosis.fit import fit
@@ -50,6 +52,30 @@ def test_the_field_is_opt_in_and_named_as_in_the_design():
     assert DiagnosisSettings(candidates=("stiffness_field",)).candidates == ("stiffness_field",)
     effect = StiffnessFieldEffect((5, 3))
     assert effect.dim == 15 == len(effect.lower) == len(effect.units)
+
+
+@pytest.mark.parametrize("energy", ["dnurbs", "linear-elastic"])
+def test_a_constant_field_scales_the_base_stiffness(energy):
+    """The phi_k sum to 1, so c = t everywhere gives K(c) = t K on the free points (eq. F1):
+    the weighted blocks, restricted to each node's support, and their one combined
+    product add up to the whole stiffness."""
+    dataset = simulate_with_effects({}, seed=4)
+    names = BASE_NAMES if energy == "dnurbs" else ENERGY_NAMES[energy]
+    model = build_problem(dataset, FitSettings(names=names, energy=energy)).model
+    effect = StiffnessFieldEffect((3, 4))
+    theta = ca.MX.sym("theta", effect.dim)
+    values = dict(model.parameters)
+    stiffness = ca.Function("K", [theta], [effect.stiffness(model, values, theta)])
+    t = 0.3
+    scaled = sp.csc_matrix(stiffness(np.full(effect.dim, t)).sparse())
+    if energy == "dnurbs":
+        base = sp.kron(sp.identity(3), model.free_block(model.stiffness_matrix()))
+    else:
+        base = model.stiffness_matrix()
+    assert abs(scaled - t * base).max() <= 1e-12 * abs(base).max()
+    # one node alone is local: no stiffness outside its support
+    single = sp.csc_matrix(stiffness(np.eye(effect.dim)[0]).sparse())
+    assert 0 < np.count_nonzero(single.data) < base.nnz
 
 
 def test_the_prior_of_a_constant_field_is_its_pinned_mean(setting):

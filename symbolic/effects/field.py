@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from symbolic.effects.base import Effect
-from symbolic.effects.stiffness import scaled_stiffness, weighted_stiffness
+from symbolic.effects.stiffness import field_stiffness, scaled_stiffness
 from symbolic.field import StiffnessField, tissue_lengths
 from symbolic.model import TissueModel
 
@@ -89,7 +89,7 @@ class StiffnessFieldEffect(Effect):
                 lambda p, k=k: self.field.collocation(p)[:, k].toarray().ravel()
                 for k in range(self.field.size)
             ]
-            return weighted_stiffness(model, shapes)
+            return field_stiffness(model, shapes)
 
         return scaled_stiffness(model, values, theta, self.cached(model, "blocks", build))
 

@@ -22,6 +22,7 @@ paper's model only (the continuum has them).
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
@@ -36,7 +37,7 @@ from symbolic.effects.base import (
 )
 from symbolic.energy import weighted_gram
 from symbolic.model import TissueModel
-from symbolic.sparse import to_casadi_sparse
+from symbolic.sparse import combination, combined, to_casadi_sparse
 
 ALPHA_TERMS = ("alpha_u", "alpha_v", "alpha_w")
 
@@ -50,9 +51,9 @@ def _bilinear_fields():
     )
 
 
-def weighted_stiffness(model: TissueModel, shapes) -> list[list]:
+def weighted_stiffness(model: TissueModel, shapes) -> list[list[sp.csr_matrix]]:
     """Per field f_j (a callable of parameter points), the base stiffness terms weighted by
-    f_j on the free points (CasADi sparse, stacked order).
+    f_j on the free points (stacked order).
 
     The paper's model: sum_i integral f_j J_i^T J_i for alpha_i (times the model's own
     alpha field, if any; ``weighted_gram``), one block per alpha term. The continuum: K_mu
@@ -65,8 +66,7 @@ def weighted_stiffness(model: TissueModel, shapes) -> list[list]:
         out = []
         for shape in shapes:
             matrices = gradient.elasticity(shape)
-            blocks = [stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS]
-            out.append([to_casadi_sparse(block) for block in blocks])
+            out.append([stacked_free_block(model, matrices[t]) for t in CONTINUUM_TERMS])
         return out
     fields = dict(model.fields or {})
     out = []
@@ -81,23 +81,30 @@ def weighted_stiffness(model: TissueModel, shapes) -> list[list]:
 
             derivative = FIRST_DERIVATIVES[term[-1]]
             gram = weighted_gram(model.volume.basis, derivative, field, model.extra_points, term)
-            blocks.append(to_casadi_sparse(componentwise(model.free_block(gram))))
+            blocks.append(componentwise(model.free_block(gram)))
         out.append(blocks)
     return out
 
 
-def scaled_stiffness(model: TissueModel, values: dict, theta, blocks: list[list]):
+def scaled_stiffness(model: TissueModel, values: dict, theta, blocks) -> ca.MX:
     """sum_j theta_j sum_t coefficient_t K_jt for the blocks of ``weighted_stiffness``
-    (coefficients: the alpha on the paper's model, the Lame pair on the continuum)."""
+    (coefficients: the alpha on the paper's model, the Lame pair on the continuum).
+
+    ``blocks`` is their ``combination`` (flattened j-major): one sparse product, so a
+    Function evaluating it holds one matrix of work, not one per (j, t).
+    """
     if model.energy != "dnurbs":
         coefficients = model.coefficients(values)
     else:
         coefficients = tuple(values[term] for term in ALPHA_TERMS)
-    return sum(
-        theta[j] * coefficient * block
-        for j, terms in enumerate(blocks)
-        for coefficient, block in zip(coefficients, terms)
-    )
+    n_fields = blocks[1].size2() // len(coefficients)
+    products = [theta[j] * c for j in range(n_fields) for c in coefficients]
+    return combined(blocks, ca.vertcat(*products))
+
+
+def field_stiffness(model: TissueModel, shapes) -> tuple[ca.Sparsity, ca.DM]:
+    """The ``combination`` of ``weighted_stiffness`` for ``scaled_stiffness``."""
+    return combination([block for terms in weighted_stiffness(model, shapes) for block in terms])
 
 
 class Heterogeneity(Effect):
@@ -125,7 +132,7 @@ class Heterogeneity(Effect):
         return (1.0, -0.5, 0.0)
 
     def stiffness(self, model: TissueModel, values: dict, theta):
-        blocks = self.cached(model, "blocks", lambda: weighted_stiffness(model, _bilinear_fields()))
+        blocks = self.cached(model, "blocks", lambda: field_stiffness(model, _bilinear_fields()))
         return scaled_stiffness(model, values, theta, blocks)
 
 
