@@ -48,7 +48,8 @@ def combination(blocks: list[sp.spmatrix]) -> tuple[ca.Sparsity, ca.DM]:
     nonzeros: sum_t c_t K_t has the nonzeros U c (``pattern_entries``)."""
     pattern = sp.csc_matrix(sum(abs(b) for b in blocks))
     pattern.sort_indices()
-    unit = sp.csc_matrix(np.column_stack([pattern_entries(pattern, b) for b in blocks]))
+    columns = [sp.csc_matrix(pattern_entries(pattern, b)[:, None]) for b in blocks]
+    unit = sp.hstack(columns, format="csc")  # column by column: no dense (nnz, T) array
     rows, cols = pattern.shape
     sparsity = ca.Sparsity(rows, cols, pattern.indptr.tolist(), pattern.indices.tolist())
     return sparsity, to_casadi_sparse(unit)
@@ -59,7 +60,7 @@ def combined(blocks, coefficients: ca.MX) -> ca.MX:
 
     ``blocks`` is a list of scipy matrices or their ``combination``. The nonzeros are
     one constant sparse product U c, however many terms there are: a CasADi Function
-    that evaluates it needs work memory for one matrix, not one per term.
+    that evaluates it holds U and one result in its work, not a partial sum per term.
     """
     sparsity, unit = combination(blocks) if isinstance(blocks, list) else blocks
     return ca.MX(sparsity, ca.mtimes(unit, coefficients))

@@ -91,7 +91,7 @@ def scaled_stiffness(model: TissueModel, values: dict, theta, blocks) -> ca.MX:
     (coefficients: the alpha on the paper's model, the Lame pair on the continuum).
 
     ``blocks`` is their ``combination`` (flattened j-major): one sparse product, so a
-    Function evaluating it holds one matrix of work, not one per (j, t).
+    Function evaluating it holds U and one result in its work, not a partial sum per (j, t).
     """
     if model.energy != "dnurbs":
         coefficients = model.coefficients(values)
