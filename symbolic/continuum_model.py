@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from symbolic.continuum import PhysicalGradient, lame
 from symbolic.hyperelastic import NeoHookeanForce, NeoHookeanTangent
 from symbolic.model import TissueModel
-from symbolic.sparse import combined, to_casadi_sparse
+from symbolic.sparse import combination, combined, to_casadi_sparse
 
 CONTINUUM_TERMS = ("shear", "volumetric")
 """The terms of eq. (C3): K_mu (coefficient mu_L) and K_lambda (coefficient lambda)."""
@@ -96,7 +96,7 @@ class ContinuumModel(TissueModel):
 
     def stiffness_expression(self, coefficients: ca.MX, terms: list[str]) -> ca.MX:
         """K(x) = mu_L K_mu + lambda K_lambda on the free points, stacked (eq. C3)."""
-        return combined([self.continuum[t] for t in terms], coefficients)
+        return combined(combination([self.continuum[t] for t in terms]), coefficients)
 
     def edges(self):
         raise ValueError(f"the {self.energy} model has no spring edges (no k0 stiffening)")

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from symbolic.energy import STIFFNESS_TERMS, damping_matrix, mass_matrix, stiffness_terms
 from symbolic.loads import PrescribedDisplacement, independent_rows
-from symbolic.sparse import combined, to_casadi_sparse
+from symbolic.sparse import combination, combined, to_casadi_sparse
 from symbolic.stiffening import EdgeSet, StiffeningFunction, quadratic_stiffening
 from symbolic.volume import VolumeSpline
 
@@ -401,7 +401,8 @@ class TissueModel:
     def stiffness_expression(self, coefficients: ca.MX, terms: list[str]) -> ca.MX:
         """A(x) = I3 (x) sum_t c_t K_t on the free points, (3 n_free, 3 n_free), assembled
         from the nonzeros of the unit terms (vec stacks the components)."""
-        scalar = combined([self.free_block(self.terms[t]) for t in terms], coefficients)
+        unit_terms = combination([self.free_block(self.terms[t]) for t in terms])
+        scalar = combined(unit_terms, coefficients)
         return ca.diagcat(scalar, scalar, scalar)
 
     def _state_symbols(self) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:

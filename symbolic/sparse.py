@@ -55,14 +55,14 @@ def combination(blocks: list[sp.spmatrix]) -> tuple[ca.Sparsity, ca.DM]:
     return sparsity, to_casadi_sparse(unit)
 
 
-def combined(blocks, coefficients: ca.MX) -> ca.MX:
-    """sum_t c_t K_t as a sparse MX on the union pattern of the blocks.
+def combined(blocks: tuple[ca.Sparsity, ca.DM], coefficients: ca.MX) -> ca.MX:
+    """sum_t c_t K_t as a sparse MX on the union pattern, from the blocks' ``combination``.
 
-    ``blocks`` is a list of scipy matrices or their ``combination``. The nonzeros are
-    one constant sparse product U c, however many terms there are: a CasADi Function
-    that evaluates it holds U and one result in its work, not a partial sum per term.
+    The nonzeros are one constant sparse product U c, however many terms there are: a
+    CasADi Function that evaluates it holds U and one result in its work, not a partial
+    sum per term.
     """
-    sparsity, unit = combination(blocks) if isinstance(blocks, list) else blocks
+    sparsity, unit = blocks
     return ca.MX(sparsity, ca.mtimes(unit, coefficients))
 
 
