@@ -401,9 +401,8 @@ class TissueModel:
     def stiffness_expression(self, coefficients: ca.MX, terms: list[str]) -> ca.MX:
         """A(x) = I3 (x) sum_t c_t K_t on the free points, (3 n_free, 3 n_free), assembled
         from the nonzeros of the unit terms (vec stacks the components)."""
-        unit_terms = combination([self.free_block(self.terms[t]) for t in terms])
-        scalar = combined(unit_terms, coefficients)
-        return ca.diagcat(scalar, scalar, scalar)
+        blocks = [self.free_block(self.terms[t]) for t in terms]
+        return ca.diagcat(*[combined(combination(blocks), coefficients)] * 3)  # one x, y, z
 
     def _state_symbols(self) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
         """The symbols s, F_B, d and out_g of a custom Jacobian of ``state_residual``."""
