@@ -237,6 +237,25 @@ class FieldProblem:
             columns.append(-(a @ state.solve(self._padded(forces.toarray()))))
         return self.whitening @ np.vstack(columns)
 
+    def poisson_sensitivity(self, c: np.ndarray) -> np.ndarray:
+        """d r / d nu at c, the held nu's column (n_residuals,): one solve per case.
+
+        K depends on nu through f of eq. (I2) only, so (dK/dnu) Delta_k =
+        G^T ((df/dnu) (x) (w_q E(q)) * (G Delta_k)), with d(2 m)/dnu = -1 / (1 + nu)^2
+        and d(l)/dnu = (1 + 2 nu^2) / ((1 + nu)(1 - 2 nu))^2 per unit E.
+        """
+        state = self.forward(c)
+        nu = self.poisson
+        rate = np.array(
+            [-1.0 / (1.0 + nu) ** 2] * 6 + [(1 + 2 * nu**2) / ((1 + nu) * (1 - 2 * nu)) ** 2]
+        )
+        forces = []
+        for k in range(len(self.A)):
+            strains = (self.G @ state.states[k][: self.n_displacement]).reshape(7, -1)
+            forces.append(self.G.T @ ((rate[:, None] * strains * state.point_moduli).ravel()))
+        changes = -state.solve(self._padded(np.column_stack(forces)))
+        return self.whitening @ np.concatenate([a @ changes[:, k] for k, a in enumerate(self.A)])
+
     def residual(self, c: np.ndarray) -> np.ndarray:
         """The stacked whitened residuals r(c)."""
         return self.forward(c).residual

@@ -75,6 +75,35 @@ def test_adjoint_gradient_equals_finite_differences(field_problem):
     assert np.allclose(jac.T @ y, fp.vjp(c, y), rtol=1e-10, atol=1e-12 * np.abs(jac.T @ y).max())
 
 
+def test_the_band_marginal_over_nu_is_the_joint_hessians_field_block(field_problem):
+    """d r / d nu equals central differences, and eq. (I9) is the (c, c) block of the
+    inverse of the joint Gauss-Newton Hessian over (c, nu), dense and low rank."""
+    fp = field_problem
+    c = np.random.default_rng(4).normal(0.0, 0.3, fp.size)
+    column = fp.poisson_sensitivity(c)
+    step = 1e-6
+    shifted = [
+        FieldProblem(fp.problem, fp.field, fp.reference_kpa, fp.poisson + h).residual(c)
+        for h in (step, -step)
+    ]
+    central = (shifted[0] - shifted[1]) / (2 * step)
+    assert np.linalg.norm(column - central) <= 1e-7 * np.linalg.norm(central)
+    regularizer = Tikhonov(fp.field, LENGTHS)
+    beta = 1e5  # mm^2: the low-rank form is accurate here (at 10 mm^2 it is not, nu or no nu)
+    estimate = gauss_newton(fp, regularizer, beta, c, "sensitivity")
+    column = fp.poisson_sensitivity(estimate.coefficients)
+    jac = np.column_stack([fp.sensitivities(estimate.coefficients), column])
+    joint = jac.T @ jac
+    joint[:-1, :-1] += beta * regularizer.hessian(estimate.coefficients).toarray()
+    expected = np.sqrt(np.diag(np.linalg.inv(joint))[:-1])
+    dense = laplace(fp, regularizer, estimate, None, column)
+    assert np.allclose(dense.std, expected, rtol=1e-8)
+    held = laplace(fp, regularizer, estimate)
+    assert np.all(dense.std >= held.std * (1 - 1e-12))
+    low_rank = laplace(fp, regularizer, estimate, fp.size - 1, column)
+    assert np.allclose(low_rank.std, expected, rtol=0.01)
+
+
 @pytest.mark.parametrize("kind", [Tikhonov, TotalVariation])
 def test_regularizer_gradient_equals_finite_differences(field_problem, kind):
     regularizer = kind(field_problem.field, LENGTHS)

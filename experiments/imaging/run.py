@@ -4,8 +4,8 @@
    E_ref of eq. (I1) and its nu is held.
 2. Estimate the field s = log(E / E_ref) (eq. I8) with the weight chosen by
    Morozov's principle (default), the L-curve, or given.
-3. The Laplace approximation around the estimate: standard deviations and the
-   effective number of parameters.
+3. The Laplace approximation around the estimate: standard deviations (marginal
+   over the held nu, eq. I9) and the effective number of parameters.
 """
 
 from __future__ import annotations
@@ -125,7 +125,8 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image
             estimate, float(fp.n_residuals), True, [(beta, estimate.chi2)], "given", "given"
         )
     rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
-    posterior = laplace(fp, regularizer, choice.estimate, rank)
+    nuisance = fp.poisson_sensitivity(choice.estimate.coefficients)
+    posterior = laplace(fp, regularizer, choice.estimate, rank, nuisance)
     return Image(
         fp, regularizer, choice, posterior, homogeneous, method, time.perf_counter() - begin
     )
