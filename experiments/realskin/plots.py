@@ -167,3 +167,35 @@ def plot_scan_map(
     _slab_map(ax, region, pads, "0.3", outline, title)
     ax.legend(loc="upper right", fontsize=7)
     return _save(fig, path)
+
+
+def plot_cell_map(
+    path: Path,
+    title: str,
+    region: Rect,
+    edges: tuple[np.ndarray, np.ndarray],
+    s: np.ndarray,
+    z: np.ndarray,
+    pads: tuple[Rect, Rect],
+    outline: np.ndarray | None,
+    dic_xy: np.ndarray,
+) -> Path:
+    """The cell map (``cellmap.py``): log stiffness ratio to the slab's mean, and s / std
+    with the |z| = 2 contour; pads, the DIC points and (for comparison only) the outline."""
+    fig, axes = plt.subplots(2, 1, figsize=(7.5, 7.0))
+    for ax, values, label in (
+        (axes[0], s, "log stiffness ratio s to the slab's mean"),
+        (axes[1], z, "s / std (z)"),
+    ):
+        limit = float(np.abs(values).max()) or 1.0
+        image = ax.pcolormesh(
+            *edges, values.T, cmap="RdBu_r", vmin=-limit, vmax=limit, shading="flat"
+        )
+        fig.colorbar(image, ax=ax, label=label)
+        ax.plot(*dic_xy.T, ".", color="0.4", ms=1.0, label="DIC points")
+        _slab_map(ax, region, pads, "0.3", outline, title if ax is axes[0] else "")
+    centres = [0.5 * (e[1:] + e[:-1]) for e in edges]
+    if np.abs(z).max() > 2.0:
+        axes[1].contour(*centres, np.abs(z).T, levels=[2.0], colors="k", linewidths=1.0)
+    axes[0].legend(loc="upper right", fontsize=7)
+    return _save(fig, path)

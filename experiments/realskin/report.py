@@ -128,6 +128,31 @@ def heterogeneity_table(summary: dict, cases) -> list[str]:
     return lines
 
 
+def map_table(summary: dict, cases) -> list[str]:
+    """The cell map: dof, cells departing from the mean, outline overlap, strain."""
+    lines = [
+        "| case | stage | dof | stiffer / softer cells (z > 2) | Bonferroni | inside outline "
+        "(chance) | IoU | centroid inside | corr(map, strain) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name in cases:
+        found = summary[name].get("map")
+        if found is None:
+            continue
+        cells, outline = found["cells"], found["outline"] or {}
+        inside = outline.get("inside_fraction")
+        lines.append(
+            f"| {name} | {found['stage']} | {found['effective_dof']:.1f} | "
+            f"{cells['stiffer']} / {cells['softer']} of {cells['n_cells']} | "
+            f"{cells['stiffer_bonferroni']} / {cells['softer_bonferroni']} "
+            f"(z > {cells['bonferroni_level']:.2f}) | "
+            + (f"{inside:.2f} ({outline['chance']:.2f})" if inside is not None else "-")
+            + f" | {_number(outline.get('iou'), 2)} | {outline.get('centroid_inside', '-')} | "
+            f"{_number(found['strain']['pearson'], 2)} |"
+        )
+    return lines
+
+
 def report(summary: dict) -> str:
     """The whole ``parameters.md``."""
     cases = [c for c in ("healthy", "keloid") if c in summary]
@@ -151,6 +176,10 @@ def report(summary: dict) -> str:
         "## The heterogeneity found by the scan (outline used only for the overlap)",
         "",
         *heterogeneity_table(summary, cases),
+        "",
+        "## The cell map (outline and strain used only for the comparison)",
+        "",
+        *map_table(summary, cases),
         "",
         "## Against the original authors (2D neo-Hookean)",
         "",

@@ -251,6 +251,29 @@ def cell_columns(
     return np.vstack(columns)
 
 
+def profiled_cell_columns(
+    model: SkinSlabModel, cases: list, names: tuple, x: np.ndarray, bounds: dict, cells: CellTerms
+) -> tuple[np.ndarray, np.ndarray]:
+    """The residual r and the cells' columns with the fitted parameters profiled out.
+
+    Returns
+    -------
+    r : numpy.ndarray
+        The weighted residual at (names, x), (n_residuals,).
+    columns : numpy.ndarray
+        (I - Q Q^T) dr/dtheta_c, Q an orthonormal basis of dr/dx: what a cell's change
+        does that no refit of x can undo, (n_residuals, n_cells).
+    """
+    space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
+    problem = PlanarProblem(model, cases, space)
+    solver = PlanarNestedSolver(problem)
+    r, jac_x = solver.evaluate(space.to_internal(space.start))
+    states = [m.state for m in solver.memory]
+    columns = cell_columns(model, problem, space.start, states, cells)
+    basis, _ = np.linalg.qr(jac_x)
+    return r, columns - basis @ (basis.T @ columns)
+
+
 # ---------------------------------------------------------------------------- the scan
 @dataclass(frozen=True)
 class ScanResult:
@@ -292,15 +315,8 @@ def scan(
     ``stiffer``: one-sided, as k0 >= 0: the candidate is a stiffer inclusion (a scar),
     and a rectangle whose score asks for a softer one scores 0.
     """
-    space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
-    problem = PlanarProblem(model, cases, space)
-    solver = PlanarNestedSolver(problem)
-    r, jac_x = solver.evaluate(space.to_internal(space.start))
-    states = [m.state for m in solver.memory]
     cells = cells if cells is not None else CellTerms.build(model, grid)
-    columns = cell_columns(model, problem, space.start, states, cells)
-    basis, _ = np.linalg.qr(jac_x)
-    columns = columns - basis @ (basis.T @ columns)
+    r, columns = profiled_cell_columns(model, cases, names, x, bounds, cells)
     gradient = columns.T @ r
     gram = columns.T @ columns
     sigma2 = float(r @ r) / max(r.size - len(names), 1)

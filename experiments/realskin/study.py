@@ -10,7 +10,9 @@ For each case of ``skin-extensometer`` (healthy skin, a keloid scar):
    material inside it (stiffness ratio 1 + theta); add the best candidate while it is
    significant and worth it, and refit;
 4. report the errors before and after, the estimates with standard errors, and a
-   comparison with the original authors' 2D neo-Hookean fit.
+   comparison with the original authors' 2D neo-Hookean fit;
+5. map the stiffness cell by cell with its uncertainty (``cellmap.py``) and compare the
+   map with the keloid outline and the model-free axial strain.
 
 Run ``python -m experiments.realskin --out DIR``; see ``docs/realskin.md``.
 """
@@ -24,6 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from experiments.atomic import atomic_write_json, atomic_write_text
+from experiments.realskin.cellmap import (
+    PRIOR_RMS,
+    compare_outline,
+    compare_strain,
+    estimate_map,
+    significant_cells,
+)
 from experiments.realskin.figures import case_figures, stage_summary
 from experiments.realskin.loop import (
     NULL,
@@ -33,8 +42,16 @@ from experiments.realskin.loop import (
     parameter_space,
 )
 from experiments.realskin.model import REGION_RATIO
+from experiments.realskin.plots import plot_cell_map
 from experiments.realskin.report import report
-from experiments.realskin.scan import ScanResult, overlap, rect_indicator, with_region
+from experiments.realskin.scan import (
+    SCAN,
+    CellTerms,
+    ScanResult,
+    overlap,
+    rect_indicator,
+    with_region,
+)
 from experiments.realskin.setup import STIFFENING, RealSkinSettings, Setup, build
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.strain import figure as strain_figure
@@ -81,12 +98,13 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
         "authors": AUTHORS[name],
     }
     summary["heterogeneity"] = _heterogeneity(setup, found, stages)
+    summary["map"] = _cell_map(setup, base_model, loop, settings, out / f"map_{name}.png")
     summary["variants"] = _variants(name, settings, stages, found, log)
     paths = case_figures(out, name, setup, stages, found)
     strain_path = out / f"strain_{name}.png"
     frames = [f for f in setup.data.frames if f is not None]
     strain_figure(setup.case, frames, strain_path, pads=setup.pad_rects)
-    summary["figures"] = [p.name for p in [*paths, strain_path]]
+    summary["figures"] = [p.name for p in [*paths, strain_path]] + [f"map_{name}.png"]
     setup.model = base_model
     summary["seconds"] = time.perf_counter() - begin
     first, last = stages[0], stages[-1]
@@ -115,6 +133,48 @@ def _heterogeneity(setup: Setup, found: ScanResult | None, stages: list[StageFit
     keloid = setup.case.geometry.keloid
     if keloid is not None:
         out["overlap"] = overlap(found.rect, keloid, setup.case.geometry.region)
+    return out
+
+
+def _cell_map(setup: Setup, base_model, loop: dict, settings: RealSkinSettings, path) -> dict:
+    """The regularised cell map (``cellmap.py``) at the stage where the loop took the
+    scanned region (the final stage if it did not), with the model without it; its
+    comparison with the outline (keloid) and with the model-free strain; its figure."""
+    index = next(
+        (k for k, r in enumerate(loop["rounds"]) if r["chosen"] == SCAN), len(loop["stages"]) - 1
+    )
+    stage = loop["stages"][index]
+    if setup.cells is None:
+        setup.cells = CellTerms.build(base_model, setup.grid)
+    found = estimate_map(
+        base_model, setup.cases, stage.names, stage.x, settings.bounds, setup.grid, setup.cells
+    )
+    frames = [f for f in setup.data.frames if f is not None]
+    keloid = setup.case.geometry.keloid
+    out = {
+        "stage": stage.label,
+        "s": found.s.tolist(),
+        "std": found.std.tolist(),
+        "effective_dof": found.effective_dof,
+        "prior_rms": PRIOR_RMS,
+        "gcv_scale": found.gcv_scale,
+        "cost_before": found.cost_before,
+        "cost_after_linearised": found.cost_after,
+        "cells": significant_cells(found),
+        "strain": compare_strain(found, setup.grid, setup.case, frames[-1]),
+        "outline": None if keloid is None else compare_outline(found, setup.grid, keloid),
+    }
+    plot_cell_map(
+        path,
+        f"{setup.case.name}: stiffness map at '{stage.label}' ({found.effective_dof:.1f} dof)",
+        setup.grid.region,
+        (setup.grid.x_edges, setup.grid.y_edges),
+        found.s,
+        found.z,
+        setup.pad_rects,
+        keloid,
+        setup.case.dic_reference_model_mm,
+    )
     return out
 
 
