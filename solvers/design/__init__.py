@@ -1,0 +1,1 @@
+"""Experiment design (issue 21): the information of a design, from exact sensitivities."""
