@@ -32,9 +32,11 @@ DENSE_LAPLACE_MAX_N = 400
 LOW_RANK = 100
 """Eigenpairs of the low-rank Laplace approximation."""
 
-AUTO_SENSITIVITY_MAX_N = 256
-"""``--method auto``: nested-sensitivity up to this N, nested-adjoint above
-(docs/inverse.md, "Stiffness imaging: which method")."""
+AUTO_SENSITIVITY_MAX_N = 1024
+"""``--method auto``: nested-sensitivity up to this N, nested-adjoint above. The formed
+sensitivity was the fastest at every N measured, 16-1024 on 9x9x2 and 17x17x3
+(docs/inverse.md, "Stiffness imaging: which method"); above 1024 its N columns per
+case are unmeasured, and the adjoint never forms them."""
 
 
 @dataclass(frozen=True)
