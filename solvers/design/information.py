@@ -117,12 +117,11 @@ def effect_power(
         projected = direction - q @ (q.T @ direction)
     else:
         projected = direction
-    scaled = projected * problem.scale[problem.slice_of(effect.name)]
-    singular = np.linalg.svd(scaled, compute_uv=False)
-    size = np.linalg.norm(direction * problem.scale[problem.slice_of(effect.name)], 2)
+    scale = problem.scale[block]  # the score test's rank rule, on the same columns
+    left, singular, _ = np.linalg.svd(projected * scale, full_matrices=False)
+    size = np.linalg.norm(direction * scale, 2)
     dof = int(np.sum(singular > CONFOUNDED * max(size, 1e-300)))
-    basis = np.linalg.svd(projected, full_matrices=False)[0][:, :dof]
-    remaining = basis @ (basis.T @ signal)
+    remaining = left[:, :dof] @ (left[:, :dof].T @ signal)  # P_A of eq. (D2)
     lower = np.asarray(effect.lower, dtype=float)
     one_sided = theta.size == 1 and lower[0] == 0.0
     noncentrality = float(remaining @ remaining) / sigma**2
