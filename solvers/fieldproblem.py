@@ -211,6 +211,11 @@ class FieldProblem:
                 for k in range(len(self.A))
             ]
         )
+        return self._response(state, forces)
+
+    def _response(self, state: Forward, forces: np.ndarray) -> np.ndarray:
+        """The whitened marker change -W [A_k M^-1 f_k]_k / sigma of per-case forces f_k
+        (columns of ``forces``, padded to the saddle system), one solve per case."""
         changes = -state.solve(forces)
         return self.whitening @ np.concatenate([a @ changes[:, k] for k, a in enumerate(self.A)])
 
@@ -253,8 +258,7 @@ class FieldProblem:
         for k in range(len(self.A)):
             strains = (self.G @ state.states[k][: self.n_displacement]).reshape(7, -1)
             forces.append(self.G.T @ ((rate[:, None] * strains * state.point_moduli).ravel()))
-        changes = -state.solve(self._padded(np.column_stack(forces)))
-        return self.whitening @ np.concatenate([a @ changes[:, k] for k, a in enumerate(self.A)])
+        return self._response(state, self._padded(np.column_stack(forces)))
 
     def residual(self, c: np.ndarray) -> np.ndarray:
         """The stacked whitened residuals r(c)."""

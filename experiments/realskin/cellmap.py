@@ -44,8 +44,7 @@ import numpy as np
 import scipy.linalg
 from scipy import stats
 
-from experiments.realskin.geometry import points_in_polygon
-from experiments.realskin.scan import CellGrid, CellTerms, profiled_cell_columns
+from experiments.realskin.scan import CellGrid, CellTerms, overlap, profiled_cell_columns
 from experiments.realskin.strain import segment_strain
 
 PRIOR_RMS = 0.5
@@ -178,47 +177,12 @@ def significant_cells(cell_map: CellMap, level: float = Z_LEVEL) -> dict:
     }
 
 
-def compare_outline(
-    cell_map: CellMap, grid: CellGrid, polygon: np.ndarray, step: float = 0.1
-) -> dict:
-    """The significantly stiffer cells (z > ``Z_LEVEL``) against the keloid outline.
-
-    Returns
-    -------
-    dict
-        ``inside_fraction`` |S n K| / |S|, ``iou`` |S n K| / |S u K|, ``recall``,
-        ``chance`` |K| / |slab|, the area-weighted centroid of S [mm], whether it lies
-        inside K and its distance to K's centroid [mm]; S empty gives ``cells`` 0.
-    """
-    region = grid.region
-    xs = np.arange(region.x0 + step / 2, region.x1, step)
-    ys = np.arange(region.y0 + step / 2, region.y1, step)
-    points = np.column_stack([g.ravel() for g in np.meshgrid(xs, ys, indexing="xy")])
-    polygon = np.asarray(polygon, dtype=float)
-    in_k = points_in_polygon(points, polygon)
-    i = np.clip(np.searchsorted(grid.x_edges, points[:, 0], side="right") - 1, 0, grid.shape[0] - 1)
-    j = np.clip(np.searchsorted(grid.y_edges, points[:, 1], side="right") - 1, 0, grid.shape[1] - 1)
-    stiff = cell_map.z > Z_LEVEL
-    in_s = stiff[i, j]
-    out = {"cells": int(stiff.sum()), "chance": float(in_k.mean())}
-    if not in_s.any():
-        return out
-    both = float(np.sum(in_s & in_k))
-    centroid = points[in_s].mean(axis=0)
-    outline_centroid = points[in_k].mean(axis=0)
-    out.update(
-        {
-            "inside_fraction": both / float(in_s.sum()),
-            "iou": both / float(np.sum(in_s | in_k)),
-            "recall": both / float(in_k.sum()),
-            "centroid_mm": centroid.tolist(),
-            "centroid_inside": bool(points_in_polygon(centroid[None], polygon)[0]),
-            "centroid_distance_mm": float(np.linalg.norm(centroid - outline_centroid)),
-            "area_mm2": float(in_s.sum()) * step**2,
-            "area_outline_mm2": float(in_k.sum()) * step**2,
-        }
-    )
-    return out
+def compare_outline(cell_map: CellMap, grid: CellGrid, polygon: np.ndarray) -> dict:
+    """The significantly stiffer cells (z > ``Z_LEVEL``) against the keloid outline:
+    ``scan.overlap`` of their union, plus ``cells``, their number."""
+    stiff = (cell_map.z > Z_LEVEL).ravel()
+    out = overlap(lambda points: stiff[grid.cell_at(points)], polygon, grid.region)
+    return {"cells": int(stiff.sum()), **out}
 
 
 def compare_strain(cell_map: CellMap, grid: CellGrid, case, frame: int) -> dict:
@@ -229,24 +193,19 @@ def compare_strain(cell_map: CellMap, grid: CellGrid, case, frame: int) -> dict:
     (``strain.segment_strain``). Stiffer skin strains less, so a map that agrees with
     the strain gives a negative correlation.
     """
-    points = case.dic_reference_model_mm
-    cells = grid.cell_of(
-        np.column_stack(
-            [
-                (points[:, 0] - grid.region.x0) / grid.region.width,
-                (points[:, 1] - grid.region.y0) / grid.region.height,
-                np.ones(len(points)),
-            ]
-        )
-    )
-    s = cell_map.s.ravel()
+    cells = grid.cell_at(case.dic_reference_model_mm)
     columns = cells // grid.shape[1]
-    rows = []
-    for column in np.unique(columns):
-        edges = grid.x_edges[column : column + 2]
-        strain = float(segment_strain(case, frame, edges)[0])
-        if np.isfinite(strain):
-            rows.append((float(edges.mean()), float(np.mean(s[cells[columns == column]])), strain))
+    strain = segment_strain(case, frame, grid.x_edges)  # per column of cells
+    s = cell_map.s.ravel()
+    rows = [
+        (
+            0.5 * (grid.x_edges[c] + grid.x_edges[c + 1]),
+            float(np.mean(s[cells[columns == c]])),
+            strain[c],
+        )
+        for c in np.unique(columns)
+        if np.isfinite(strain[c])
+    ]
     x, map_s, strain = (np.array(v) for v in zip(*rows))
     return {
         "frame": int(frame),

@@ -83,9 +83,14 @@ class CellGrid:
         return Rect(self.x_edges[i0], self.y_edges[j0], self.x_edges[i1], self.y_edges[j1])
 
     def cell_of(self, params: np.ndarray) -> np.ndarray:
-        """Cell index of parameter points (n, 3) (-1 outside)."""
+        """Cell index of parameter points (n, 3) (the nearest cell outside)."""
         x = self.region.x0 + params[:, 0] * self.region.width
         y = self.region.y0 + params[:, 1] * self.region.height
+        return self.cell_at(np.column_stack([x, y]))
+
+    def cell_at(self, points_xy: np.ndarray) -> np.ndarray:
+        """Cell index of model-frame points (n, 2) [mm] (the nearest cell outside)."""
+        x, y = np.asarray(points_xy, dtype=float).T
         i = np.clip(np.searchsorted(self.x_edges, x, side="right") - 1, 0, self.shape[0] - 1)
         j = np.clip(np.searchsorted(self.y_edges, y, side="right") - 1, 0, self.shape[1] - 1)
         return i * self.shape[1] + j
@@ -350,32 +355,45 @@ def scan(
 
 
 # ------------------------------------------------------------------------------ overlap
-def overlap(rect: Rect, polygon: np.ndarray, region: Rect, step: float = 0.1) -> dict:
-    """How a found region (a rectangle) overlaps a polygon, on a fine grid of points.
+def overlap(found, polygon: np.ndarray, region: Rect, step: float = 0.1) -> dict:
+    """How a found region overlaps a polygon, on a fine grid of points.
+
+    ``found`` is a ``Rect`` or a function of model-frame points (n, 2) [mm] giving a
+    mask (n,), e.g. the significant cells of a map.
 
     Returns
     -------
     dict
         ``inside_fraction`` |R n K| / |R| (how much of the found region lies in the
         outline), ``iou`` |R n K| / |R u K|, ``recall`` |R n K| / |K|,
-        ``centroid_inside``, ``chance`` |K| / |slab| (the inside fraction of a region
-        placed at random), areas [mm^2].
+        ``centroid_inside`` (R's area centroid), ``centroid_mm``,
+        ``centroid_distance_mm`` (to K's), ``chance`` |K| / |slab| (the inside fraction
+        of a region placed at random), areas [mm^2]; an empty R gives only ``chance``
+        and ``area_outline_mm2``.
     """
     x = np.arange(region.x0 + step / 2, region.x1, step)
     y = np.arange(region.y0 + step / 2, region.y1, step)
     grid = np.column_stack([g.ravel() for g in np.meshgrid(x, y, indexing="xy")])
-    in_k = points_in_polygon(grid, np.asarray(polygon, dtype=float))
-    in_r = rect.contains(grid, tol=0.0)
+    polygon = np.asarray(polygon, dtype=float)
+    in_k = points_in_polygon(grid, polygon)
+    in_r = found.contains(grid, tol=0.0) if isinstance(found, Rect) else found(grid)
     cell = step**2
+    area_k = float(in_k.sum()) * cell
+    out = {"chance": area_k / (region.width * region.height), "area_outline_mm2": area_k}
+    if not in_r.any():
+        return out
     both = float(np.sum(in_k & in_r)) * cell
-    area_r, area_k = float(in_r.sum()) * cell, float(in_k.sum()) * cell
-    centre = np.array([[0.5 * (rect.x0 + rect.x1), 0.5 * (rect.y0 + rect.y1)]])
-    return {
-        "inside_fraction": both / area_r,
-        "iou": both / (area_r + area_k - both),
-        "recall": both / area_k,
-        "centroid_inside": bool(points_in_polygon(centre, np.asarray(polygon, dtype=float))[0]),
-        "chance": area_k / (region.width * region.height),
-        "area_found_mm2": area_r,
-        "area_outline_mm2": area_k,
-    }
+    area_r = float(in_r.sum()) * cell
+    centroid = grid[in_r].mean(axis=0)
+    out.update(
+        {
+            "inside_fraction": both / area_r,
+            "iou": both / (area_r + area_k - both),
+            "recall": both / area_k,
+            "centroid_mm": centroid.tolist(),
+            "centroid_inside": bool(points_in_polygon(centroid[None], polygon)[0]),
+            "centroid_distance_mm": float(np.linalg.norm(centroid - grid[in_k].mean(axis=0))),
+            "area_found_mm2": area_r,
+        }
+    )
+    return out
