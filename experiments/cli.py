@@ -35,6 +35,8 @@ RESEARCH = {
     "detection": ("experiments.diagnosis.detection", "how large an effect must be to be found"),
     "outoflibrary": ("experiments.diagnosis.outoflibrary", "data from a linear-elastic FE slab"),
     "continuum-loop": ("experiments.diagnosis.continuum", "the loop on scikit-fem continuum data"),
+    "design": ("experiments.design.command", "choose where and how hard to press (design.json)"),
+    "designbench": ("experiments.design.bench", "design search: speed, gap, against by hand"),
     "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
     "imagebench": ("experiments.imaging.bench", "stiffness imaging: fit time against N"),
     "realskin": ("experiments.realskin.study", "real in vivo skin: fit and close the loop"),

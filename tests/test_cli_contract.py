@@ -41,6 +41,8 @@ DIRECTORY_OUTPUT = {
     "realskin-continuum": [],
     "image": ["{data}"],
     "imagebench": [],
+    "design": ["{data}"],
+    "designbench": [],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
 
@@ -65,6 +67,7 @@ EXPENSIVE = (
     "continuum-loop",
     "realskin-continuum",
     "imagebench",
+    "designbench",
 )
 
 
@@ -165,6 +168,12 @@ OUT_OF_RANGE = [
     (["image", "{data}", "--field", "5x5", "--over", "layers", "--out", "o"], "--field"),
     (["image", "{data}", "--noise", "0", "--out", "o"], "--noise"),
     (["imagebench", "--sizes", "15"], "--sizes"),
+    (["design", "{data}", "--budget", "0", "--out", "o"], "--budget"),
+    (["design", "{data}", "--target", "gravity", "--out", "o"], "--target"),
+    (["design", "{data}", "--force-range", "0.1", "2", "--out", "o"], "--force-range"),
+    (["design", "{data}", "--target", "rigid_motion", "--out", "o"], "rigid_motion"),
+    (["design", "{data}", "--criterion", "d", "--target", "bending", "--out", "o"], "--criterion"),
+    (["designbench", "--budget", "0"], "--budget"),
     (["imagebench", "--methods", "magic"], "--methods"),
     (["diagnose", "{data}", "--degrees", "9x9x9", "--out", "o"], "--degrees"),
     (["realskin", "--grid", "1", "1", "--out", "o"], "--grid"),

@@ -28,12 +28,41 @@ DESIGNS = ("paper", "diagnosis")
 
 
 def design_options(design: str) -> dict:
-    """Keyword arguments of ``simulate_with_effects`` for a named design."""
+    """Keyword arguments of ``simulate_with_effects`` for a named design, or for the
+    presses of a ``design.json`` file (``dvs design``)."""
+    if str(design).endswith(".json"):
+        from experiments.design.files import read_presses
+
+        return {"presses": read_presses(design)}
     if design == "paper":
         return {}
     if design == "diagnosis":
         return {"contacts": DIAGNOSIS_CONTACTS, "tilt_deg": DIAGNOSIS_TILT_DEG}
-    raise ValueError(f"unknown design {design!r}; choose from {', '.join(DESIGNS)}")
+    raise ValueError(
+        f"unknown design {design!r}; choose from {', '.join(DESIGNS)} or a design.json file"
+    )
+
+
+CONTACT_TOLERANCE_MM = 1.0
+"""How far a design's contact may lie from the phantom's rest skin [mm]."""
+
+
+def press_loads(truth, presses) -> list:
+    """Point loads of a design file's presses (contact [mm], force [N]) on the truth.
+
+    Each contact is projected onto the rest skin; one farther than
+    ``CONTACT_TOLERANCE_MM`` means the design was made for another tissue.
+    """
+    loads = []
+    for k, (contact, force) in enumerate(presses, 1):
+        uv, distance = truth.volume.project_to_outer(np.asarray(contact, dtype=float)[None])
+        if distance[0] > CONTACT_TOLERANCE_MM:
+            raise ValueError(
+                f"press {k}: its contact is {distance[0]:.1f} mm from the phantom's skin; "
+                "the design was made for another dataset"
+            )
+        loads.append(PointForce(np.asarray(force, dtype=float), uv=uv[0]))
+    return loads
 
 
 def design_loads(truth, phantom: PhantomSettings, contacts=None, tilt_deg: float = 0.0) -> list:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from experiments.dataset import Dataset
-from experiments.phantom.designs import DESIGNS, design_loads, design_options
+from experiments.phantom.designs import DESIGNS, design_loads, design_options, press_loads
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -245,6 +245,7 @@ def simulate_with_effects(
     phantom: PhantomSettings | None = None,
     contacts=None,
     tilt_deg: float = 0.0,
+    presses=None,
 ) -> Dataset:
     """A dataset from the phantom with undeclared effects (``dvs simulate --effect``).
 
@@ -271,6 +272,8 @@ def simulate_with_effects(
         phantom's single central contact; ``DIAGNOSIS_CONTACTS`` is the diagnosis design.
     tilt_deg : float
         Tilt of the second force at every contact [deg].
+    presses : list of (contact [mm], force [N]), optional
+        A design file's presses (``designs.press_loads``); replaces ``contacts``.
     """
     effects = dict(effects or {})
     unknown = set(effects) - set(EFFECT_NAMES)
@@ -282,7 +285,10 @@ def simulate_with_effects(
     )
     truth = forehead_model(phantom, TRUE_PARAMETERS)
     uv = marker_uv(phantom)
-    declared = design_loads(truth, phantom, contacts, tilt_deg)
+    if presses is not None:
+        declared = press_loads(truth, presses)
+    else:
+        declared = design_loads(truth, phantom, contacts, tilt_deg)
     loads = declared
     if effects.get("contact_patch", 0.0) > 0:
         radius = float(effects["contact_patch"])
@@ -317,7 +323,11 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
         help="an effect the dataset does not declare (repeatable; a bare NAME uses its "
         "realistic magnitude, docs/diagnosis.md)",
     )
-    parser.add_argument("--design", choices=DESIGNS, default="paper", help="where to press")
+    parser.add_argument(
+        "--design",
+        default="paper",
+        help=f"where to press: {' or '.join(DESIGNS)}, or a design.json of dvs design",
+    )
     parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm], 0-1")
     parser.add_argument("--seed", type=int, default=0, help="random seed, 0 to 2^32 - 1")
     parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
@@ -343,7 +353,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.phant
         check_seed(args.seed)
         check_output_file(args.out, ".npz")
         options = design_options(args.design)
-        n_cases = len(options.get("contacts", [None])) * len(PhantomSettings().forces)
+        if "presses" in options:
+            n_cases = len(options["presses"])
+        else:
+            n_cases = len(options.get("contacts", [None])) * len(PhantomSettings().forces)
         effects = parse_effect_specs(args.effect, n_cases)
         try:
             dataset = simulate_with_effects(effects, noise_mm=args.noise, seed=args.seed, **options)

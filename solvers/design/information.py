@@ -108,23 +108,26 @@ def effect_power(
     problem, p, jacobian = candidate_jacobian(base, effect)
     block = problem.slice_of(effect.name)
     theta = np.asarray(effect.true_parameters(magnitude, len(problem.cases)), dtype=float)
-    direction = jacobian[:, block]
-    nuisance = jacobian[:, np.flatnonzero(base.estimated())]
     p[block] = theta
     signal = problem.whiten(problem.evaluate(p)[0]) - base.whitened
-    if nuisance.shape[1]:
-        q, _ = np.linalg.qr(nuisance)
-        projected = direction - q @ (q.T @ direction)
-    else:
-        projected = direction
-    scale = problem.scale[block]  # the score test's rank rule, on the same columns
-    left, singular, _ = np.linalg.svd(projected * scale, full_matrices=False)
-    size = np.linalg.norm(direction * scale, 2)
-    dof = int(np.sum(singular > CONFOUNDED * max(size, 1e-300)))
-    remaining = left[:, :dof] @ (left[:, :dof].T @ signal)  # P_A of eq. (D2)
+    nuisance = np.flatnonzero(base.estimated())
+    columns = np.column_stack([jacobian[:, nuisance], jacobian[:, block], signal])
+    q = theta.size
+    projected, dof = projected_signal(
+        columns.T @ columns,
+        np.arange(nuisance.size),
+        np.arange(nuisance.size, nuisance.size + q),
+        nuisance.size + q,
+        problem.scale[block],
+    )
+    return effect_figures(effect, magnitude, projected, float(signal @ signal), dof, sigma, level)
+
+
+def effect_figures(effect: Effect, magnitude, projected, total, dof, sigma, level) -> EffectPower:
+    """The ``EffectPower`` of |P_A s|^2 = ``projected`` and |s|^2 = ``total`` [mm^2]."""
     lower = np.asarray(effect.lower, dtype=float)
-    one_sided = theta.size == 1 and lower[0] == 0.0
-    noncentrality = float(remaining @ remaining) / sigma**2
+    one_sided = effect.dim == 1 and lower[0] == 0.0
+    noncentrality = projected / sigma**2
     return EffectPower(
         effect.name,
         float(magnitude),
@@ -133,5 +136,34 @@ def effect_power(
         float(level),
         bool(one_sided),
         power(noncentrality, dof, level, one_sided) if dof else 0.0,
-        float(np.linalg.norm(remaining) / max(np.linalg.norm(signal), 1e-300)),
+        float(np.sqrt(projected / max(total, 1e-300))),
     )
+
+
+def projected_signal(gram, nuisance, block, signal: int, scale) -> tuple[float, int]:
+    """|P_A s|^2 of eq. (D2) [mm^2] and rank A, from the Gram matrix of whitened columns.
+
+    ``gram`` is C^T C with C = [J_x, J_theta, s] (whatever the column order: the index
+    arrays say where each sits). A = (I - P_x) J_theta has A^T A the Schur complement
+    G_tt - G_tx G_xx^-1 G_xt; its rank is counted on the columns scaled by ``scale``
+    (the score test's rule: singular values above ``CONFOUNDED`` times |J_theta S|_2),
+    and |P_A s|^2 = b^T (A^T A)^+ b with b = A^T s.
+    """
+    scale = np.asarray(scale, dtype=float)
+    g_tt = gram[np.ix_(block, block)] * np.outer(scale, scale)
+    g_ts = gram[block, signal] * scale
+    a_ta, a_ts = g_tt, g_ts
+    if len(nuisance):
+        g_xx = gram[np.ix_(nuisance, nuisance)]
+        unit = 1.0 / np.sqrt(np.maximum(np.diag(g_xx), 1e-300))  # Jacobi: x columns of unit norm
+        inverse = np.linalg.pinv(g_xx * np.outer(unit, unit), rcond=1e-12, hermitian=True)
+        g_tx = gram[np.ix_(block, nuisance)] * np.outer(scale, unit)
+        g_xs = gram[nuisance, signal] * unit
+        a_ta = g_tt - g_tx @ inverse @ g_tx.T
+        a_ts = g_ts - g_tx @ inverse @ g_xs
+    size = np.sqrt(max(float(np.linalg.eigvalsh(g_tt).max()), 0.0)) if len(block) else 0.0
+    values, vectors = np.linalg.eigh(a_ta)
+    singular = np.sqrt(np.maximum(values, 0.0))
+    keep = singular > CONFOUNDED * max(size, 1e-300)
+    coefficients = vectors[:, keep].T @ a_ts / singular[keep]
+    return float(coefficients @ coefficients), int(keep.sum())

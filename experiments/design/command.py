@@ -1,0 +1,234 @@
+"""``dvs design``: which presses to make, with the figures that say why.
+
+    dvs design DATASET --budget N --target alpha|EFFECT[=MAG][,EFFECT...]
+               [--criterion d|a|power|maximin] --out DIR
+
+Writes ``design.json`` (schema ``dvs-design/1``, docs/formats.md), ``design_map.png``
+(the information one more press would add, per contact, with the chosen presses) and
+``report.md``. ``dvs simulate --design DIR/design.json`` makes data for the design.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from experiments.design.plan import DesignSettings, plan
+
+GAIN_LABELS = {
+    "d": "gain in log det(F)^(1/p)",
+    "a": "gain in -sum of squared relative standard errors",
+    "power": "gain in -log(1 - power)",
+    "maximin": "gain in min over effects of -log(1 - power)",
+}
+
+
+def parse_target(text: str) -> dict:
+    """``alpha`` or ``EFFECT[=MAG][,EFFECT...]`` -> {name: magnitude or None}."""
+    from experiments.phantom.simulate import parse_effect_specs
+    from symbolic.effects.library import make_effect
+
+    names = [t.strip() for t in str(text).split(",") if t.strip()]
+    if names == ["alpha"]:
+        return {"alpha": None}
+    if not names or "alpha" in names:
+        raise ValueError("--target: give alpha alone, or a comma list of effects NAME[=MAG]")
+    try:
+        effects = parse_effect_specs(names, 1)
+    except ValueError as error:
+        raise ValueError(f"--target: {error}".replace("--effect ", "")) from None
+    for name in effects:
+        if make_effect(name).per_case:
+            raise ValueError(
+                f"--target: {name} has one parameter per capture, so no choice of press "
+                "changes its power; choose another effect"
+            )
+    return effects
+
+
+def contact_gains(chosen) -> np.ndarray:
+    """Per contact of a ``Plan``, the largest gain of the criterion by one more press
+    there, added to the dataset's own design."""
+    pool, criterion, contacts = chosen.pool, chosen.criterion, chosen.contacts
+    base = pool.totals(chosen.own)
+    reference = criterion.score(base.matrix())
+    gains = np.full(len(contacts), -np.inf)
+    for k in chosen.candidates:
+        press = pool.presses[k]
+        where = int(np.argmin(np.linalg.norm(contacts - press.uv, axis=1)))
+        value = criterion.score((base + pool.blocks[k]).matrix()) - reference
+        gains[where] = max(gains[where], value)
+    return gains
+
+
+def plot_map(path: Path, dataset, chosen, gains) -> None:
+    """The gain per contact, the markers, the dataset's presses and the chosen ones."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from experiments.atomic import atomic_savefig
+    from solvers.design.candidates import contact_point
+
+    model, document, contacts = chosen.pool.model, chosen.document, chosen.contacts
+    points = np.array([contact_point(model, uv) for uv in contacts])
+    rest = dataset.outer_rest.reshape(-1, 3)
+    fig, ax = plt.subplots(figsize=(7.5, 6.2), layout="constrained")
+    ax.scatter(rest[:, 0], rest[:, 1], s=6, color="0.75", label="markers")
+    shown = np.where(np.isfinite(gains), gains, np.nan)
+    image = ax.scatter(points[:, 0], points[:, 1], c=shown, s=260, marker="s", cmap="viridis")
+    fig.colorbar(image, ax=ax, label=GAIN_LABELS[document["criterion"]])
+    for press in document["dataset_design"]["presses"]:
+        ax.plot(*press["contact_mm"][:2], "kx", ms=9, mew=2)
+    chosen: dict = {}
+    for press in document["presses"]:
+        key = tuple(np.round(press["contact_mm"], 3))
+        chosen.setdefault(key, []).append(press["force_N"])
+    tangential = [np.hypot(*f[:2]) for p in document["presses"] for f in [p["force_N"]]]
+    reach = 0.5 * float(np.min(np.ptp(points[:, :2], axis=0))) / max(len(contacts) ** 0.5, 1)
+    scale = reach / max(max(tangential), 1e-12)  # the longest arrow: half a contact spacing
+    for (x, y, _), forces in chosen.items():
+        for force in forces:
+            f = np.asarray(force)
+            ax.annotate(
+                "",
+                (x + scale * f[0], y + scale * f[1]),
+                (x, y),
+                arrowprops={"arrowstyle": "->", "color": "crimson", "lw": 1.5},
+            )
+        ax.plot(x, y, "o", color="crimson", ms=7)
+        ax.annotate(
+            f"x{len(forces)}",
+            (x, y),
+            (5, 5),
+            textcoords="offset points",
+            color="crimson",
+            fontsize=9,
+        )
+    ax.plot([], [], "kx", label="dataset's presses")
+    ax.plot([], [], "o", color="crimson", label="chosen presses (arrow: tangential force)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(
+        f"{document['criterion']}-design for {', '.join(document['target'])}: "
+        "what one more press adds"
+    )
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.8)
+    atomic_savefig(fig, path, dpi=110)
+    plt.close(fig)
+
+
+def report(document: dict) -> str:
+    """report.md: the presses, and the figures beside the dataset's own design."""
+    from experiments.design.report import report_text
+
+    return report_text(document)
+
+
+def build_parser(prog: str = "python -m experiments.design.command"):
+    """The options of ``dvs design``."""
+    from experiments.options import make_parser, path_argument
+
+    parser = make_parser(prog, "Choose where, in which direction and how hard to press.")
+    parser.add_argument(
+        "dataset", type=path_argument, help="dataset v1 (.npz): geometry, markers and noise level"
+    )
+    parser.add_argument("--budget", type=int, default=10, help="new presses (at least 1)")
+    parser.add_argument(
+        "--target",
+        default="alpha",
+        help="alpha (the base parameters), or "
+        "a comma list of effects NAME[=MAGNITUDE] (realistic magnitude by default)",
+    )
+    parser.add_argument(
+        "--criterion",
+        choices=("d", "a", "power", "maximin"),
+        default=None,
+        help="default: d for alpha, power for one effect, maximin for several",
+    )
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
+    parser.add_argument(
+        "--contacts",
+        type=int,
+        default=5,
+        help="candidate contacts per side of the grid over the marked area (2-15)",
+    )
+    parser.add_argument(
+        "--tilt",
+        type=float,
+        default=20.0,
+        help="tilt of the candidate forces from the normal [deg], 0-60",
+    )
+    parser.add_argument("--azimuths", type=int, default=4, help="tilt directions (0-12)")
+    parser.add_argument(
+        "--force-range",
+        type=float,
+        nargs=2,
+        default=(0.17, 0.25),
+        metavar=("LOW", "HIGH"),
+        help="safe force range [N], at most 0.5",
+    )
+    parser.add_argument("--levels", type=int, default=2, help="force magnitudes in the range")
+    parser.add_argument("--level", type=float, default=0.01, help="significance level")
+    parser.add_argument(
+        "--augment",
+        action="store_true",
+        help="keep the dataset's presses and add the budget to them",
+    )
+    parser.add_argument("--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.command"):
+    """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
+    from experiments.atomic import atomic_write_json, atomic_write_text
+    from experiments.dataset import load_dataset
+    from experiments.options import check_output_dir, parse_grid, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        settings = DesignSettings(
+            target=parse_target(args.target),
+            criterion=args.criterion,
+            budget=args.budget,
+            contacts=args.contacts,
+            tilt_deg=args.tilt,
+            azimuths=args.azimuths,
+            force_range=tuple(args.force_range),
+            levels=args.levels,
+            level=args.level,
+            augment=args.augment,
+        )
+        if args.criterion in ("d", "a") and "alpha" not in settings.target:
+            raise ValueError(f"--criterion {args.criterion} is for --target alpha")
+        if args.criterion in ("power", "maximin") and "alpha" in settings.target:
+            raise ValueError(f"--criterion {args.criterion} needs effects as the --target")
+        if args.criterion == "power" and len(settings.target) > 1:
+            raise ValueError("--criterion power takes one effect; use maximin for several")
+        grid = None if args.grid == "auto" else parse_grid(args.grid)
+        out = check_output_dir(args.out)
+        dataset = load_dataset(args.dataset)
+        chosen = plan(dataset, settings, grid)
+        document = chosen.document
+        document["dataset"] = str(args.dataset)
+        out.mkdir(parents=True, exist_ok=True)
+        plot_map(out / "design_map.png", dataset, chosen, contact_gains(chosen))
+        atomic_write_text(out / "report.md", report(document))
+        atomic_write_json(out / "design.json", document)
+        print(
+            f"{len(document['presses'])} presses ({document['criterion']}-design for "
+            f"{', '.join(document['target'])}) -> {out / 'design.json'}",
+            file=sys.stdout,
+        )
+        return 0
+
+    return run_guarded(prog, work)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
