@@ -25,8 +25,9 @@ NOISE_MM = 0.02
 
 
 def phantom_dataset(effects: dict, seed: int, design: str, noise_mm: float):
-    """A phantom dataset of a named design with ``effects`` at ``noise_mm`` [mm] (0: noise
-    free), declaring ``NOISE_MM`` so that every one is whitened alike; no random losses."""
+    """A phantom dataset of a design (a name, or a ``design.json`` of ``dvs design``) with
+    ``effects`` at ``noise_mm`` [mm] (0: noise free), declaring ``NOISE_MM`` so that every
+    one is whitened alike; no random losses."""
     from experiments.phantom.designs import design_options
     from experiments.phantom.simulate import simulate_with_effects
 
