@@ -117,7 +117,7 @@ def design_power(matrix: np.ndarray, layout: Layout, index: int, sigma: float, l
         matrix, layout.nuisance, theta, signal, np.asarray(effect.scales, dtype=float)
     )
     total = float(matrix[signal, signal])
-    return effect_figures(effect, magnitude, projected, total, dof, sigma, level)
+    return effect_figures(effect, magnitude, projected, total, dof, sigma, level, len(theta))
 
 
 def log_miss(figures: EffectPower) -> float:

@@ -120,13 +120,17 @@ def effect_power(
         nuisance.size + q,
         problem.scale[block],
     )
-    return effect_figures(effect, magnitude, projected, float(signal @ signal), dof, sigma, level)
+    total = float(signal @ signal)
+    return effect_figures(effect, magnitude, projected, total, dof, sigma, level, q)
 
 
-def effect_figures(effect: Effect, magnitude, projected, total, dof, sigma, level) -> EffectPower:
-    """The ``EffectPower`` of |P_A s|^2 = ``projected`` and |s|^2 = ``total`` [mm^2]."""
+def effect_figures(
+    effect: Effect, magnitude, projected, total, dof, sigma, level, size
+) -> EffectPower:
+    """The ``EffectPower`` of |P_A s|^2 = ``projected`` and |s|^2 = ``total`` [mm^2], for
+    ``size`` parameters theta (one, bounded below by 0: tested one-sided)."""
     lower = np.asarray(effect.lower, dtype=float)
-    one_sided = effect.dim == 1 and lower[0] == 0.0
+    one_sided = size == 1 and lower[0] == 0.0
     noncentrality = projected / sigma**2
     return EffectPower(
         effect.name,
