@@ -59,6 +59,22 @@ def test_the_pool_of_the_datasets_presses_is_the_fit(setting):
         assert mine.noncentrality == pytest.approx(reference.noncentrality, rel=1e-7)
 
 
+def test_a_probe_datasets_presses_keep_its_probe(setting):
+    """With a declared probe radius the presses are probe loads, as in the fit: (D5)
+    over them is still the fit's information."""
+    import dataclasses
+
+    dataset = dataclasses.replace(setting[0], probe_radius=np.full(setting[0].n_loads, 4.0))
+    fit = base_fit(dataset)
+    model = fit.problem.model
+    pool = InformationPool(fit, setting[2].marker_uv)
+    own = pool.add(*dataset_presses(dataset, model))
+    assert all(pool.presses[k].probe_radius == 4.0 for k in own)
+    _, information = fisher_information(fit, NOISE_MM)
+    matrix = pool.totals(own).matrix() / NOISE_MM**2
+    assert np.allclose(matrix, information, rtol=1e-9)
+
+
 def test_repeated_presses_share_the_rest_noise(setting):
     """(D5) with a repeated press equals the whitening of the stacked cases
     (``solvers.noise``), and gives less than twice one press's information."""

@@ -131,12 +131,13 @@ class Plan:
 
 
 def press_document(model, press: Press) -> dict:
-    """``{"contact_mm", "force_N", "uv", "tilt_deg"}`` of one press (``design.json``)."""
+    """``{"contact_mm", "force_N", "uv", "tilt_deg", "probe_radius_mm"}`` of one press."""
     return {
         "contact_mm": [float(v) for v in contact_point(model, press.uv)],
         "force_N": [float(v) for v in press.force],
         "uv": [float(v) for v in press.uv],
         "tilt_deg": float(press.tilt_deg),
+        "probe_radius_mm": float(press.probe_radius),
     }
 
 
@@ -149,11 +150,17 @@ def needed_noncentrality(dof: int, level: float, one_sided: bool, goal: float) -
 
 
 def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
-    """The dataset's own presses and the markers each capture sees."""
+    """The dataset's own presses (with its declared probe radius) and the markers each
+    capture sees."""
     from experiments.fitting import dataset_loads
 
     loads = dataset_loads(dataset, model.volume)
-    presses = [Press(np.asarray(ld.uv, float), np.asarray(ld.force, float)) for ld in loads]
+    presses = [
+        Press(
+            np.asarray(ld.uv, float), np.asarray(ld.force, float), 0.0, getattr(ld, "radius", 0.0)
+        )
+        for ld in loads
+    ]
     seen = [np.all(np.isfinite(c.reshape(-1, 3)), axis=1) for c in dataset.outer_loaded]
     return presses, seen
 
@@ -177,11 +184,12 @@ def plan(dataset, settings: DesignSettings, grid=None, log=print) -> Plan:
     own, seen = dataset_presses(dataset, model)
     own_index = pool.add(own, seen)
     radius = occlusion_radius(rest, dataset.contacts, np.array(seen))
+    probe = float(np.median([p.probe_radius for p in own]))  # the candidates use the dataset's
     contacts = contact_grid(marker_uv, settings.contacts)
     candidates = []
     for k, uv in enumerate(contacts):
         presses = candidate_presses(
-            model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths
+            model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths, probe
         )
         visible = [~hidden_markers(rest, contact_point(model, uv), radius)] * len(presses)
         candidates += pool.add(presses, visible)

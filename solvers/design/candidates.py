@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from symbolic.effects.base import surface_frame
-from symbolic.loads import PointForce
+from symbolic.loads import PointForce, ProbeForce
 
 MAX_FORCE_N = 0.5
 """The safe limit of a press [N]: twice the paper's largest force (0.25 N). Beyond it
@@ -46,15 +46,22 @@ class Press:
         Force vector [N], (3,), in the dataset's frame.
     tilt_deg : float
         Angle between the force and the inward normal [deg].
+    probe_radius : float
+        Radius of the probe's Gaussian patch [mm]; 0 for a point force (as a dataset
+        declares it, ``experiments.fitting.dataset_loads``).
     """
 
     uv: np.ndarray
     force: np.ndarray
     tilt_deg: float = 0.0
+    probe_radius: float = 0.0
 
-    def load(self) -> PointForce:
-        """The press as the model's point load."""
-        return PointForce(np.asarray(self.force, dtype=float), uv=np.asarray(self.uv, float))
+    def load(self) -> PointForce | ProbeForce:
+        """The press as the model's load."""
+        force, uv = np.asarray(self.force, dtype=float), np.asarray(self.uv, dtype=float)
+        if self.probe_radius > 0:
+            return ProbeForce(force, float(self.probe_radius), uv=uv)
+        return PointForce(force, uv=uv)
 
     @property
     def magnitude(self) -> float:
@@ -88,6 +95,7 @@ def candidate_presses(
     forces=(0.17, 0.25),
     tilt_deg: float = 20.0,
     azimuths: int = 4,
+    probe_radius: float = 0.0,
 ) -> list[Press]:
     """Every press of eq. (D4): each contact x (normal + tilted) x each force magnitude.
 
@@ -103,6 +111,8 @@ def candidate_presses(
         Tilt from the normal [deg], 0 to 60 (0: the normal only).
     azimuths : int
         Number of tilt directions in the tangent plane.
+    probe_radius : float
+        The probe's radius [mm] (0: point forces).
     """
     if not 0.0 <= tilt_deg <= 60.0:
         raise ValueError(f"tilt must lie in 0-60 degrees, got {tilt_deg:g}")
@@ -119,7 +129,7 @@ def candidate_presses(
                 directions.append((-np.cos(angle) * normal + np.sin(angle) * lean, tilt_deg))
         for direction, tilt in directions:
             for magnitude in forces:
-                presses.append(Press(uv.copy(), magnitude * direction, tilt))
+                presses.append(Press(uv.copy(), magnitude * direction, tilt, probe_radius))
     return presses
 
 
