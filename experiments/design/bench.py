@@ -42,6 +42,7 @@ def time_designs(dataset, targets: dict, budget: int, log=print) -> dict:
         chosen = plan(dataset, DesignSettings(target=target, budget=budget), log=lambda _: None)
         seconds = time.perf_counter() - begin
         document = chosen.document
+        reference = document["dataset_design"]["predicted"]["powers"]
         row = {
             "seconds": seconds,
             "candidates": document["candidates"]["count"],
@@ -52,10 +53,8 @@ def time_designs(dataset, targets: dict, budget: int, log=print) -> dict:
                 effect: {
                     "design": figures["power"],
                     "design_noncentrality": figures["noncentrality"],
-                    "ten_load": document["dataset_design"]["predicted"]["powers"][effect]["power"],
-                    "ten_load_noncentrality": document["dataset_design"]["predicted"]["powers"][
-                        effect
-                    ]["noncentrality"],
+                    "ten_load": reference[effect]["power"],
+                    "ten_load_noncentrality": reference[effect]["noncentrality"],
                 }
                 for effect, figures in document["predicted"]["powers"].items()
             },

@@ -83,6 +83,13 @@ class DesignSettings:
             raise ValueError(f"--levels must lie in 1-5, got {self.levels}")
         if not 0 < self.level < 0.5:
             raise ValueError(f"--level must lie in (0, 0.5), got {self.level}")
+        criterion, alpha = self.criterion, "alpha" in self.target
+        if criterion in ("d", "a") and not alpha:
+            raise ValueError(f"--criterion {criterion} is for --target alpha")
+        if criterion in ("power", "maximin") and alpha:
+            raise ValueError(f"--criterion {criterion} needs effects as the --target")
+        if criterion == "power" and len(self.target) > 1:
+            raise ValueError("--criterion power takes one effect; use maximin for several")
         try:
             check_force_range(*self.force_range)
         except ValueError as error:

@@ -31,6 +31,7 @@ import numpy as np
 from solvers.design.candidates import Press
 from solvers.diagnosis.fit import EffectFit
 from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.stats import extended_linearisation
 from solvers.problem import InverseProblem, observation_case
 from symbolic.effects.base import Effect
 
@@ -150,55 +151,32 @@ class InformationPool:
             [],
             sigma=self.fit.problem.sigma,
         )
-        n_x = len(self.fit.problem.names)
-        x_full = self.fit.p[:n_x]
-        r0, jac, states, factors = problem.evaluate_full(x_full)
-        chosen = np.flatnonzero(self.fit.estimated())
-        columns = [np.zeros((3 * c.n_observations, self.width)) for c in cases]
-        offsets = np.cumsum([0] + [3 * c.n_observations for c in cases])
-        for k, block in enumerate(columns):
-            block[:, : len(chosen)] = jac[offsets[k] : offsets[k + 1]][:, chosen]
+        x = self.fit.p[: len(self.fit.problem.names)]
+        r0, jac, states, factors = problem.evaluate_full(x)
+        stacked = np.zeros((r0.size, self.width))  # C_k of every press, stacked
+        stacked[:, self.layout.nuisance] = jac[:, self.fit.estimated()]
         for (effect, magnitude), (theta, signal) in zip(self.layout.effects, self.layout.blocks):
-            self._effect_columns(
-                problem, effect, magnitude, states, factors, r0, offsets, columns, theta, signal
+            derivative, solved = self._effect_columns(
+                problem, x, effect, magnitude, states, factors
             )
+            stacked[:, theta] = derivative
+            stacked[:, signal] = solved - r0
+        offsets = np.cumsum([0] + [3 * c.n_observations for c in cases])
         indices = []
-        for press, case, block in zip(presses, cases, columns):
+        for k, (press, case) in enumerate(zip(presses, cases)):
             self.presses.append(press)
+            block = stacked[offsets[k] : offsets[k + 1]]
             self.blocks.append(self._totals(case.marker_index, block))
             indices.append(len(self.presses) - 1)
         return indices
 
-    def _effect_columns(
-        self,
-        problem,
-        effect: Effect,
-        magnitude,
-        states,
-        factors,
-        r0,
-        offsets,
-        columns,
-        theta,
-        signal,
-    ) -> None:
-        """Fill d r / d theta at theta = 0 and the solved signal of one effect."""
-        extended = problem.with_effects([effect])
-        n_x = len(self.fit.problem.names)
-        p = np.concatenate([self.fit.p[:n_x], np.zeros(effect.dim)])
+    @staticmethod
+    def _effect_columns(problem, x, effect: Effect, magnitude: float, states, factors):
+        """Stacked d r / d theta at theta = 0, and r at theta_1 (eq. D2), of every press."""
+        extended, p, starts, jacobian = extended_linearisation(problem, x, states, factors, effect)
         block = extended.slice_of(effect.name)
-        starts = []
-        for k, state in enumerate(states):
-            n_state = extended.functions(k).n_state
-            padded = np.concatenate([state, np.zeros(n_state - state.size)])
-            factor = factors[k] if n_state == state.size else None
-            _, jac = extended.linearise(k, p, padded, factor)
-            columns[k][:, theta] = jac[:, block]
-            starts.append(padded)
         p[block] = effect.true_parameters(magnitude, 1)
-        r1 = extended.evaluate(p, starts)[0]
-        for k in range(len(states)):
-            columns[k][:, signal] = (r1 - r0)[offsets[k] : offsets[k + 1]]
+        return jacobian[:, block], extended.evaluate(p, starts)[0]
 
     def _totals(self, marker_index: np.ndarray, block: np.ndarray) -> Totals:
         """C^T C, P^T C and the counts of one press (eq. D5)."""

@@ -89,13 +89,12 @@ def search(
     fixed = pool.totals(start)
     chosen, totals, evaluations = [], fixed, 0
     for step in range(budget):
-        best, _ = _best(pool, criterion, totals, candidates)
+        best, greedy_score = _best(pool, criterion, totals, candidates)
         evaluations += len(candidates)
         chosen.append(best)
         totals = totals + pool.blocks[best]
         if progress:
-            progress(f"greedy {step + 1}/{budget}: score {criterion.score(totals.matrix()):.4g}")
-    greedy_score = criterion.score(totals.matrix())
+            progress(f"greedy {step + 1}/{budget}: score {greedy_score:.4g}")
     score, swaps = greedy_score, 0
     for sweep in range(max_sweeps):
         changed = False

@@ -125,24 +125,39 @@ def robust_sigma(fit: EffectFit) -> float:
     return float(1.4826 * np.median(np.abs(fit.whitened)))
 
 
+def extended_linearisation(problem, p, states, state_jacobians, candidate: Effect):
+    """``problem`` with ``candidate`` added, linearised at theta = 0 from solved states.
+
+    Costs one sensitivity evaluation per load case and one sparse LU where the
+    candidate adds state (its new state starts at 0 and stays there); otherwise the
+    cases' own ``state_jacobians`` serve.
+
+    Returns
+    -------
+    tuple
+        The extended problem, p with theta = 0, the states padded to its size, and the
+        raw stacked d r / dp (not whitened).
+    """
+    extended = problem.with_effects(problem.effects + [candidate])
+    p = np.concatenate([p, np.zeros(len(extended.labels) - len(p))])
+    padded, jacobians = [], []
+    for position, state in enumerate(states):
+        n_state = extended.functions(position).n_state
+        state_jacobian = state_jacobians[position] if n_state == state.size else None
+        padded.append(np.concatenate([state, np.zeros(n_state - state.size)]))
+        jacobians.append(extended.linearise(position, p, padded[-1], state_jacobian)[1])
+    return extended, p, padded, np.vstack(jacobians)
+
+
 def candidate_jacobian(fit: EffectFit, candidate: Effect):
     """The extended problem, p at phi = 0, and the whitened d rho / dp there.
 
-    Costs one sensitivity evaluation and one sparse LU per load case: the state
-    at phi = 0 is the fitted one, and so is dg/ds unless the candidate adds
-    state (its new state starts at 0 and stays there).
+    The state at phi = 0 is the fitted one (``extended_linearisation``).
     """
-    problem = fit.problem.with_effects(fit.problem.effects + [candidate])
-    q = len(problem.labels) - len(fit.p)
-    p = np.concatenate([fit.p, np.zeros(q)])
-    jacobians = []
-    for position, state in enumerate(fit.states):
-        n_state = problem.functions(position).n_state
-        state_jacobian = fit.state_jacobians[position] if n_state == state.size else None
-        full = np.concatenate([state, np.zeros(n_state - state.size)])
-        _, jac = problem.linearise(position, p, full, state_jacobian)
-        jacobians.append(jac)
-    return problem, p, problem.whiten(np.vstack(jacobians))
+    problem, p, _, jacobian = extended_linearisation(
+        fit.problem, fit.p, fit.states, fit.state_jacobians, candidate
+    )
+    return problem, p, problem.whiten(jacobian)
 
 
 def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
