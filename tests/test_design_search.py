@@ -14,7 +14,7 @@ import pytest
 from experiments.cli import main as dvs
 from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
 from experiments.design.files import read_presses
-from experiments.design.plan import DesignSettings, dataset_presses, needed_noncentrality, plan
+from experiments.design.plan import DesignSettings, dataset_presses, plan
 from solvers.design.candidates import (
     MAX_FORCE_N,
     candidate_presses,
@@ -24,7 +24,7 @@ from solvers.design.candidates import (
     occlusion_radius,
 )
 from solvers.design.criteria import Criterion, design_power
-from solvers.design.information import effect_power, fisher_information, power
+from solvers.design.information import effect_power, fisher_information, needed_noncentrality, power
 from solvers.design.pool import InformationPool
 from solvers.design.search import exhaustive, search
 from solvers.diagnosis.problem import ExtendedProblem

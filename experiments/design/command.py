@@ -2,15 +2,19 @@
 
     dvs design DATASET --budget N --target alpha|EFFECT[=MAG][,EFFECT...]
                [--criterion d|a|power|maximin] --out DIR
+    dvs design --sequential SCENARIO [--budget N] --out DIR
 
 Writes ``design.json`` (schema ``dvs-design/1``, docs/formats.md), ``design_map.png``
 (the information one more press would add, per contact, with the chosen presses) and
 ``report.md``. ``dvs simulate --design DIR/design.json`` makes data for the design.
+``--sequential`` runs the loop of ``experiments.design.sequential`` against FE continuum
+data of a scenario instead: ``sequential.json``, ``path.png`` and ``report.md``.
 """
 
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -128,12 +132,27 @@ def build_parser(prog: str = "python -m experiments.design.command"):
 
     parser = make_parser(prog, "Choose where, in which direction and how hard to press.")
     parser.add_argument(
-        "dataset", type=path_argument, help="dataset v1 (.npz): geometry, markers and noise level"
+        "dataset",
+        type=path_argument,
+        nargs="?",
+        help="dataset v1 (.npz): geometry, markers and noise level (none with --sequential)",
     )
-    parser.add_argument("--budget", type=int, default=10, help="new presses (at least 1)")
+    parser.add_argument(
+        "--sequential",
+        metavar="SCENARIO",
+        default=None,
+        help="press, diagnose and choose again against FE continuum data of a scenario "
+        "(stiffness_gradient, compliant_base, contact_offset, ...; needs scikit-fem)",
+    )
+    parser.add_argument(
+        "--budget",
+        type=int,
+        default=10,
+        help="new presses (at least 1); with --sequential the presses in all (at least 3)",
+    )
     parser.add_argument(
         "--target",
-        default="alpha",
+        default=None,
         help="alpha (the base parameters), or "
         "a comma list of effects NAME[=MAGNITUDE] (realistic magnitude by default)",
     )
@@ -147,8 +166,9 @@ def build_parser(prog: str = "python -m experiments.design.command"):
     parser.add_argument(
         "--contacts",
         type=int,
-        default=5,
-        help="candidate contacts per side of the grid over the marked area (2-15)",
+        default=None,
+        help="candidate contacts per side of the grid over the marked area (2-15; "
+        "default 5, 3 with --sequential)",
     )
     parser.add_argument(
         "--tilt",
@@ -161,18 +181,27 @@ def build_parser(prog: str = "python -m experiments.design.command"):
         "--force-range",
         type=float,
         nargs=2,
-        default=(0.17, 0.25),
+        default=None,
         metavar=("LOW", "HIGH"),
-        help="safe force range [N], at most 0.5",
+        help="safe force range [N], at most 0.5 (default 0.17 0.25; 0.25 0.25 with --sequential)",
     )
-    parser.add_argument("--levels", type=int, default=2, help="force magnitudes in the range")
+    parser.add_argument(
+        "--levels",
+        type=int,
+        default=None,
+        help="force magnitudes in the range (default 2, 1 with --sequential)",
+    )
     parser.add_argument("--level", type=float, default=0.01, help="significance level")
     parser.add_argument(
         "--augment",
         action="store_true",
         help="keep the dataset's presses and add the budget to them",
     )
-    parser.add_argument("--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2")
+    parser.add_argument(
+        "--grid",
+        default="auto",
+        help="control grid MxNxL; auto: up to 9x9x2 (15x15x3 with --sequential)",
+    )
     return parser
 
 
@@ -181,24 +210,35 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
     from experiments.atomic import atomic_write_json, atomic_write_text
     from experiments.dataset import load_dataset
     from experiments.design.report import report_text
-    from experiments.options import check_output_dir, parse_grid, run_guarded
+    from experiments.options import UsageError, check_output_dir, parse_grid, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
+        sequential = args.sequential is not None
+        if sequential and args.dataset is not None:
+            raise UsageError(
+                "--sequential starts from the simulator's paper design: give no DATASET"
+            )
+        if not sequential and args.dataset is None:
+            raise UsageError("give a DATASET (.npz), or --sequential SCENARIO")
+        if sequential and (args.target or args.criterion or args.augment):
+            raise UsageError("--target, --criterion and --augment do not apply to --sequential")
         settings = DesignSettings(
-            target=parse_target(args.target),
+            target=parse_target(args.target or "alpha"),
             criterion=args.criterion,
-            budget=args.budget,
-            contacts=args.contacts,
+            budget=max(args.budget, 1) if sequential else args.budget,
+            contacts=args.contacts or (3 if sequential else 5),
             tilt_deg=args.tilt,
             azimuths=args.azimuths,
-            force_range=tuple(args.force_range),
-            levels=args.levels,
+            force_range=tuple(args.force_range or ((0.25, 0.25) if sequential else (0.17, 0.25))),
+            levels=args.levels or (1 if sequential else 2),
             level=args.level,
             augment=args.augment,
         )
         grid = None if args.grid == "auto" else parse_grid(args.grid)
+        if sequential:
+            return run_sequential(args.sequential, settings, args.budget, grid, args.out)
         out = check_output_dir(args.out)
         dataset = load_dataset(args.dataset)
         chosen = plan(dataset, settings, grid)
@@ -216,6 +256,39 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
         return 0
 
     return run_guarded(prog, work)
+
+
+def run_sequential(scenario: str, candidates, budget: int, grid, out: Path) -> int:
+    """``dvs design --sequential SCENARIO``: the loop against FE continuum data; writes
+    sequential.json, report.md and path.png."""
+    from experiments.atomic import atomic_write_json, atomic_write_text
+    from experiments.design.lab import ContinuumLab
+    from experiments.design.pathreport import plot_path, report_text
+    from experiments.design.sequential import SequentialSettings, run
+    from experiments.diagnosis.continuum import SCENARIOS
+    from experiments.options import UsageError, check_grid, check_output_dir
+    from experiments.phantom.fe import require_skfem
+
+    if scenario not in SCENARIOS:
+        raise UsageError(
+            f"--sequential: unknown scenario {scenario!r}; choose from {', '.join(SCENARIOS)}"
+        )
+    settings = SequentialSettings(budget=budget, candidates=candidates)
+    if grid is not None:
+        settings = replace(
+            settings, grid=check_grid(grid, settings.degrees, "x".join(map(str, grid)))
+        )
+    out = check_output_dir(out)
+    require_skfem()
+    print(f"{scenario}: FE continuum data (scikit-fem), starting from the paper's design")
+    lab = ContinuumLab(scenario)
+    document = run(lab, settings, log=lambda line: print(line, flush=True))
+    out.mkdir(parents=True, exist_ok=True)
+    plot_path(out / "path.png", document, lab.dataset.outer_rest.reshape(-1, 3))
+    atomic_write_text(out / "report.md", report_text(document))
+    atomic_write_json(out / "sequential.json", document)
+    print(f"{document['verdict']} after {document['presses']} presses -> {out / 'sequential.json'}")
+    return 0
 
 
 if __name__ == "__main__":

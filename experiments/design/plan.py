@@ -14,7 +14,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, stats
 
 from solvers.design.candidates import (
     Press,
@@ -26,6 +25,7 @@ from solvers.design.candidates import (
     occlusion_radius,
 )
 from solvers.design.criteria import Criterion, design_figures
+from solvers.design.information import needed_noncentrality
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
 
@@ -148,14 +148,6 @@ def press_document(model, press: Press) -> dict:
     }
 
 
-def needed_noncentrality(dof: int, level: float, one_sided: bool, goal: float) -> float:
-    """The lambda at which the score test reaches power ``goal`` (eq. D3 inverted)."""
-    if one_sided:
-        return float((stats.norm.isf(level) + stats.norm.isf(1.0 - goal)) ** 2)
-    critical = stats.chi2.isf(level, dof)
-    return float(optimize.brentq(lambda x: stats.ncx2.sf(critical, dof, x) - goal, 1e-9, 1e6))
-
-
 def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
     """The dataset's own presses (with its declared probe radius) and the markers each
     capture sees."""
@@ -170,6 +162,35 @@ def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
     ]
     seen = [np.all(np.isfinite(c.reshape(-1, 3)), axis=1) for c in dataset.outer_loaded]
     return presses, seen
+
+
+def add_candidates(pool: InformationPool, dataset, settings, own, seen, log=print):
+    """Add the candidate presses of ``settings`` (``contacts``, ``forces()``, ``tilt_deg``,
+    ``azimuths``) to ``pool``, with the dataset's probe radius and occlusion rule.
+
+    ``own`` and ``seen`` are the dataset's presses and the markers each capture sees
+    (``dataset_presses``). Returns the candidates' pool indices, the contacts (u, v)
+    and the occlusion radius [mm].
+    """
+    begin = time.perf_counter()
+    model = pool.model
+    rest = dataset.outer_rest.reshape(-1, 3)
+    radius = occlusion_radius(rest, dataset.contacts, np.array(seen))
+    probe = float(np.median([p.probe_radius for p in own]))  # the candidates use the dataset's
+    contacts = contact_grid(pool.marker_uv, settings.contacts)
+    candidates = []
+    for k, uv in enumerate(contacts):
+        presses = candidate_presses(
+            model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths, probe
+        )
+        visible = [~hidden_markers(rest, contact_point(model, uv), radius)] * len(presses)
+        candidates += pool.add(presses, visible)
+        if (k + 1) % max(1, len(contacts) // 5) == 0 or k + 1 == len(contacts):
+            log(
+                f"  information of {len(candidates)} candidate presses ({k + 1}/{len(contacts)} "
+                f"contacts, {time.perf_counter() - begin:.1f} s)"
+            )
+    return candidates, contacts, radius
 
 
 def plan(dataset, settings: DesignSettings, grid=None, log=print) -> Plan:
@@ -190,21 +211,7 @@ def plan(dataset, settings: DesignSettings, grid=None, log=print) -> Plan:
     pool = InformationPool(fit, marker_uv, effects)
     own, seen = dataset_presses(dataset, model)
     own_index = pool.add(own, seen)
-    radius = occlusion_radius(rest, dataset.contacts, np.array(seen))
-    probe = float(np.median([p.probe_radius for p in own]))  # the candidates use the dataset's
-    contacts = contact_grid(marker_uv, settings.contacts)
-    candidates = []
-    for k, uv in enumerate(contacts):
-        presses = candidate_presses(
-            model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths, probe
-        )
-        visible = [~hidden_markers(rest, contact_point(model, uv), radius)] * len(presses)
-        candidates += pool.add(presses, visible)
-        if (k + 1) % max(1, len(contacts) // 5) == 0 or k + 1 == len(contacts):
-            log(
-                f"  information of {len(candidates)} candidate presses ({k + 1}/{len(contacts)} "
-                f"contacts, {time.perf_counter() - begin:.1f} s)"
-            )
+    candidates, contacts, radius = add_candidates(pool, dataset, settings, own, seen, log)
     criterion = Criterion(settings.chosen_criterion, pool.layout, sigma, settings.level)
     start = own_index if settings.augment else []
     searched = time.perf_counter()

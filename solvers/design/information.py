@@ -36,7 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from solvers.diagnosis.fit import EffectFit
 from solvers.diagnosis.stats import CONFOUNDED, candidate_jacobian
@@ -51,7 +51,8 @@ class EffectPower:
     ----------
     name : str
     magnitude : float
-        The effect's magnitude (``Effect.default_magnitude`` units).
+        The effect's magnitude (``Effect.default_magnitude`` units; |theta| for an
+        effect given by its parameters).
     noncentrality : float
         lambda of eq. (D2) [1].
     dof : int
@@ -95,6 +96,14 @@ def power(noncentrality: float, dof: int, level: float, one_sided: bool = False)
     return float(stats.ncx2.sf(critical, dof, max(noncentrality, 1e-300)))
 
 
+def needed_noncentrality(dof: int, level: float, one_sided: bool, goal: float) -> float:
+    """The lambda at which the score test reaches power ``goal`` (eq. D3 inverted)."""
+    if one_sided:
+        return float((stats.norm.isf(level) + stats.norm.isf(1.0 - goal)) ** 2)
+    critical = stats.chi2.isf(level, dof)
+    return float(optimize.brentq(lambda x: stats.ncx2.sf(critical, dof, x) - goal, 1e-9, 1e6))
+
+
 def effect_power(
     base: EffectFit, effect: Effect, magnitude: float, sigma: float, level: float = 0.01
 ) -> EffectPower:
@@ -134,7 +143,7 @@ def effect_figures(
     noncentrality = projected / sigma**2
     return EffectPower(
         effect.name,
-        float(magnitude),
+        float(np.linalg.norm(magnitude)),
         noncentrality,
         dof,
         float(level),

@@ -70,8 +70,8 @@ class Layout:
         The estimated base parameters x.
     x : numpy.ndarray
         Their values at the fit (natural units).
-    effects : tuple of (Effect, float)
-        Each effect with its magnitude.
+    effects : tuple of (Effect, float or numpy.ndarray)
+        Each effect with its magnitude (or its parameters theta).
     blocks : tuple of (numpy.ndarray, int)
         Per effect, the columns of theta and the column of the signal.
     """
@@ -96,9 +96,10 @@ class InformationPool:
         The loop's base fit (no effects): its model, x and noise whitening.
     marker_uv : numpy.ndarray
         (u, v) of every marker on the model's rest skin, (m, 2).
-    effects : sequence of (Effect, float)
-        The effects whose power is wanted, each with its magnitude (global effects
-        only: one theta for all presses).
+    effects : sequence of (Effect, float or numpy.ndarray)
+        The effects whose power is wanted, each with its magnitude, or with its
+        parameters theta (a fitted effect; global effects only: one theta for all
+        presses).
     """
 
     def __init__(self, fit: EffectFit, marker_uv: np.ndarray, effects=()):
@@ -175,7 +176,8 @@ class InformationPool:
         """Stacked d r / d theta at theta = 0, and r at theta_1 (eq. D2), of every press."""
         extended, p, starts, jacobian = extended_linearisation(problem, x, states, factors, effect)
         block = extended.slice_of(effect.name)
-        p[block] = effect.true_parameters(magnitude, 1)
+        value = np.asarray(magnitude, dtype=float)
+        p[block] = value if value.ndim else effect.true_parameters(float(value), 1)
         return jacobian[:, block], extended.evaluate(p, starts)[0]
 
     def _totals(self, marker_index: np.ndarray, block: np.ndarray) -> Totals:
