@@ -20,7 +20,7 @@ rivals, the leading score tests, the RMS against the noise) and each question's 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,8 +28,15 @@ from experiments.design.plan import DesignSettings, add_candidates, dataset_pres
 from solvers.design.discrimination import Discrimination, questions, standings
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
+from solvers.diagnosis.loop import DiagnosisSettings
+from symbolic.effects.library import effect_library
 
 SCHEMA = "dvs-sequential/1"
+DIAGNOSIS = DiagnosisSettings()
+"""The loop's settings (rival margin 3.84, the default library; the level is the
+candidates' ``level``)."""
+FAMILY = len(effect_library(DIAGNOSIS.candidates, "linear-elastic"))
+"""The Bonferroni family of one round of the loop on the linear-elastic base."""
 
 
 @dataclass(frozen=True)
@@ -76,33 +83,38 @@ class SequentialSettings:
             raise ValueError(f"the goal must lie in [0.5, 1), got {self.goal}")
 
 
+def in_play(diagnosis, settings: SequentialSettings) -> tuple[list[str], list]:
+    """The named effects and the effects in play, each with its theta (named: fitted)
+    or realistic magnitude: the named first, then the final round's score tests from
+    the highest, then the rest of the library (``settings.rivals`` of the unnamed)."""
+    from symbolic.effects.library import effect_library
+
+    library = effect_library(DIAGNOSIS.candidates, "linear-elastic")
+    # no press changes what one capture shows of a per-capture effect
+    named = [n for n in diagnosis.selected if not library[n].per_case]
+    ranked = [t.effect for t in sorted(final_scores(diagnosis), key=lambda t: t.log_p)]
+    ranked += [n for n in library if n not in ranked]
+    others = [n for n in ranked if n not in named and not library[n].per_case]
+    final = diagnosis.steps[-1].fit
+    effects = [(library[n], final.p[final.problem.slice_of(n)]) for n in named]
+    effects += [(library[n], library[n].default_magnitude) for n in others[: settings.rivals]]
+    return named, effects
+
+
 def step(dataset, settings: SequentialSettings, remaining: int, log=print) -> dict:
     """Diagnose ``dataset`` and choose the next press; the path's row (``press`` None when
     the loop stops: ``stop`` says why)."""
     from experiments.diagnosis.diagnose import base_settings, diagnose_dataset
-    from solvers.diagnosis.loop import DiagnosisSettings
-    from symbolic.effects.library import effect_library
 
     begin = time.perf_counter()
-    loop = DiagnosisSettings(level=settings.candidates.level)
     base = base_settings(settings.grid, "linear-elastic", settings.degrees, settings.margin)
+    loop = replace(DIAGNOSIS, level=settings.candidates.level)
     diagnosis = diagnose_dataset(dataset, loop, base=base)
     document = diagnosis.document()
     diagnosed = time.perf_counter() - begin
-    fit, final = diagnosis.steps[0].fit, diagnosis.steps[-1].fit
-    model, sigma = fit.problem.model, float(dataset.noise_mm)
-    library = effect_library(loop.candidates, "linear-elastic")
-    family = len(library)  # the loop's Bonferroni family of one round
-    named = [n for n in diagnosis.selected if not library[n].per_case]
-    # the explanations in play: the named effects and the leading score tests of the
-    # final round (no press changes what one capture shows of a per-capture effect)
-    ranked = sorted(final_scores(diagnosis), key=lambda t: t.log_p)
-    leading = [t.effect for t in ranked if t.effect not in named and not library[t.effect].per_case]
-    library = [library[n] for n in named + leading[: settings.rivals]]
-    effects = [
-        (e, final.p[final.problem.slice_of(e.name)] if e.name in named else e.default_magnitude)
-        for e in library
-    ]
+    fit, sigma = diagnosis.steps[0].fit, float(dataset.noise_mm)
+    model = fit.problem.model
+    named, effects = in_play(diagnosis, settings)
     marker_uv, _ = model.volume.project_to_outer(dataset.outer_rest.reshape(-1, 3))
     pool = InformationPool(fit, marker_uv, effects)
     own, seen = dataset_presses(dataset, model)
@@ -110,11 +122,10 @@ def step(dataset, settings: SequentialSettings, remaining: int, log=print) -> di
     candidates, _, _ = add_candidates(
         pool, dataset, settings.candidates, own, seen, log=lambda _: None
     )
-    names = [e.name for e in library]
     asked = questions(
         pool.layout,
-        [names.index(n) for n in named],
-        loop.level / family,
+        list(range(len(named))),
+        loop.level / FAMILY,
         settings.goal,
         loop.rival_margin,
     )
