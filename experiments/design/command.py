@@ -228,11 +228,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
             target=parse_target(args.target or "alpha"),
             criterion=args.criterion,
             budget=max(args.budget, 1) if sequential else args.budget,
-            contacts=args.contacts or (3 if sequential else 5),
+            contacts=_given(args.contacts, 3 if sequential else 5),
             tilt_deg=args.tilt,
             azimuths=args.azimuths,
-            force_range=tuple(args.force_range or ((0.25, 0.25) if sequential else (0.17, 0.25))),
-            levels=args.levels or (1 if sequential else 2),
+            force_range=tuple(
+                _given(args.force_range, (0.25, 0.25) if sequential else (0.17, 0.25))
+            ),
+            levels=_given(args.levels, 1 if sequential else 2),
             level=args.level,
             augment=args.augment,
         )
@@ -256,6 +258,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
         return 0
 
     return run_guarded(prog, work)
+
+
+def _given(value, default):
+    """The option's value, or the mode's default when it was not given."""
+    return default if value is None else value
 
 
 def run_sequential(scenario: str, candidates, budget: int, grid, out: Path) -> int:
