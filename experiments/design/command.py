@@ -291,7 +291,7 @@ def run_sequential(scenario: str, candidates, budget: int, grid, out: Path) -> i
     lab = ContinuumLab(scenario)
     document = run(lab, settings, log=lambda line: print(line, flush=True))
     out.mkdir(parents=True, exist_ok=True)
-    plot_path(out / "path.png", document, lab.dataset.outer_rest.reshape(-1, 3))
+    plot_path(out / "path.png", document, lab.dataset)
     atomic_write_text(out / "report.md", report_text(document))
     atomic_write_json(out / "sequential.json", document)
     print(f"{document['verdict']} after {document['presses']} presses -> {out / 'sequential.json'}")

@@ -66,9 +66,10 @@ def report_text(document: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot_path(path: Path, document: dict, rest: np.ndarray) -> None:
-    """Left: the presses on the marked area, numbered in order (arrow: the tangential
-    force). Right: the RMS residual against the noise after each step."""
+def plot_path(path: Path, document: dict, dataset) -> None:
+    """Left: the presses on the marked area (``dataset``: every press made), the starting
+    ones as crosses, the chosen ones numbered in order (arrow: the tangential force).
+    Right: the RMS residual against the noise after each step."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -78,15 +79,17 @@ def plot_path(path: Path, document: dict, rest: np.ndarray) -> None:
 
     rows = document["path"]
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5.2), layout="constrained")
+    rest = dataset.outer_rest.reshape(-1, 3)
     left.scatter(rest[:, 0], rest[:, 1], s=6, color="0.75", label="markers")
     presses = [row["press"] for row in rows if row["press"] is not None]
-    for k, press in enumerate(presses, document["path"][0]["presses"] + 1):
+    for k, press in enumerate(presses, rows[0]["presses"] + 1):
         x, y, _ = press["contact_mm"]
         fx, fy, _ = press["force_N"]
         left.plot(x, y, "o", color="crimson", ms=7)
         left.annotate("", (x + 20 * fx, y + 20 * fy), (x, y), arrowprops={"arrowstyle": "->"})
         left.annotate(str(k), (x, y), (5, 5), textcoords="offset points", color="crimson")
-    left.plot(0.0, 0.0, "kx", ms=9, mew=2, label="starting presses")
+    start = dataset.contacts[: rows[0]["presses"]]
+    left.plot(start[:, 0], start[:, 1], "kx", ms=9, mew=2, label="starting presses")
     left.plot([], [], "o", color="crimson", label="chosen presses, in order")
     left.set_aspect("equal")
     left.set_xlabel("x [mm]")

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from solvers.design.information import needed_noncentrality, projected_signal
+from solvers.design.information import needed_noncentrality, projected_signal, scaled_inverse
 from solvers.design.pool import InformationPool, Layout, Totals
 
 DETECT, SEPARATE = "detect", "separate"
@@ -61,16 +61,13 @@ DETECT, SEPARATE = "detect", "separate"
 def lack_of_fit(gram: np.ndarray, nuisance, signal: int) -> float:
     """|(I - P_N) s|^2 [mm^2]: what the columns ``nuisance`` leave of the signal column.
 
-    The Schur complement G_ss - G_sN G_NN^+ G_Ns of the Gram matrix (columns scaled to
-    unit norm first, so the pseudo-inverse's cut-off sees their angles, not units).
+    The Schur complement G_ss - G_sN G_NN^+ G_Ns of the Gram matrix (``scaled_inverse``).
     """
     nuisance = np.asarray(nuisance, dtype=int)
     total = float(gram[signal, signal])
     if not nuisance.size:
         return total
-    g_nn = gram[np.ix_(nuisance, nuisance)]
-    unit = 1.0 / np.sqrt(np.maximum(np.diag(g_nn), 1e-300))
-    inverse = np.linalg.pinv(g_nn * np.outer(unit, unit), rcond=1e-12, hermitian=True)
+    unit, inverse = scaled_inverse(gram, nuisance)
     g_ns = gram[nuisance, signal] * unit
     return float(max(total - g_ns @ inverse @ g_ns, 0.0))
 

@@ -153,6 +153,15 @@ def effect_figures(
     )
 
 
+def scaled_inverse(gram: np.ndarray, index) -> tuple[np.ndarray, np.ndarray]:
+    """(d, (D G D)^+) for the block G of ``gram`` on ``index``, D = diag(G)^-1/2: the
+    columns scaled to unit norm first (Jacobi), so the pseudo-inverse's cut-off sees
+    their angles, not their units. G^+ ~ D (D G D)^+ D."""
+    block = gram[np.ix_(index, index)]
+    unit = 1.0 / np.sqrt(np.maximum(np.diag(block), 1e-300))
+    return unit, np.linalg.pinv(block * np.outer(unit, unit), rcond=1e-12, hermitian=True)
+
+
 def projected_signal(gram, nuisance, block, signal: int, scale) -> tuple[float, int]:
     """|P_A s|^2 of eq. (D2) [mm^2] and rank A, from the Gram matrix of whitened columns.
 
@@ -167,9 +176,7 @@ def projected_signal(gram, nuisance, block, signal: int, scale) -> tuple[float, 
     g_ts = gram[block, signal] * scale
     a_ta, a_ts = g_tt, g_ts
     if len(nuisance):
-        g_xx = gram[np.ix_(nuisance, nuisance)]
-        unit = 1.0 / np.sqrt(np.maximum(np.diag(g_xx), 1e-300))  # Jacobi: x columns of unit norm
-        inverse = np.linalg.pinv(g_xx * np.outer(unit, unit), rcond=1e-12, hermitian=True)
+        unit, inverse = scaled_inverse(gram, nuisance)
         g_tx = gram[np.ix_(block, nuisance)] * np.outer(scale, unit)
         g_xs = gram[nuisance, signal] * unit
         a_ta = g_tt - g_tx @ inverse @ g_tx.T
