@@ -178,7 +178,7 @@ class InformationPool:
         block = extended.slice_of(effect.name)
         value = np.asarray(magnitude, dtype=float)
         p[block] = value if value.ndim else effect.true_parameters(float(value), 1)
-        return jacobian[:, block], extended.evaluate(p, starts)[0]
+        return jacobian[:, block], extended.residual(p, starts)
 
     def _totals(self, marker_index: np.ndarray, block: np.ndarray) -> Totals:
         """C^T C, P^T C and the counts of one press (eq. D5)."""

@@ -344,6 +344,15 @@ class ExtendedProblem:
             state_jacobians.append(jac)
         return np.concatenate(residuals), np.vstack(jacobians), states, state_jacobians
 
+    def residual(self, p: np.ndarray, starts=None) -> np.ndarray:
+        """Stacked raw residual r(p) alone: the equilibria, no sensitivities."""
+        starts = starts or [None] * len(self.positions)
+        residuals = []
+        for position in range(len(self.positions)):
+            state, _ = self.solve_state(position, p, starts[position])
+            residuals.append(np.ravel(_dense(self.numeric(position, "residual")(state, p))))
+        return np.concatenate(residuals)
+
     def whiten(self, values: np.ndarray) -> np.ndarray:
         """W values (vector or matrix)."""
         return self.whitening @ values
