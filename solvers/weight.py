@@ -1,8 +1,19 @@
-"""The regularisation weight beta of eq. (I8): Morozov's discrepancy principle, or the L-curve.
+"""The regularisation weight beta of eq. (I8): Morozov's discrepancy principle,
+generalised cross-validation, or the L-curve.
 
 - ``discrepancy_weight`` (the default): the whitened chi^2 of the estimate equals its
   expectation under pure noise, n (the number of residuals). It needs the noise level,
   which the dataset declares.
+- ``gcv_weight``: the minimum over beta of generalised cross-validation,
+
+      GCV(beta) = n chi^2(beta) / (n - k(beta))^2,                                 (I10)
+
+  k(beta) = tr((J^T J + beta R'')^-1 J^T J) the effective number of parameters of the
+  Laplace approximation at the estimate. It predicts the error of left-out data, so it
+  does not need chi^2 to move by more than the noise does: where an inclusion's whole
+  signal is about the spread of chi^2 under noise (sqrt(2 n)), Morozov's weight is set
+  by the noise draw and smooths the inclusion away, GCV's is not (docs/imaging.md,
+  "Which weight").
 - ``lcurve_weight``: the corner of the curve (log chi^2, log R) traced over beta, the
   point of largest curvature; it needs no noise level and serves as a check on it.
 """
@@ -14,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.fieldproblem import FieldProblem
-from solvers.imaging import SOLVERS, FieldEstimate
+from solvers.imaging import SOLVERS, FieldEstimate, laplace
 
 
 @dataclass
@@ -122,3 +133,70 @@ def lcurve_weight(
     best = estimates[int(np.argmax(curvature))]
     path = [(float(b), e.chi2) for b, e in zip(betas, estimates)]
     return WeightChoice(best, float(fp.n_residuals), True, path, "L-curve corner", "lcurve")
+
+
+def gcv_weight(
+    fp: FieldProblem,
+    regularizer,
+    solve=None,
+    bounds: tuple[float, float] = (1e-2, 1e10),
+    rank: int | None = None,
+    tolerance: float = 0.1,
+    log=None,
+) -> WeightChoice:
+    """beta at the minimum of GCV (eq. I10).
+
+    From the largest beta down a decade at a time (each solve warm-started from the
+    last) until GCV has risen two decades in a row past its least value, or the
+    smallest beta; then a golden-section search in log10 beta over the decades either
+    side of the least, to ``tolerance`` decades. k(beta) is the Laplace approximation's
+    effective dof at each estimate (``rank`` as in ``solvers.imaging.laplace``).
+    """
+    solve = solve or SOLVERS["nested-adjoint"]
+    n = float(fp.n_residuals)
+    path, found = [], {}
+
+    def score(t: float, start) -> float:
+        beta = float(10.0**t)
+        estimate = solve(fp, regularizer, beta, start)
+        dof = laplace(fp, regularizer, estimate, rank).effective_dof
+        value = n * estimate.chi2 / max(n - dof, 1.0) ** 2
+        found[t] = (value, estimate)
+        path.append((beta, estimate.chi2))
+        if log:
+            log(
+                f"  beta {beta:.3g} mm^2: chi2 {estimate.chi2:.1f}, dof {dof:.1f}, "
+                f"GCV {value:.5g}, {estimate.seconds:.1f} s"
+            )
+        return value
+
+    low, high = np.log10(bounds[0]), np.log10(bounds[1])
+    t, start, rises = high, None, 0
+    while t >= low - 1e-9:
+        value = score(t, start)
+        start = found[t][1].coefficients
+        least = min(v for v, _ in found.values())
+        rises = rises + 1 if value > least else 0
+        if rises >= 2:
+            break
+        t -= 1.0
+    best = min(found, key=lambda k: found[k][0])
+    a, b = max(best - 1.0, low), min(best + 1.0, high)
+    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    c, d = b - ratio * (b - a), a + ratio * (b - a)
+    near = found[best][1].coefficients
+    fc, fd = score(c, near), score(d, near)
+    while b - a > tolerance:
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - ratio * (b - a)
+            fc = score(c, near)
+        else:
+            a, c, fc = c, d, fd
+            d = a + ratio * (b - a)
+            fd = score(d, near)
+    best = min(found, key=lambda k: found[k][0])
+    value, estimate = found[best]
+    edge = best in (high, low)
+    note = "GCV minimum" + (" at the end of the range searched" if edge else "")
+    return WeightChoice(estimate, float(fp.n_residuals), not edge, path, note, "gcv")

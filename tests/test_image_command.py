@@ -100,3 +100,10 @@ def test_every_key_of_image_json_is_documented(fe_dataset, tmp_path):
         return set()
 
     assert sorted(k for k in keys(record) if f"`{k}`" not in section) == []
+
+
+@pytest.mark.parametrize("text", ["morozov", "gcv", "lcurve", "250"])
+def test_every_weight_rule_is_accepted(text):
+    from experiments.imaging.command import parse_weight
+
+    assert parse_weight(text) == (float(text) if text[0].isdigit() else text)

@@ -18,7 +18,7 @@ from experiments.phantom.simulate import SimulationSettings
 from solvers.fieldproblem import FieldProblem
 from solvers.imaging import gauss_newton, laplace, lbfgs, secant_update, simultaneous
 from solvers.regularization import Tikhonov, TotalVariation
-from solvers.weight import discrepancy_weight, lcurve_weight
+from solvers.weight import discrepancy_weight, gcv_weight, lcurve_weight
 from symbolic.field import StiffnessField
 
 LENGTHS = (40.0, 40.0, 5.0)
@@ -218,3 +218,41 @@ def test_lcurve_corner_lies_inside_its_range_and_near_the_noise(field_problem):
     posterior = laplace(fp, regularizer, choice.estimate)
     at_nodes = posterior.pointwise_std(fp.field.collocation(fp.field.nodes()))
     assert np.allclose(at_nodes, posterior.std, rtol=1e-10)
+
+
+def test_gcv_asks_for_no_field_on_homogeneous_data(field_problem):
+    """Data made at the constant field: GCV's least value is at the largest weight (no
+    field; ``reached`` False), and the map is flat within its own band."""
+    fp = reachable(field_problem, np.zeros(field_problem.size), seed=6)
+    regularizer = Tikhonov(fp.field, LENGTHS)
+    solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    choice = gcv_weight(fp, regularizer, solve, bounds=(1e-2, 1e8))
+    assert not choice.reached and choice.estimate.weight == pytest.approx(1e8)
+    posterior = laplace(fp, regularizer, choice.estimate)
+    s = choice.estimate.coefficients
+    assert np.max(np.abs(s - s.mean()) / posterior.std) < 2.0
+
+
+def test_gcv_minimum_is_interior_and_its_value_is_eq_I10(field_problem):
+    """Data made at a stiff region: GCV's least value lies inside the range searched, the
+    golden section brackets it to 0.1 decade, and the value is eq. (I10) recomputed from
+    the estimate's chi^2 and the dense Laplace dof."""
+    fp = reachable(field_problem, 2.0 * truth_field(field_problem.field), seed=5)
+    regularizer = Tikhonov(fp.field, LENGTHS)
+    solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    choice = gcv_weight(fp, regularizer, solve)
+    assert choice.reached, choice.note
+    betas = sorted(beta for beta, _ in choice.path)
+    assert betas[0] < choice.estimate.weight < betas[-1]
+    n = fp.n_residuals
+
+    def gcv(estimate):
+        dof = laplace(fp, regularizer, estimate).effective_dof
+        return n * estimate.chi2 / (n - dof) ** 2
+
+    best = gcv(choice.estimate)
+    for factor in (10**-0.2, 10**0.2):
+        other = solve(
+            fp, regularizer, choice.estimate.weight * factor, choice.estimate.coefficients
+        )
+        assert best <= gcv(other) * (1 + 1e-6)

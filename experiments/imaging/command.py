@@ -38,10 +38,10 @@ def parse_field(text: str, over: str) -> tuple[int, ...]:
 
 
 def parse_weight(text: str) -> str | float:
-    """'morozov', 'lcurve' or a positive beta [mm^2]."""
+    """'morozov', 'gcv', 'lcurve' or a positive beta [mm^2]."""
     from experiments.options import UsageError
 
-    if text in ("morozov", "lcurve"):
+    if text in ("morozov", "gcv", "lcurve"):
         return text
     try:
         beta = float(text)
@@ -49,7 +49,7 @@ def parse_weight(text: str) -> str | float:
         beta = float("nan")
     if not beta > 0 or beta == float("inf"):
         raise UsageError(
-            f"--weight must be morozov, lcurve or a positive number [mm^2], got {text!r}"
+            f"--weight must be morozov, gcv, lcurve or a positive number [mm^2], got {text!r}"
         )
     return beta
 
@@ -67,7 +67,7 @@ def build_parser(prog: str = "python -m experiments.imaging.command"):
     parser.add_argument("--over", choices=("surface", "layers", "volume"), default="surface")
     parser.add_argument("--regularizer", choices=tuple(REGULARIZERS), default="h1")
     parser.add_argument(
-        "--weight", default="morozov", help="morozov (needs the noise), lcurve, or beta [mm^2]"
+        "--weight", default="morozov", help="morozov (needs the noise), gcv, lcurve, or beta [mm^2]"
     )
     parser.add_argument(
         "--method",

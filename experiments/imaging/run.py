@@ -3,7 +3,7 @@
 1. Fit the homogeneous linear-elastic model (E, nu) by the nested method; its E is
    E_ref of eq. (I1) and its nu is held.
 2. Estimate the field s = log(E / E_ref) (eq. I8) with the weight chosen by
-   Morozov's principle (default), the L-curve, or given.
+   Morozov's principle (default), generalised cross-validation, the L-curve, or given.
 3. The Laplace approximation around the estimate: standard deviations (marginal
    over the held nu, eq. I9) and the effective number of parameters.
 """
@@ -20,7 +20,7 @@ from experiments.fitting import FitSettings, build_problem, solve
 from solvers.fieldproblem import FieldProblem
 from solvers.imaging import SOLVERS, Laplace, laplace
 from solvers.regularization import Tikhonov, TotalVariation
-from solvers.weight import WeightChoice, discrepancy_weight, lcurve_weight
+from solvers.weight import WeightChoice, discrepancy_weight, gcv_weight, lcurve_weight
 from symbolic.field import StiffnessField, tissue_lengths
 
 REGULARIZERS = {"h1": Tikhonov, "tv": TotalVariation}
@@ -51,7 +51,7 @@ class ImageSettings:
         Layout of the field (``symbolic.field.StiffnessField``).
     regularizer : {"h1", "tv"}
     weight : str or float
-        "morozov", "lcurve", or beta [mm^2].
+        "morozov", "gcv", "lcurve", or beta [mm^2].
     method : str
         A key of ``solvers.imaging.SOLVERS``, or "auto".
     fit : FitSettings
@@ -118,6 +118,9 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image
     )
     if settings.weight == "morozov":
         choice = discrepancy_weight(fp, regularizer, estimator, log=log)
+    elif settings.weight == "gcv":
+        rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
+        choice = gcv_weight(fp, regularizer, estimator, rank=rank, log=log)
     elif settings.weight == "lcurve":
         choice = lcurve_weight(fp, regularizer, estimator, log=log)
     else:
