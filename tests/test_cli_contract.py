@@ -234,10 +234,12 @@ def test_out_of_range_options_exit_2_naming_the_option(places):
 
 @pytest.mark.parametrize("name", EXPENSIVE)
 def test_an_expensive_command_fails_before_any_work(name, places):
-    """Bad output path: no slower than the command's own --help plus a second."""
+    """Bad output path: no slower than the command's own --help plus a second (each
+    the faster of two runs, so that a busy machine's one slow start does not count)."""
     tmp, data, _ = places
-    _, _, help_time = _run([name, "--help"], tmp)
+    help_time = min(_run([name, "--help"], tmp)[2] for _ in range(2))
     argv = [name, *_fill(DIRECTORY_OUTPUT[name], data, tmp), "--out", str(tmp / "afile")]
-    code, _, elapsed = _run(argv, tmp)
-    assert code == 2
+    runs = [_run(argv, tmp) for _ in range(2)]
+    assert all(code == 2 for code, _, _ in runs)
+    elapsed = min(t for _, _, t in runs)
     assert elapsed < help_time + 1.0, f"{name}: {elapsed:.2f} s against --help {help_time:.2f} s"
