@@ -149,8 +149,10 @@ def gcv_weight(
     From the largest beta down a decade at a time (each solve warm-started from the
     last) until GCV has risen two decades in a row past its least value, or the
     smallest beta; then a golden-section search in log10 beta over the decades either
-    side of the least, to ``tolerance`` decades. k(beta) is the Laplace approximation's
-    effective dof at each estimate (``rank`` as in ``solvers.imaging.laplace``).
+    side of the least, to ``tolerance`` decades. A least value at the largest beta
+    means the data need no field (``reached`` False, no search). k(beta) is the Laplace
+    approximation's effective dof at each estimate (``rank`` as in
+    ``solvers.imaging.laplace``).
     """
     solve = solve or SOLVERS["nested-adjoint"]
     n = float(fp.n_residuals)
@@ -181,7 +183,14 @@ def gcv_weight(
             break
         t -= 1.0
     best = min(found, key=lambda k: found[k][0])
-    a, b = max(best - 1.0, low), min(best + 1.0, high)
+    if best in (high, low):
+        note = (
+            "GCV least at the largest weight: the data need no field"
+            if best == high
+            else "GCV least at the smallest weight searched"
+        )
+        return WeightChoice(found[best][1], n, False, path, note, "gcv")
+    a, b = best - 1.0, best + 1.0
     ratio = (np.sqrt(5.0) - 1.0) / 2.0
     c, d = b - ratio * (b - a), a + ratio * (b - a)
     near = found[best][1].coefficients
@@ -196,7 +205,4 @@ def gcv_weight(
             d = a + ratio * (b - a)
             fd = score(d, near)
     best = min(found, key=lambda k: found[k][0])
-    value, estimate = found[best]
-    edge = best in (high, low)
-    note = "GCV minimum" + (" at the end of the range searched" if edge else "")
-    return WeightChoice(estimate, float(fp.n_residuals), not edge, path, note, "gcv")
+    return WeightChoice(found[best][1], n, True, path, "GCV minimum", "gcv")
