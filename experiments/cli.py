@@ -39,6 +39,7 @@ RESEARCH = {
     "designbench": ("experiments.design.bench", "design search: speed, gap, against by hand"),
     "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
     "imagebench": ("experiments.imaging.bench", "stiffness imaging: fit time against N"),
+    "imageweights": ("experiments.imaging.weightstudy", "which weight rule sees a small inclusion"),
     "realskin": ("experiments.realskin.study", "real in vivo skin: fit and close the loop"),
     "realskin-twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),

@@ -54,7 +54,7 @@ FILE_OUTPUT = {
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
-NO_OUTPUT = {"realskin-data", "boardbench"}
+NO_OUTPUT = {"realskin-data", "boardbench", "imageweights"}
 """Commands that only print."""
 
 EXPENSIVE = (
@@ -183,6 +183,7 @@ OUT_OF_RANGE = [
     (["realskin-continuum", "--cases", "nope", "--out", "o"], "--cases"),
     (["realskin-continuum", "--thickness", "0", "--out", "o"], "--thickness"),
     (["realskin-data", "--case", "nope"], "--case"),
+    (["imageweights", "--draws", "0"], "--draws"),
     (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
     (["render", "run", "--scale", "100"], "--scale"),
     (["boardbench", "--full-size-images", "0"], "--full-size-images"),

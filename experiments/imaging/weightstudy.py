@@ -17,12 +17,11 @@ criteria: the peak within 3 mm, the contrast within 30 % of 2, and 90 % of the n
 over the markers within 2 std of the truth. Linear, without model error: a rule that
 fails here fails on the full problem too.
 
-Usage: ``python -m experiments.imaging.weightstudy --seed 7 --grid 23x23x4 --draws 200``.
+Usage: ``dvs imageweights --seed 7 --grid 23x23x4 --draws 200``.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 
@@ -186,29 +185,45 @@ def monte_carlo(study: LinearStudy, draws: int, seed: int = 0) -> dict:
     }
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiments.imaging.weightstudy")
-    parser.add_argument("--seed", type=int, default=7)
-    parser.add_argument("--grid", default="23x23x4")
-    parser.add_argument("--draws", type=int, default=200)
-    args = parser.parse_args(argv)
-    begin = time.perf_counter()
-    disc, none, centre = inclusion_datasets(args.seed)
-    print(f"disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
-    grid = tuple(int(v) for v in args.grid.split("x"))
-    study = LinearStudy(linearise(disc, none, grid), centre)
-    result = monte_carlo(study, args.draws)
-    result.update(seed=args.seed, grid=args.grid, seconds=time.perf_counter() - begin)
-    print(json.dumps(result["rules"], indent=1))
-    for row in result["fixed_beta"][::2]:
-        print(
-            f"  beta {row['beta_mm2']:9.3g}: dof {row['dof']:6.1f}, median contrast "
-            f"{row['median_contrast']:.2f}, all criteria met {row['all_ok']:.2f}"
-        )
-    print(
-        f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {result['seconds']:.0f} s"
+def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
+    """The options of ``dvs imageweights``."""
+    from experiments.options import make_parser
+
+    parser = make_parser(
+        prog, "Which weight rule sees the acceptance inclusion: a linearised Monte Carlo."
     )
-    return 0
+    parser.add_argument("--seed", type=int, default=7, help="the disc's draw (default: 7)")
+    parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
+    parser.add_argument("--draws", type=int, default=200, help="noise draws (default: 200)")
+    return parser
+
+
+def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> int:
+    """Print the rules' rates and the fixed weights' (``dvs imageweights``)."""
+    from experiments.options import UsageError, check_grid, parse_grid, run_guarded
+
+    args = build_parser(prog).parse_args(argv)
+
+    def work() -> int:
+        if args.draws < 1:
+            raise UsageError(f"--draws must be at least 1, got {args.draws}")
+        grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
+        begin = time.perf_counter()
+        disc, none, centre = inclusion_datasets(args.seed)
+        print(f"disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
+        study = LinearStudy(linearise(disc, none, grid), centre)
+        result = monte_carlo(study, args.draws)
+        print(json.dumps(result["rules"], indent=1))
+        for row in result["fixed_beta"][::2]:
+            print(
+                f"  beta {row['beta_mm2']:9.3g}: dof {row['dof']:6.1f}, median contrast "
+                f"{row['median_contrast']:.2f}, all criteria met {row['all_ok']:.2f}"
+            )
+        seconds = time.perf_counter() - begin
+        print(f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {seconds:.0f} s")
+        return 0
+
+    return run_guarded(prog, work)
 
 
 if __name__ == "__main__":
