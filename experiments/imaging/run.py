@@ -116,10 +116,10 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image
         f"  field {'x'.join(map(str, settings.shape))} over the {settings.over} "
         f"(N = {fp.size}), {settings.regularizer}, {method}, {fp.n_residuals} residuals"
     )
+    rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
     if settings.weight == "morozov":
         choice = discrepancy_weight(fp, regularizer, estimator, log=log)
     elif settings.weight == "gcv":
-        rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
         choice = gcv_weight(fp, regularizer, estimator, rank=rank, log=log)
     elif settings.weight == "lcurve":
         choice = lcurve_weight(fp, regularizer, estimator, log=log)
@@ -129,7 +129,6 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image
         choice = WeightChoice(
             estimate, float(fp.n_residuals), True, [(beta, estimate.chi2)], "given", "given"
         )
-    rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
     nuisance = fp.poisson_sensitivity(choice.estimate.coefficients)
     posterior = laplace(fp, regularizer, choice.estimate, rank, nuisance)
     return Image(
