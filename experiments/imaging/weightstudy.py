@@ -89,7 +89,7 @@ class LinearStudy:
         self.J = self.project(parts["J"])
         self.d = self.project(parts["d"])
         self.L = parts["L"]
-        self.n, size = self.J.shape
+        self.n = self.J.shape[0]
         self.betas = np.asarray(betas)
         normal = self.J.T @ self.J
         self.inverse = [np.linalg.inv(normal + b * self.L) for b in self.betas]
