@@ -23,7 +23,7 @@ beta is chosen in ``solvers.weight``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -69,6 +69,9 @@ class FieldEstimate:
     method: str
     success: bool
     message: str = ""
+    jacobian: np.ndarray | None = field(default=None, repr=False)
+    """J = dr/dc at ``coefficients`` when the solver formed it there (the sensitivity
+    route), so that ``laplace`` need not form it again; else None."""
 
 
 def objective(fp: FieldProblem, regularizer, weight: float, c: np.ndarray) -> float:
@@ -76,7 +79,9 @@ def objective(fp: FieldProblem, regularizer, weight: float, c: np.ndarray) -> fl
     return fp.forward(c).misfit + weight * regularizer.value(c)
 
 
-def _estimate(fp, regularizer, weight, c, iterations, begin, method, success, message):
+def _estimate(
+    fp, regularizer, weight, c, iterations, begin, method, success, message, jacobian=None
+):
     return FieldEstimate(
         np.asarray(c, dtype=float).copy(),
         float(weight),
@@ -88,6 +93,7 @@ def _estimate(fp, regularizer, weight, c, iterations, begin, method, success, me
         method,
         bool(success),
         message,
+        jacobian,
     )
 
 
@@ -170,9 +176,10 @@ def gauss_newton(
     c = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float).copy()
     value = objective(fp, regularizer, weight, c)
 
-    def finish(iterations: int, success: bool, message: str) -> FieldEstimate:
+    def finish(iterations: int, success: bool, message: str, at_c=None) -> FieldEstimate:
+        method = f"gn-{hessian}"
         return _estimate(
-            fp, regularizer, weight, c, iterations, begin, f"gn-{hessian}", success, message
+            fp, regularizer, weight, c, iterations, begin, method, success, message, at_c
         )
 
     first, last, augmented = None, None, False
@@ -212,7 +219,7 @@ def gauss_newton(
                 step, augmented = _cg_step(fp, state, prior, None, gradient, forcing), False
         decrement = -0.5 * float(gradient @ step)
         if decrement <= tolerance * max(value, 1.0):
-            return finish(iteration, True, "converged")
+            return finish(iteration, True, "converged", jac)
         length = min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))
         while length > 1e-8:
             trial = c + length * step
@@ -221,7 +228,7 @@ def gauss_newton(
                 break
             length *= 0.5
         else:
-            return finish(iteration, False, "line search failed")
+            return finish(iteration, False, "line search failed", jac)
         if secant:  # the next step uses the model that predicted this one's decrease better
             taken = length * step
             linear = jac @ taken if jac is not None else fp.jvp_at(state, taken)
@@ -392,7 +399,7 @@ def laplace(
     c = estimate.coefficients
     prior = (estimate.weight * regularizer.hessian(c)).toarray()
     if rank is None:
-        jac = fp.sensitivities(c)
+        jac = fp.sensitivities(c) if estimate.jacobian is None else estimate.jacobian
         data = jac.T @ jac
         covariance = np.linalg.inv(data + prior)
         edof, kept = float(np.trace(covariance @ data)), fp.size

@@ -26,6 +26,7 @@ def toy_parts(rng, n=300, size=9):
         "nu": rng.standard_normal(n),
         "d": -(jacobian @ truth),
         "L": difference.T @ difference,
+        "D": difference,
         "xy": xy,
     }
 
@@ -34,7 +35,7 @@ def test_the_study_estimate_is_the_regularised_least_squares_solution():
     rng = np.random.default_rng(1)
     study = LinearStudy(toy_parts(rng), (0.0, 0.0), betas=np.array([0.1, 10.0, 1e3]))
     y = study.d + study.project(rng.standard_normal(study.n))
-    maps, chi2, penalty = study.path(y)
+    maps, chi2, _, _, _ = study.path(y)
     for beta, c, chi in zip(study.betas, maps, chi2):
         stacked = np.vstack(
             [study.J, np.sqrt(beta) * np.linalg.cholesky(study.L + 1e-12 * np.eye(9)).T]
@@ -54,6 +55,44 @@ def test_every_rule_finds_a_strong_bump_and_none_on_pure_noise():
     for rule in ("gcv", "upre", "marginal likelihood"):
         assert result["rules"][rule]["peak_ok"] == 1.0
         assert result["rules"][rule]["null_node_beyond_2_std"] <= 0.1
+
+
+class Differences:
+    """R(c) = sum_e sqrt((D c)_e^2 + eps^2) - its minimum: a total variation over the
+    toy's edges, with the interface of ``solvers.regularization.TotalVariation``."""
+
+    def __init__(self, difference, epsilon=0.01):
+        self.D, self.epsilon = difference, epsilon
+
+    def value(self, c):
+        return float(np.sum(np.sqrt((self.D @ c) ** 2 + self.epsilon**2)))
+
+    def gradient(self, c):
+        return self.D.T @ ((self.D @ c) / np.sqrt((self.D @ c) ** 2 + self.epsilon**2))
+
+    def hessian(self, c):
+        import scipy.sparse as sp
+
+        weight = 1.0 / np.sqrt((self.D @ c) ** 2 + self.epsilon**2)
+        return sp.csr_matrix(self.D.T @ (weight[:, None] * self.D))
+
+
+def test_the_total_variation_study_estimate_is_stationary_and_its_dof_falls():
+    rng = np.random.default_rng(3)
+    parts = toy_parts(rng)
+    tv = Differences(parts["D"])
+    study = LinearStudy(parts, (0.0, 0.0), np.array([0.1, 10.0, 1e3]), regularizer=tv)
+    y = study.d + study.project(rng.standard_normal(study.n))
+    maps, chi2, penalty, dof, std = study.path(y)
+    for beta, c, chi, value in zip(study.betas, maps, chi2, penalty):
+        # the gradient of |y + J c|^2 / 2 + beta R(c) vanishes at the estimate
+        stationarity = study.J.T @ (y + study.J @ c) + beta * tv.gradient(c)
+        assert np.abs(stationarity).max() < 1e-4 * np.abs(study.J.T @ y).max()
+        assert chi == pytest.approx(np.sum((y + study.J @ c) ** 2))
+        assert value == pytest.approx(2 * beta * tv.value(c))
+    assert dof[0] > dof[1] > dof[2] > 1.0 - 1e-6
+    assert all(np.all(s > 0) for s in std)
+    assert "marginal likelihood" not in study.choose(chi2, penalty, dof)
 
 
 @pytest.mark.slow

@@ -51,7 +51,9 @@ def inclusion_datasets(seed: int):
 
 
 def linearise(disc, none, grid, shape=(16, 16), log=print) -> dict:
-    """J, nu's column, the disc signal d, L and the nodes' x-y at the disc-free fit."""
+    """J, nu's column, the disc signal d, L and the nodes' x-y at the disc-free fit; the
+    disc-free data's own residual there, r0 (noise and model error; d + r0 is the disc
+    dataset's), and the tissue's lengths [mm] for a regulariser."""
     from experiments.fitting import FitSettings, build_problem, solve
     from solvers.fieldproblem import FieldProblem
     from solvers.regularization import Tikhonov
@@ -77,13 +79,22 @@ def linearise(disc, none, grid, shape=(16, 16), log=print) -> dict:
         "L": Tikhonov(field, tissue_lengths(model)).matrix.toarray(),
         "xy": np.asarray(model.volume.collocation(field.nodes()) @ model.rest)[:, :2],
         "E": young,
+        "r0": plain.residual(zero),
+        "lengths": np.asarray(tissue_lengths(model)),
     }
 
 
 class LinearStudy:
-    """The closed-form estimates of every beta on a grid, for any data y."""
+    """The estimates of every beta on a grid, for any data y.
 
-    def __init__(self, parts: dict, centre, betas=BETAS):
+    ``regularizer`` None: Tikhonov with ``parts["L"]``, in closed form. Otherwise an
+    object with ``hessian(c)`` and ``value(c)`` (``solvers.regularization``), e.g.
+    total variation, solved by lagged diffusivity from the largest beta down, each beta
+    warm-started from the last; its dof and standard deviations are then those of the
+    lagged Hessian at the estimate, as ``solvers.imaging.laplace`` forms them.
+    """
+
+    def __init__(self, parts: dict, centre, betas=BETAS, regularizer=None):
         q = parts["nu"] / np.linalg.norm(parts["nu"])
         self.project = lambda a: a - np.outer(q, q @ a) if a.ndim == 2 else a - q * (q @ a)
         self.J = self.project(parts["J"])
@@ -91,10 +102,15 @@ class LinearStudy:
         self.L = parts["L"]
         self.n = self.J.shape[0]
         self.betas = np.asarray(betas)
-        normal = self.J.T @ self.J
-        self.inverse = [np.linalg.inv(normal + b * self.L) for b in self.betas]
-        self.dof = np.array([np.trace(h @ normal) for h in self.inverse])
-        self.logdet = np.array([np.linalg.slogdet(normal + b * self.L)[1] for b in self.betas])
+        self.regularizer = regularizer
+        self.normal = self.J.T @ self.J
+        if regularizer is None:
+            self.inverse = [np.linalg.inv(self.normal + b * self.L) for b in self.betas]
+            self.dof = np.array([np.trace(h @ self.normal) for h in self.inverse])
+            self.std = [np.sqrt(np.diag(h)) for h in self.inverse]
+            self.logdet = np.array(
+                [np.linalg.slogdet(self.normal + b * self.L)[1] for b in self.betas]
+            )
         self.rank = int(np.linalg.matrix_rank(self.L))
         xy = parts["xy"]
         inside = np.linalg.norm(xy - np.asarray(centre), axis=1) <= DIAMETER_MM / 2
@@ -102,34 +118,85 @@ class LinearStudy:
         self.xy, self.centre = xy, np.asarray(centre)
         self.markers = np.all(np.abs(xy) <= MARKED_HALF_MM, axis=1)
 
+    def _lagged(self, rhs, beta, c, tolerance=1e-6, iterations=500):
+        """The minimiser of |y + J c|^2 / 2 + beta R(c) by lagged diffusivity, and the
+        Gauss-Newton Hessian J^T J + beta R''(c) there."""
+        for _ in range(iterations):
+            hessian = self.normal + beta * self.regularizer.hessian(c).toarray()
+            new = np.linalg.solve(hessian, rhs)
+            done = np.max(np.abs(new - c)) < tolerance
+            c = new
+            if done:
+                break
+        return c, self.normal + beta * self.regularizer.hessian(c).toarray()
+
     def path(self, y: np.ndarray):
-        """Estimates, chi^2 and penalty at every beta."""
-        maps = [-(h @ (self.J.T @ y)) for h in self.inverse]
+        """Estimates, chi^2, penalty, effective dof and nodal std at every beta."""
+        if self.regularizer is None:
+            maps = [-(h @ (self.J.T @ y)) for h in self.inverse]
+            penalty = np.array([b * c @ self.L @ c for b, c in zip(self.betas, maps)])
+            dof, std = self.dof, self.std
+        else:
+            rhs, c = -(self.J.T @ y), np.zeros(self.J.shape[1])
+            maps, dof, std, penalty = [None] * len(self.betas), [], [], []
+            for k in np.argsort(self.betas)[::-1]:
+                c, hessian = self._lagged(rhs, self.betas[k], c)
+                inverse = np.linalg.inv(hessian)
+                maps[k] = c
+                dof.append((k, np.trace(inverse @ self.normal)))
+                std.append((k, np.sqrt(np.diag(inverse))))
+                penalty.append((k, 2 * self.betas[k] * self.regularizer.value(c)))
+            dof, penalty = (np.array([v for _, v in sorted(x)]) for x in (dof, penalty))
+            std = [v for _, v in sorted(std, key=lambda kv: kv[0])]
         chi2 = np.array([np.sum((y + self.J @ c) ** 2) for c in maps])
-        penalty = np.array([b * c @ self.L @ c for b, c in zip(self.betas, maps)])
-        return maps, chi2, penalty
+        return maps, chi2, penalty, dof, std
 
-    def choose(self, chi2: np.ndarray, penalty: np.ndarray) -> dict:
-        """The index of beta each rule picks."""
+    def choose(self, chi2: np.ndarray, penalty: np.ndarray, dof: np.ndarray) -> dict:
+        """The index of beta each rule picks (the marginal likelihood: Tikhonov only)."""
         below = np.flatnonzero(chi2 <= self.n)
-        morozov = int(below.max()) if below.size else 0
-        likelihood = -0.5 * (chi2 + penalty + self.logdet) + 0.5 * self.rank * np.log(self.betas)
-        return {
-            "morozov": morozov,
-            "gcv": int(np.argmin(self.n * chi2 / (self.n - self.dof) ** 2)),
-            "upre": int(np.argmin(chi2 + 2 * self.dof - self.n)),
-            "marginal likelihood": int(np.argmax(likelihood)),
+        rules = {
+            "morozov": int(below.max()) if below.size else 0,
+            "gcv": int(np.argmin(self.n * chi2 / (self.n - dof) ** 2)),
+            "upre": int(np.argmin(chi2 + 2 * dof - self.n)),
         }
+        if self.regularizer is None:
+            evidence = chi2 + penalty + self.logdet - self.rank * np.log(self.betas)
+            rules["marginal likelihood"] = int(np.argmin(evidence))
+        return rules
 
-    def score(self, c: np.ndarray, k: int) -> tuple[float, float, float, float]:
+    def own_draw(self, r0: np.ndarray) -> dict:
+        """Each rule on the disc dataset's own noise: y = d + r0 (``linearise``)."""
+        maps, chi2, penalty, dof, std = self.path(self.d + self.project(r0))
+        found = {}
+        for rule, k in self.choose(chi2, penalty, dof).items():
+            contrast, distance, coverage, _ = self.score(maps[k], std[k])
+            found[rule] = {
+                "beta_mm2": float(self.betas[k]),
+                "contrast": round(contrast, 3),
+                "peak_mm": round(distance, 2),
+                "coverage": round(coverage, 3),
+            }
+        return found
+
+    def score(self, c: np.ndarray, std: np.ndarray) -> tuple[float, float, float, float]:
         """Contrast, peak distance [mm], coverage over the markers, strongest |z|."""
-        std = np.sqrt(np.diag(self.inverse[k]))
         best = np.flatnonzero(self.markers)[np.argmax(c[self.markers])]
         contrast = float(np.exp(c[best] - np.median(c[self.markers])))
         distance = float(np.linalg.norm(self.xy[best] - self.centre))
         coverage = float(np.mean(np.abs((c - self.truth) / std)[self.markers] <= 2.0))
         strongest = float(np.max(np.abs(c - c.mean()) / std))
         return contrast, distance, coverage, strongest
+
+
+def total_variation(parts: dict, name: str):
+    """None for "h1" (the study's closed form), else eq. (I7) on the 16 x 16 field."""
+    if name == "h1":
+        return None
+    from solvers.regularization import TotalVariation
+    from symbolic.field import StiffnessField
+
+    side = int(round(np.sqrt(parts["J"].shape[1])))
+    return TotalVariation(StiffnessField((side, side), "surface"), tuple(parts["lengths"]))
 
 
 def passes(contrast, distance, coverage) -> bool:
@@ -142,18 +209,18 @@ def monte_carlo(study: LinearStudy, draws: int, seed: int = 0) -> dict:
     and on the disc-free data, how often a rule's map has a node beyond 2 std."""
     rng = np.random.default_rng(seed)
     rules: dict[str, list] = {}
-    fixed = np.zeros((draws, len(study.betas), 4))
+    fixed = np.zeros((draws, len(study.betas), 5))
     null: dict[str, list] = {}
     for i in range(draws):
         noise = study.project(rng.standard_normal(study.n))
-        maps, chi2, penalty = study.path(study.d + noise)
-        for rule, k in study.choose(chi2, penalty).items():
-            rules.setdefault(rule, []).append((study.betas[k],) + study.score(maps[k], k))
+        maps, chi2, penalty, dof, std = study.path(study.d + noise)
+        for rule, k in study.choose(chi2, penalty, dof).items():
+            rules.setdefault(rule, []).append((study.betas[k],) + study.score(maps[k], std[k]))
         for k, c in enumerate(maps):
-            fixed[i, k] = study.score(c, k)
-        maps, chi2, penalty = study.path(noise)
-        for rule, k in study.choose(chi2, penalty).items():
-            null.setdefault(rule, []).append(study.score(maps[k], k)[3])
+            fixed[i, k] = study.score(c, std[k]) + (dof[k],)
+        maps, chi2, penalty, dof, std = study.path(noise)
+        for rule, k in study.choose(chi2, penalty, dof).items():
+            null.setdefault(rule, []).append(study.score(maps[k], std[k])[3])
     table = {}
     for rule, rows in rules.items():
         rows = np.array(rows)
@@ -170,7 +237,7 @@ def monte_carlo(study: LinearStudy, draws: int, seed: int = 0) -> dict:
     per_beta = [
         {
             "beta_mm2": float(b),
-            "dof": float(study.dof[k]),
+            "dof": float(np.median(fixed[:, k, 4])),
             "median_contrast": float(np.median(fixed[:, k, 0])),
             "all_ok": float(np.mean([passes(*row[:3]) for row in fixed[:, k]])),
         }
@@ -195,6 +262,12 @@ def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
     parser.add_argument("--seed", type=int, default=7, help="the disc's draw (default: 7)")
     parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
     parser.add_argument("--draws", type=int, default=200, help="noise draws (default: 200)")
+    parser.add_argument(
+        "--regularizer",
+        choices=("h1", "tv"),
+        default="h1",
+        help="h1 (closed form, default) or tv (lagged diffusivity, about 10x slower)",
+    )
     return parser
 
 
@@ -211,8 +284,11 @@ def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> 
         begin = time.perf_counter()
         disc, none, centre = inclusion_datasets(args.seed)
         print(f"disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
-        study = LinearStudy(linearise(disc, none, grid), centre)
+        parts = linearise(disc, none, grid)
+        study = LinearStudy(parts, centre, regularizer=total_variation(parts, args.regularizer))
+        own = study.own_draw(parts["r0"])
         result = monte_carlo(study, args.draws)
+        print("the dataset's own noise draw:", json.dumps(own))
         print(json.dumps(result["rules"], indent=1))
         for row in result["fixed_beta"][::2]:
             print(
