@@ -138,16 +138,19 @@ class LinearStudy:
             dof, std = self.dof, self.std
         else:
             rhs, c = -(self.J.T @ y), np.zeros(self.J.shape[1])
-            maps, dof, std, penalty = [None] * len(self.betas), [], [], []
+            count = len(self.betas)
+            maps, std, dof, penalty = (
+                [None] * count,
+                [None] * count,
+                np.zeros(count),
+                np.zeros(count),
+            )
             for k in np.argsort(self.betas)[::-1]:
                 c, hessian = self._lagged(rhs, self.betas[k], c)
                 inverse = np.linalg.inv(hessian)
-                maps[k] = c
-                dof.append((k, np.trace(inverse @ self.normal)))
-                std.append((k, np.sqrt(np.diag(inverse))))
-                penalty.append((k, 2 * self.betas[k] * self.regularizer.value(c)))
-            dof, penalty = (np.array([v for _, v in sorted(x)]) for x in (dof, penalty))
-            std = [v for _, v in sorted(std, key=lambda kv: kv[0])]
+                maps[k], std[k] = c, np.sqrt(np.diag(inverse))
+                dof[k] = np.trace(inverse @ self.normal)
+                penalty[k] = 2 * self.betas[k] * self.regularizer.value(c)
         chi2 = np.array([np.sum((y + self.J @ c) ** 2) for c in maps])
         return maps, chi2, penalty, dof, std
 
