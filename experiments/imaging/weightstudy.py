@@ -191,7 +191,7 @@ class LinearStudy:
         return contrast, distance, coverage, strongest
 
 
-def total_variation(parts: dict, name: str):
+def study_regularizer(parts: dict, name: str):
     """None for "h1" (the study's closed form), else eq. (I7) on the 16 x 16 field."""
     if name == "h1":
         return None
@@ -288,7 +288,7 @@ def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> 
         disc, none, centre = inclusion_datasets(args.seed)
         print(f"disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
         parts = linearise(disc, none, grid)
-        study = LinearStudy(parts, centre, regularizer=total_variation(parts, args.regularizer))
+        study = LinearStudy(parts, centre, regularizer=study_regularizer(parts, args.regularizer))
         own = study.own_draw(parts["r0"])
         result = monte_carlo(study, args.draws)
         print("the dataset's own noise draw:", json.dumps(own))
