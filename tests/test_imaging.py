@@ -18,7 +18,7 @@ from experiments.phantom.simulate import SimulationSettings
 from solvers.fieldproblem import FieldProblem
 from solvers.imaging import gauss_newton, laplace, lbfgs, secant_update, simultaneous
 from solvers.regularization import Tikhonov, TotalVariation
-from solvers.weight import discrepancy_weight, gcv_weight, lcurve_weight
+from solvers.weight import discrepancy_weight, gcv_weight, lcurve_weight, linear_gcv
 from symbolic.field import StiffnessField
 
 LENGTHS = (40.0, 40.0, 5.0)
@@ -237,16 +237,22 @@ def test_gcv_asks_for_no_field_on_homogeneous_data(field_problem):
 
 
 def test_gcv_minimum_is_interior_and_its_value_is_eq_I10(field_problem):
-    """Data made at a stiff region: GCV's least value lies inside the range searched, the
-    golden section brackets it to 0.1 decade, and the value is eq. (I10) recomputed from
-    the estimate's chi^2 and the dense Laplace dof."""
+    """Data made at a stiff region: the decade sweep's golden section brackets GCV's least
+    value inside the range searched; the predicted search (eq. I10') lands within 0.1
+    decade of it in under half the solves; and the value there is eq. (I10) recomputed
+    from the estimate's chi^2 and the dense Laplace dof, no larger 0.2 decade either
+    side."""
     fp = reachable(field_problem, 2.0 * truth_field(field_problem.field), seed=5)
     regularizer = Tikhonov(fp.field, LENGTHS)
     solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    sweep = gcv_weight(fp, regularizer, solve, predict=False)
+    assert sweep.reached, sweep.note
+    betas = sorted(beta for beta, _ in sweep.path)
+    assert betas[0] < sweep.estimate.weight < betas[-1]
     choice = gcv_weight(fp, regularizer, solve)
-    assert choice.reached, choice.note
-    betas = sorted(beta for beta, _ in choice.path)
-    assert betas[0] < choice.estimate.weight < betas[-1]
+    assert choice.reached and choice.note == "GCV minimum (predicted)", choice.note
+    assert abs(np.log10(choice.estimate.weight / sweep.estimate.weight)) <= 0.1
+    assert 2 * len(choice.path) < len(sweep.path), (len(choice.path), len(sweep.path))
     n = fp.n_residuals
 
     def gcv(estimate):
@@ -259,3 +265,18 @@ def test_gcv_minimum_is_interior_and_its_value_is_eq_I10(field_problem):
             fp, regularizer, choice.estimate.weight * factor, choice.estimate.coefficients
         )
         assert best <= gcv(other) * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("kind", [Tikhonov, TotalVariation])
+def test_predicted_gcv_equals_eq_I10_at_the_estimates_own_weight(field_problem, kind):
+    """Eq. (I10') about an estimate, evaluated at that estimate's weight, is eq. (I10):
+    the Gauss-Newton step there is zero and its dof is the Laplace dof."""
+    regularizer = kind(field_problem.field, LENGTHS)
+    estimate = gauss_newton(field_problem, regularizer, 300.0, hessian="sensitivity")
+    assert estimate.success and estimate.jacobian is not None
+    n = field_problem.n_residuals
+    dof = laplace(field_problem, regularizer, estimate).effective_dof
+    predicted = linear_gcv(
+        field_problem, regularizer, estimate, estimate.jacobian, [np.log10(300.0)]
+    )
+    assert predicted[0] == pytest.approx(n * estimate.chi2 / (n - dof) ** 2, rel=1e-6)
