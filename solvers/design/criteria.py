@@ -19,9 +19,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
-from solvers.design.information import EffectPower, effect_figures, projected_signal
+from solvers.design.information import (
+    EffectPower,
+    critical_value,
+    effect_figures,
+    projected_signal,
+)
 from solvers.design.pool import Layout
 
 CRITERIA = ("d", "a", "power", "maximin")
@@ -124,12 +129,11 @@ def log_miss(figures: EffectPower) -> float:
     """-log beta, beta = 1 - power (eq. D3), computed in the tail (no rounding to 1)."""
     if figures.dof == 0:
         return 0.0
+    critical = critical_value(figures.level, figures.dof, figures.one_sided)
     if figures.one_sided:
-        critical = stats.norm.isf(figures.level)
-        value = -stats.norm.logcdf(critical - np.sqrt(figures.noncentrality))
+        value = -special.log_ndtr(critical - np.sqrt(figures.noncentrality))
     else:
-        critical = stats.chi2.isf(figures.level, figures.dof)
-        miss = stats.ncx2.cdf(critical, figures.dof, max(figures.noncentrality, 1e-300))
+        miss = special.chndtr(critical, figures.dof, max(figures.noncentrality, 1e-300))
         value = -np.log(miss) if miss > 0 else np.inf
     if not np.isfinite(value):  # beyond double precision: keep ordering by lambda
         value = 700.0 + np.log1p(figures.noncentrality)

@@ -115,9 +115,17 @@ class CaseFunctions:
         Length of s.
     """
 
-    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX, dg_ds: ca.MX | None = None):
+    def __init__(
+        self,
+        s: ca.MX,
+        p: ca.MX,
+        g: ca.MX,
+        r: ca.MX,
+        dg_ds: ca.MX | None = None,
+        dg_dp: ca.MX | None = None,
+    ):
         self.s, self.p, self.g, self.r = s, p, g, r
-        self.dg_ds = dg_ds
+        self.dg_ds, self.dg_dp = dg_ds, dg_dp
         self.n_state = int(s.numel())
         self._built: dict[str, ca.Function] = {}
 
@@ -145,9 +153,15 @@ class CaseFunctions:
     @property
     def sensitivity(self) -> ca.Function:
         s, p, g, r = self.s, self.p, self.g, self.r
+        dg_dp = self.dg_dp
         return self._get(
             "sensitivity",
-            lambda: [ca.jacobian(g, p), r, ca.jacobian(r, s), ca.jacobian(r, p)],
+            lambda: [
+                ca.jacobian(g, p) if dg_dp is None else dg_dp,
+                r,
+                ca.jacobian(r, s),
+                ca.jacobian(r, p),
+            ],
             ["dg_dp", "r", "dr_ds", "dr_dp"],
         )
 
@@ -228,12 +242,12 @@ class ExtendedModel:
             self._functions[key] = self._build(position)
         return self._functions[key]
 
-    def _build(self, position: int) -> CaseFunctions:
-        model, case = self.model, self.cases[position]
+    def _symbols(self, position: int) -> tuple[ca.MX, ca.MX, CaseSymbols, list]:
+        """Fresh s and p, the case symbols on s and every effect's theta (a slice of p)."""
+        model = self.model
         n_free = model.n_free
         extra_sizes = [e.extra_points(model) for e in self.effects]
-        n_state = 3 * (n_free + sum(extra_sizes))
-        s = ca.MX.sym("s", n_state)
+        s = ca.MX.sym("s", 3 * (n_free + sum(extra_sizes)))
         p = ca.MX.sym("p", self.n_parameters)
         values = dict(model.parameters)
         values.update({name: p[i] for i, name in enumerate(self.names)})
@@ -244,30 +258,81 @@ class ExtendedModel:
                 symbols.extra[effect.name] = ca.reshape(s[start : start + 3 * size], size, 3)
                 start += 3 * size
         thetas = [effect.block(p[self.slices[effect.name]], position) for effect in self.effects]
-        base, rest = self._equilibrium(case, symbols, thetas)
-        r = self._observation(case, symbols, thetas)
+        return s, p, symbols, thetas
+
+    def _build(self, position: int) -> CaseFunctions:
+        """The case's Functions: the shared model part (``_model_part``) plus its load.
+
+        g(s, p) = h(s, p) - F_B(theta; case): what the case adds, its declared load and
+        the load effects' change of it, depends on p alone, so dg/ds is h's and the
+        case's only derivatives are the load's d/dp and the observation's.
+        """
+        s, p, symbols, thetas = self._symbols(position)
+        h, h_ds, h_dp = self._model_part(position)
+        load = self._load(self.cases[position], thetas, s.numel())
+        g = h(s, p) + load
+        r = self._observation(self.cases[position], symbols, thetas)
+        dg_ds = None if h_ds is None else h_ds(s, p)
+        return CaseFunctions(s, p, g, r, dg_ds, h_dp(s, p) + ca.jacobian(load, p))
+
+    def _model_part(self, position: int) -> tuple:
+        """h(s, p) = K(B; x) Delta + the effects' internal forces and extra rows, with
+        dh/ds and dh/dp: the part of g no load case changes, built once per effect set.
+
+        dh/ds is the base model's block in closed form (a linear model's K(x), one
+        sparse product, or the numeric neo-Hookean tangent) plus the linear effects'
+        K_theta, AD doing the other effects; None when the base model has no tangent
+        (``CaseFunctions`` then differentiates g).
+        """
+        per_case = any(e.per_case for e in self.effects)
+        key = (
+            "functions",
+            self.effect_set,
+            "model_part",
+            id(self.model),
+            position if per_case else 0,
+            tuple(self.labels),
+        )
+        if key in self._functions:
+            return self._functions[key]
+        model = self.model
+        n_free = model.n_free
+        s, p, symbols, thetas = self._symbols(position)
+        x = ca.vertcat(*[symbols.values[n] for n in self.names])
+        base = ca.vec(self._base_force()(symbols.delta, x))
+        force, extra_rows = ca.MX(n_free, 3), []
+        for effect, theta in zip(self.effects, thetas):
+            term = effect.internal_force(model, symbols, theta)
+            if term is not None:
+                force = force + term
+            rows = effect.extra_residual(model, symbols, theta)
+            if rows is not None:
+                extra_rows.append(ca.vec(rows))
+        n_state = s.numel()
+        padding = n_state - 3 * n_free
+        rest = ca.vertcat(ca.vec(force), *extra_rows)
         linear = self._linear_effects()
         if linear is not None:
-            force, _ = linear
-            padding = rest.shape[0] - 3 * n_free
-            base = base + ca.vertcat(ca.vec(force(symbols.delta, p)), ca.MX(padding, 1))
-        g = base + rest
-        # the base model's block of dg/ds in closed form (a linear model's K(x), one
-        # sparse product) or numerically (the neo-Hookean tangent), the linear
-        # effects' K_theta in closed form too; AD does the other effects
-        x = ca.vertcat(*[symbols.values[n] for n in self.names])
-        if self.model.is_linear(self.names):
+            base = base + ca.vec(linear[0](symbols.delta, p))
+        h = ca.vertcat(base, ca.MX(padding, 1)) + rest
+        if model.is_linear(self.names):
             stiffness = self._base_stiffness()(x)
         else:
             tangent = self._base_tangent()
-            if tangent is None:
-                return CaseFunctions(s, p, g, r)
-            stiffness = tangent(s[: 3 * n_free], x)
-        if linear is not None:
-            stiffness = stiffness + linear[1](p)
-        padding = n_state - stiffness.shape[0]
-        dg_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
-        return CaseFunctions(s, p, g, r, dg_ds)
+            stiffness = None if tangent is None else tangent(s[: 3 * n_free], x)
+        h_ds = None
+        if stiffness is not None:
+            if linear is not None:
+                stiffness = stiffness + linear[1](p)
+            dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
+            h_ds = ca.Function("model_part_ds", [s, p], [dh_ds])
+        made = (
+            ca.Function("model_part", [s, p], [h]),
+            h_ds,
+            ca.Function("model_part_dp", [s, p], [ca.jacobian(h, p)]),
+        )
+        self._functions[key] = made
+        return made
 
     def _linear_effects(self) -> tuple[ca.Function, ca.Function] | None:
         """The ``linear`` effects' (Delta, p) -> sum K_theta vec(Delta) and p -> sum K_theta.
@@ -324,32 +389,17 @@ class ExtendedModel:
             self._functions[key] = ca.Function("stiffness", [x], [stiffness])
         return self._functions[key]
 
-    def _equilibrium(self, case: CaseData, symbols: CaseSymbols, thetas) -> tuple[ca.MX, ca.MX]:
-        """g = K(B; x) Delta + sum internal forces - F_B(theta), then the extra rows.
-
-        Returned in two parts: the base model's elastic force (zero on the extra rows)
-        and the rest, so that a linear base model's Jacobian can be the closed form.
-        The ``linear`` effects' forces are in neither (``_build`` adds them).
-        """
-        model = self.model
+    def _load(self, case: CaseData, thetas, n_state: int) -> ca.MX:
+        """-F_B(theta) of the case on the free points, stacked, then zero on the extra
+        rows: the declared load as the load effects change it, in turn (eq. 20)."""
         load = LoadState(np.asarray(case.force_vector, dtype=float))
-        x = ca.vertcat(*[symbols.values[n] for n in self.names])
-        base = self._base_force()(symbols.delta, x)
-        force = -ca.DM(case.force)
-        extra_rows = []
         for effect, theta in zip(self.effects, thetas):
-            load = effect.load(model, case, load, theta)
-            term = effect.internal_force(model, symbols, theta)
-            if term is not None:
-                force = force + term
-            rows = effect.extra_residual(model, symbols, theta)
-            if rows is not None:
-                extra_rows.append(ca.vec(rows))
-        change = load_change(model, case, load)
+            load = effect.load(self.model, case, load, theta)
+        force = -ca.DM(case.force)
+        change = load_change(self.model, case, load)
         if change is not None:
             force = force - change
-        rest = ca.vertcat(ca.vec(force), *extra_rows)
-        return ca.vertcat(ca.vec(base), ca.MX(rest.shape[0] - base.numel(), 1)), rest
+        return ca.vertcat(ca.vec(force), ca.MX(n_state - force.numel(), 1))
 
     def _observation(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
         """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``)."""
