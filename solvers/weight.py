@@ -181,12 +181,12 @@ def gcv_weight(
     With ``predict`` (and J formed: ``rank`` None), the search first follows eq. (I10'):
     from the estimate at the largest beta, the weight where the Gauss-Newton model's GCV
     is least, then the same from the estimate made there (warm-started from the nearest
-    one), until the predicted weight moves by no more than ``tolerance`` / 2 decades (one step
-    of the grid it is sought on). At a fixed
-    point the nonlinear GCV's slope is zero to Gauss-Newton's order. This skips the
-    decades where the map is constant (dof 1) and replaces the golden section; it takes
-    3-5 solves where the sweep below takes 12-16. If it does not settle in
-    ``PREDICTIONS`` solves, or GCV is least at the largest beta, the sweep decides.
+    one), until the predicted weight moves by no more than ``tolerance`` / 2 decades
+    (one step of the grid it is sought on). At a fixed point the nonlinear GCV's slope
+    is zero to Gauss-Newton's order. This skips the decades where the map is constant
+    (dof 1) and replaces the golden section: 2-4 solves where the sweep below takes
+    12-20 (docs/imaging.md). If it does not settle in ``PREDICTIONS`` solves, or GCV is
+    least at the largest beta, the sweep decides.
 
     The sweep: from the largest beta down a decade at a time (each solve warm-started
     from the last) until GCV has risen two decades in a row past its least value, or
