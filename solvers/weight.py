@@ -219,12 +219,12 @@ def gcv_weight(
             )
         return value
 
-    low, high = np.log10(bounds[0]), np.log10(bounds[1])
+    low, high = round(np.log10(bounds[0]), 6), round(np.log10(bounds[1]), 6)
     score(high, None)
     if predict and rank is None:
         settled = _predicted_minimum(fp, regularizer, found, score, (low, high), tolerance, log)
         best = min(found, key=lambda k: found[k][0])
-        if settled and best != round(high, 6):
+        if settled and best != high:
             return WeightChoice(found[best][1], n, True, path, "GCV minimum (predicted)", "gcv")
     t, start, rises = high, None, 0
     while t >= low - 1e-9:
@@ -236,10 +236,10 @@ def gcv_weight(
             break
         t -= 1.0
     best = min(found, key=lambda k: found[k][0])
-    if best in (round(high, 6), round(low, 6)):
+    if best in (high, low):
         note = (
             "GCV least at the largest weight: the data need no field"
-            if best == round(high, 6)
+            if best == high
             else "GCV least at the smallest weight searched"
         )
         return WeightChoice(found[best][1], n, False, path, note, "gcv")

@@ -112,9 +112,8 @@ class CaseFunctions:
     equilibrium : casadi.Function
         (s, p) -> g, the extended equilibrium (eq. 22) [N, and mm^3 for extra rows].
     newton : casadi.Function
-        (s, p) -> (g, dg/ds): the equilibrium and its sparse Jacobian (for a linear
-        base model its block is the closed-form K(x), the effects' by automatic
-        differentiation).
+        (s, p) -> (g, dg/ds): the equilibrium and its sparse Jacobian, given (the
+        model part's, ``ExtendedModel._model_part``; the load does not depend on s).
     residual : casadi.Function
         (s, p) -> r, the observation residual W (y(s, p) - Y), columns stacked [mm].
     sensitivity : casadi.Function
@@ -123,15 +122,7 @@ class CaseFunctions:
         Length of s.
     """
 
-    def __init__(
-        self,
-        s: ca.MX,
-        p: ca.MX,
-        g: ca.MX,
-        r: ca.MX,
-        dg_ds: ca.MX | None = None,
-        dg_dp: ca.MX | None = None,
-    ):
+    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX, dg_ds: ca.MX, dg_dp: ca.MX):
         self.s, self.p, self.g, self.r = s, p, g, r
         self.dg_ds, self.dg_dp = dg_ds, dg_dp
         self.n_state = int(s.numel())
@@ -148,11 +139,7 @@ class CaseFunctions:
 
     @property
     def newton(self) -> ca.Function:
-        def outputs():
-            jacobian = ca.jacobian(self.g, self.s) if self.dg_ds is None else self.dg_ds
-            return [self.g, jacobian]
-
-        return self._get("newton", outputs, ["g", "dg_ds"])
+        return self._get("newton", lambda: [self.g, self.dg_ds], ["g", "dg_ds"])
 
     @property
     def residual(self) -> ca.Function:
@@ -160,12 +147,11 @@ class CaseFunctions:
 
     @property
     def sensitivity(self) -> ca.Function:
-        s, p, g, r = self.s, self.p, self.g, self.r
-        dg_dp = self.dg_dp
+        s, p, r = self.s, self.p, self.r
         return self._get(
             "sensitivity",
             lambda: [
-                ca.jacobian(g, p) if dg_dp is None else dg_dp,
+                self.dg_dp,
                 r,
                 ca.jacobian(r, s),
                 ca.jacobian(r, p),
@@ -280,8 +266,7 @@ class ExtendedModel:
         load = self._load(self.cases[position], thetas, s.numel())
         g = h(s, p) + load
         r = self._observation(self.cases[position], symbols, thetas)
-        dg_ds = None if h_ds is None else h_ds(s, p)
-        return CaseFunctions(s, p, g, r, dg_ds, h_dp(s, p) + ca.jacobian(load, p))
+        return CaseFunctions(s, p, g, r, h_ds(s, p), h_dp(s, p) + ca.jacobian(load, p))
 
     def _model_part(self, position: int) -> tuple:
         """h(s, p) = K(B; x) Delta + the effects' internal forces and extra rows, with
@@ -289,8 +274,8 @@ class ExtendedModel:
 
         dh/ds is the base model's block in closed form (a linear model's K(x), one
         sparse product, or the numeric neo-Hookean tangent) plus the linear effects'
-        K_theta, AD doing the other effects; None when the base model has no tangent
-        (``CaseFunctions`` then differentiates g).
+        K_theta, AD doing the other effects; all of it by AD, once, when the base model
+        has no tangent (the D-NURBS K(B)).
         """
         per_case = any(e.per_case for e in self.effects)
         key = (
@@ -328,15 +313,15 @@ class ExtendedModel:
         else:
             tangent = self._base_tangent()
             stiffness = None if tangent is None else tangent(s[: 3 * n_free], x)
-        h_ds = None
-        if stiffness is not None:
+        if stiffness is None:
+            dh_ds = ca.jacobian(h, s)
+        else:
             if linear is not None:
                 stiffness = stiffness + linear[1](p)
             dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
-            h_ds = ca.Function("model_part_ds", [s, p], [dh_ds])
         made = (
             ca.Function("model_part", [s, p], [h]),
-            h_ds,
+            ca.Function("model_part_ds", [s, p], [dh_ds]),
             ca.Function("model_part_dp", [s, p], [ca.jacobian(h, p)]),
         )
         self._functions[key] = made
