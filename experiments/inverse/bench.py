@@ -365,13 +365,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
+        if args.out is not None:  # first: the grids' check imports the fitting stack
+            check_output_dir(args.out)
         grids = _grids(args.grids, "--grids")
         paper_grids = _grids(args.paper_grids, "--paper-grids")
         methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
         if not methods or set(methods) - {"simultaneous", "nested", "paper"}:
             raise UsageError(f"--methods takes simultaneous,nested,paper; got {args.methods!r}")
-        if args.out is not None:
-            check_output_dir(args.out)
         if args.diagnose:
             from experiments.diagnosis.study import diagnosis_timings
 
