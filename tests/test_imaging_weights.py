@@ -105,3 +105,37 @@ def test_gcv_sees_the_acceptance_disc_where_morozov_smooths_it_away():
     assert rules["gcv"]["all_ok"] >= 0.78  # measured 0.875
     assert rules["gcv"]["null_node_beyond_2_std"] <= 0.05  # measured 0.01
     assert rules["morozov"]["all_ok"] <= 0.50  # measured 0.37
+
+
+def test_the_oracle_press_adds_one_normal_press_at_the_disc_to_the_study_design():
+    from experiments.imaging.weightstudy import ORACLE_FORCE_N, study_cases
+    from experiments.phantom.fe import ReferenceSlab, design_cases
+
+    slab = ReferenceSlab(elements=(4, 4, 1))
+    forces, contacts = study_cases(slab)
+    plain_forces, plain_contacts = design_cases("diagnosis", slab)
+    assert np.array_equal(forces, plain_forces) and np.array_equal(contacts, plain_contacts)
+    more_forces, more_contacts = study_cases(slab, (-5.19, 14.62))
+    assert more_forces.shape == (len(forces) + 1, 3)
+    assert np.array_equal(more_forces[:-1], forces)
+    assert np.array_equal(more_contacts[:-1], contacts)
+    assert np.allclose(more_forces[-1], [0.0, 0.0, -ORACLE_FORCE_N])
+    assert np.allclose(more_contacts[-1], [-5.19, 14.62])
+
+
+def test_the_places_table_reads_each_place_from_its_own_study():
+    from experiments.imaging.weightstudy import nearest_press_mm, place_row, places_table
+
+    # the diagnosis design presses at the centre and at (+-8, +-8) mm
+    assert nearest_press_mm((8.0, 8.0)) == pytest.approx(0.0, abs=1e-9)
+    assert nearest_press_mm((-11.0, 0.0)) == pytest.approx(np.hypot(3.0, 8.0))
+    assert nearest_press_mm((-11.0, 0.0), oracle=True) == pytest.approx(0.0, abs=1e-9)
+    study = LinearStudy(toy_parts(np.random.default_rng(2)), (0.0, 0.0), np.logspace(-2, 4, 25))
+    result = monte_carlo(study, draws=10)
+    row = place_row(3, (1.234, -5.0), result)
+    best = max(r["all_ok"] for r in result["fixed_beta"])
+    assert row["best_fixed"]["all_ok"] == best
+    assert row["all_ok"]["gcv"] == result["rules"]["gcv"]["all_ok"]
+    assert row["signal_chi2"] == pytest.approx(result["signal_chi2"], abs=0.05)
+    table = places_table([row, row]).splitlines()
+    assert len(table) == 4 and table[2].startswith("| 3 | (1.23, -5.00) |")

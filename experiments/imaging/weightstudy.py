@@ -31,20 +31,39 @@ DIAMETER_MM = 8.0
 RATIO = 2.0
 BETAS = np.logspace(1.0, 9.0, 33)
 """The weights [mm^2] every draw is solved at: 4 per decade."""
+ORACLE_FORCE_N = 0.25
+"""The force [N] of ``--press-at-disc``'s extra press: the paper's larger force."""
 MARKED_HALF_MM = 20.0
 """Half the side of the marked area (9 x 9 markers over 40 mm)."""
 
 
-def inclusion_datasets(seed: int):
-    """(disc, none): the acceptance datasets of one draw, sharing the noise draw."""
-    from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
+def study_cases(slab, oracle=None) -> tuple[np.ndarray, np.ndarray]:
+    """Forces (K, 3) [N] and contacts (K, 2) [mm]: the 10-load diagnosis design, and with
+    ``oracle`` (x, y) [mm] an eleventh press there, ``ORACLE_FORCE_N`` along -z."""
+    from experiments.phantom.fe import design_cases
+
+    forces, contacts = design_cases("diagnosis", slab)
+    if oracle is None:
+        return forces, contacts
+    press = np.array([[0.0, 0.0, -ORACLE_FORCE_N]])
+    return np.vstack([forces, press]), np.vstack([contacts, np.asarray(oracle, dtype=float)])
+
+
+def inclusion_datasets(seed: int, press_at_disc: bool = False):
+    """(disc, none, centre): the acceptance datasets of one draw, sharing the noise draw.
+
+    ``press_at_disc`` adds an eleventh press, 0.25 N along the normal at the disc's true
+    centre, to the 10-load design: an oracle press, which says whether a miss at this
+    place is one of information (the design) or of the method.
+    """
+    from experiments.phantom.fe import ReferenceSlab, reference_dataset
     from experiments.phantom.simulate import SimulationSettings
 
     centre = np.random.default_rng(seed).uniform(-15.0, 15.0, size=2)
     made = []
     for inclusion in ((float(centre[0]), float(centre[1]), DIAMETER_MM, RATIO), None):
         slab = ReferenceSlab(elements=(24, 24, 4), inclusion=inclusion)
-        forces, contacts = design_cases("diagnosis", slab)
+        forces, contacts = study_cases(slab, centre if press_at_disc else None)
         measurement = SimulationSettings(noise_mm=0.02, seed=seed)
         made.append(reference_dataset(slab, forces, contacts, 4.0, (9, 9), measurement))
     return made[0], made[1], centre
@@ -262,9 +281,18 @@ def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
     parser = make_parser(
         prog, "Which weight rule sees the acceptance inclusion: a linearised Monte Carlo."
     )
-    parser.add_argument("--seed", type=int, default=7, help="the disc's draw (default: 7)")
+    parser.add_argument(
+        "--seed",
+        default="7",
+        help="the disc's draw, or a comma list of draws for the places table (default: 7)",
+    )
     parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
     parser.add_argument("--draws", type=int, default=200, help="noise draws (default: 200)")
+    parser.add_argument(
+        "--press-at-disc",
+        action="store_true",
+        help="add an 11th press (0.25 N, normal) at the disc's true centre: an oracle press",
+    )
     parser.add_argument(
         "--regularizer",
         choices=("h1", "tv"),
@@ -274,32 +302,90 @@ def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
     return parser
 
 
+def nearest_press_mm(centre, oracle: bool = False) -> float:
+    """Distance [mm] from ``centre`` (x, y) to the nearest contact of the study's design."""
+    from experiments.phantom.fe import ReferenceSlab
+
+    _, contacts = study_cases(ReferenceSlab(elements=(1, 1, 1)), centre if oracle else None)
+    return float(np.min(np.linalg.norm(contacts - np.asarray(centre), axis=1)))
+
+
+def place_row(seed: int, centre, result: dict, oracle: bool = False) -> dict:
+    """One place's line of the places table: where the disc is, its signal, and how often
+    each rule and the best fixed weight meet all three criteria."""
+    best = max(result["fixed_beta"], key=lambda row: row["all_ok"])
+    return {
+        "seed": seed,
+        "centre_mm": [round(float(c), 2) for c in centre],
+        "nearest_press_mm": round(nearest_press_mm(centre, oracle), 2),
+        "signal_chi2": round(result["signal_chi2"], 1),
+        "all_ok": {rule: row["all_ok"] for rule, row in result["rules"].items()},
+        "best_fixed": {"beta_mm2": best["beta_mm2"], "all_ok": best["all_ok"]},
+    }
+
+
+def places_table(rows: list[dict]) -> str:
+    """The places as a markdown table (docs/imaging.md, "At a random place")."""
+    rules = list(rows[0]["all_ok"])
+    head = "| seed | disc (x, y) [mm] | nearest press [mm] | signal chi^2 | "
+    head += " | ".join(rules) + " | best fixed weight [mm^2] |"
+    lines = [head, "|" + "---|" * (5 + len(rules))]
+    for row in rows:
+        x, y = row["centre_mm"]
+        rates = " | ".join(f"{row['all_ok'][rule]:.2f}" for rule in rules)
+        best = row["best_fixed"]
+        lines.append(
+            f"| {row['seed']} | ({x:.2f}, {y:.2f}) | {row['nearest_press_mm']:.1f} | "
+            f"{row['signal_chi2']:.1f} | {rates} | {best['all_ok']:.2f} at "
+            f"{best['beta_mm2']:.3g} |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> int:
-    """Print the rules' rates and the fixed weights' (``dvs imageweights``)."""
-    from experiments.options import UsageError, check_grid, parse_grid, run_guarded
+    """Print the rules' rates and the fixed weights' (``dvs imageweights``), for each
+    seed; for several, the places table at the end."""
+    from experiments.options import (
+        UsageError,
+        check_grid,
+        check_seed,
+        parse_grid,
+        parse_numbers,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
         if args.draws < 1:
             raise UsageError(f"--draws must be at least 1, got {args.draws}")
+        seeds = [check_seed(s) for s in parse_numbers(args.seed, "--seed", int)]
+        if not seeds:
+            raise UsageError("--seed takes one seed or a comma list of seeds, e.g. 7,8,9")
         grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
-        begin = time.perf_counter()
-        disc, none, centre = inclusion_datasets(args.seed)
-        print(f"disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
-        parts = linearise(disc, none, grid)
-        study = LinearStudy(parts, centre, regularizer=study_regularizer(parts, args.regularizer))
-        own = study.own_draw(parts["r0"])
-        result = monte_carlo(study, args.draws)
-        print("the dataset's own noise draw:", json.dumps(own))
-        print(json.dumps(result["rules"], indent=1))
-        for row in result["fixed_beta"][::2]:
-            print(
-                f"  beta {row['beta_mm2']:9.3g}: dof {row['dof']:6.1f}, median contrast "
-                f"{row['median_contrast']:.2f}, all criteria met {row['all_ok']:.2f}"
-            )
-        seconds = time.perf_counter() - begin
-        print(f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {seconds:.0f} s")
+        rows = []
+        for seed in seeds:
+            begin = time.perf_counter()
+            disc, none, centre = inclusion_datasets(seed, args.press_at_disc)
+            print(f"seed {seed}: disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
+            parts = linearise(disc, none, grid)
+            regularizer = study_regularizer(parts, args.regularizer)
+            study = LinearStudy(parts, centre, regularizer=regularizer)
+            own = study.own_draw(parts["r0"])
+            result = monte_carlo(study, args.draws)
+            print("the dataset's own noise draw:", json.dumps(own))
+            print(json.dumps(result["rules"], indent=1))
+            for row in result["fixed_beta"][::2]:
+                print(
+                    f"  beta {row['beta_mm2']:9.3g}: dof {row['dof']:6.1f}, median contrast "
+                    f"{row['median_contrast']:.2f}, all criteria met {row['all_ok']:.2f}"
+                )
+            seconds = time.perf_counter() - begin
+            print(f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {seconds:.0f} s")
+            rows.append(place_row(seed, centre, result, args.press_at_disc))
+        if len(rows) > 1:
+            print("\nall three criteria met, fraction of the draws:")
+            print(places_table(rows))
         return 0
 
     return run_guarded(prog, work)
