@@ -233,12 +233,18 @@ class ExtendedProblem:
         return np.where(self.log, np.log(np.maximum(p, 1e-300)), p / self.scale)
 
     def to_natural(self, z: np.ndarray) -> np.ndarray:
-        """p from z."""
-        return np.where(self.log, np.exp(z), z * self.scale)
+        """p from z (exp only of the log entries: an effect's z may be large)."""
+        z = np.asarray(z, dtype=float)
+        p = z * self.scale
+        p[self.log] = np.exp(z[self.log])
+        return p
 
     def natural_derivative(self, z: np.ndarray) -> np.ndarray:
         """dp/dz, elementwise."""
-        return np.where(self.log, np.exp(z), self.scale)
+        z = np.asarray(z, dtype=float)
+        derivative = np.array(self.scale, dtype=float)
+        derivative[self.log] = np.exp(z[self.log])
+        return derivative
 
     def functions(self, position: int):
         """The CasADi Functions of the case at ``position`` (``library.CaseFunctions``)."""
