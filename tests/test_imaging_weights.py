@@ -124,12 +124,21 @@ def test_the_oracle_press_adds_one_normal_press_at_the_disc_to_the_study_design(
 
 
 def test_the_places_table_reads_each_place_from_its_own_study():
-    from experiments.imaging.weightstudy import nearest_press_mm, place_row, places_table
+    from experiments.imaging.weightstudy import (
+        nearest_press_mm,
+        oracle_contact,
+        place_row,
+        places_table,
+    )
 
     # the diagnosis design presses at the centre and at (+-8, +-8) mm
     assert nearest_press_mm((8.0, 8.0)) == pytest.approx(0.0, abs=1e-9)
     assert nearest_press_mm((-11.0, 0.0)) == pytest.approx(np.hypot(3.0, 8.0))
-    assert nearest_press_mm((-11.0, 0.0), oracle=True) == pytest.approx(0.0, abs=1e-9)
+    assert nearest_press_mm((-11.0, 0.0), oracle_mm=0.0) == pytest.approx(0.0, abs=1e-9)
+    # 5 mm towards the centre from (-11, 0): (-6, 0), nearer than the design's presses
+    assert nearest_press_mm((-11.0, 0.0), oracle_mm=5.0) == pytest.approx(5.0)
+    assert np.allclose(oracle_contact((3.0, 4.0), 5.0), 0.0)
+    assert np.allclose(oracle_contact((3.0, 4.0), 2.5), (1.5, 2.0))
     study = LinearStudy(toy_parts(np.random.default_rng(2)), (0.0, 0.0), np.logspace(-2, 4, 25))
     result = monte_carlo(study, draws=10)
     row = place_row(3, (1.234, -5.0), result)

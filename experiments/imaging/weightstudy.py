@@ -32,9 +32,17 @@ RATIO = 2.0
 BETAS = np.logspace(1.0, 9.0, 33)
 """The weights [mm^2] every draw is solved at: 4 per decade."""
 ORACLE_FORCE_N = 0.25
-"""The force [N] of ``--press-at-disc``'s extra press: the paper's larger force."""
+"""The force [N] of ``--oracle-press``'s extra press: the paper's larger force."""
 MARKED_HALF_MM = 20.0
 """Half the side of the marked area (9 x 9 markers over 40 mm)."""
+
+
+def oracle_contact(centre, offset_mm: float) -> np.ndarray:
+    """The oracle press's contact (x, y) [mm]: ``offset_mm`` from the disc's centre
+    towards the patch's centre (0: on the disc)."""
+    centre = np.asarray(centre, dtype=float)
+    length = float(np.linalg.norm(centre))
+    return centre if length < 1e-12 else centre * (1.0 - min(offset_mm / length, 1.0))
 
 
 def study_cases(slab, oracle=None) -> tuple[np.ndarray, np.ndarray]:
@@ -49,12 +57,13 @@ def study_cases(slab, oracle=None) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack([forces, press]), np.vstack([contacts, np.asarray(oracle, dtype=float)])
 
 
-def inclusion_datasets(seed: int, press_at_disc: bool = False):
+def inclusion_datasets(seed: int, oracle_mm: float | None = None):
     """(disc, none, centre): the acceptance datasets of one draw, sharing the noise draw.
 
-    ``press_at_disc`` adds an eleventh press, 0.25 N along the normal at the disc's true
-    centre, to the 10-load design: an oracle press, which says whether a miss at this
-    place is one of information (the design) or of the method.
+    ``oracle_mm`` adds an eleventh press, 0.25 N along the normal, ``oracle_mm`` from the
+    disc's true centre towards the patch's centre (``oracle_contact``), to the 10-load
+    design: an oracle press, which says whether a miss at this place is one of
+    information (the design) or of the method.
     """
     from experiments.phantom.fe import ReferenceSlab, reference_dataset
     from experiments.phantom.simulate import SimulationSettings
@@ -63,7 +72,8 @@ def inclusion_datasets(seed: int, press_at_disc: bool = False):
     made = []
     for inclusion in ((float(centre[0]), float(centre[1]), DIAMETER_MM, RATIO), None):
         slab = ReferenceSlab(elements=(24, 24, 4), inclusion=inclusion)
-        forces, contacts = study_cases(slab, centre if press_at_disc else None)
+        oracle = None if oracle_mm is None else oracle_contact(centre, oracle_mm)
+        forces, contacts = study_cases(slab, oracle)
         measurement = SimulationSettings(noise_mm=0.02, seed=seed)
         made.append(reference_dataset(slab, forces, contacts, 4.0, (9, 9), measurement))
     return made[0], made[1], centre
@@ -289,9 +299,11 @@ def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
     parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
     parser.add_argument("--draws", type=int, default=200, help="noise draws (default: 200)")
     parser.add_argument(
-        "--press-at-disc",
-        action="store_true",
-        help="add an 11th press (0.25 N, normal) at the disc's true centre: an oracle press",
+        "--oracle-press",
+        type=float,
+        metavar="MM",
+        help="add an 11th press (0.25 N, normal) MM from the disc's true centre towards the "
+        "patch's centre (0: on the disc): an oracle press",
     )
     parser.add_argument(
         "--regularizer",
@@ -302,22 +314,23 @@ def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
     return parser
 
 
-def nearest_press_mm(centre, oracle: bool = False) -> float:
+def nearest_press_mm(centre, oracle_mm: float | None = None) -> float:
     """Distance [mm] from ``centre`` (x, y) to the nearest contact of the study's design."""
     from experiments.phantom.fe import ReferenceSlab
 
-    _, contacts = study_cases(ReferenceSlab(elements=(1, 1, 1)), centre if oracle else None)
+    oracle = None if oracle_mm is None else oracle_contact(centre, oracle_mm)
+    _, contacts = study_cases(ReferenceSlab(elements=(1, 1, 1)), oracle)
     return float(np.min(np.linalg.norm(contacts - np.asarray(centre), axis=1)))
 
 
-def place_row(seed: int, centre, result: dict, oracle: bool = False) -> dict:
+def place_row(seed: int, centre, result: dict, oracle_mm: float | None = None) -> dict:
     """One place's line of the places table: where the disc is, its signal, and how often
     each rule and the best fixed weight meet all three criteria."""
     best = max(result["fixed_beta"], key=lambda row: row["all_ok"])
     return {
         "seed": seed,
         "centre_mm": [round(float(c), 2) for c in centre],
-        "nearest_press_mm": round(nearest_press_mm(centre, oracle), 2),
+        "nearest_press_mm": round(nearest_press_mm(centre, oracle_mm), 2),
         "signal_chi2": round(result["signal_chi2"], 1),
         "all_ok": {rule: row["all_ok"] for rule, row in result["rules"].items()},
         "best_fixed": {"beta_mm2": best["beta_mm2"], "all_ok": best["all_ok"]},
@@ -359,6 +372,8 @@ def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> 
     def work() -> int:
         if args.draws < 1:
             raise UsageError(f"--draws must be at least 1, got {args.draws}")
+        if args.oracle_press is not None and not 0.0 <= args.oracle_press <= 30.0:
+            raise UsageError(f"--oracle-press must be 0 to 30 mm, got {args.oracle_press}")
         seeds = [check_seed(s) for s in parse_numbers(args.seed, "--seed", int)]
         if not seeds:
             raise UsageError("--seed takes one seed or a comma list of seeds, e.g. 7,8,9")
@@ -366,7 +381,7 @@ def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> 
         rows = []
         for seed in seeds:
             begin = time.perf_counter()
-            disc, none, centre = inclusion_datasets(seed, args.press_at_disc)
+            disc, none, centre = inclusion_datasets(seed, args.oracle_press)
             print(f"seed {seed}: disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
             parts = linearise(disc, none, grid)
             regularizer = study_regularizer(parts, args.regularizer)
@@ -382,7 +397,7 @@ def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> 
                 )
             seconds = time.perf_counter() - begin
             print(f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {seconds:.0f} s")
-            rows.append(place_row(seed, centre, result, args.press_at_disc))
+            rows.append(place_row(seed, centre, result, args.oracle_press))
         if len(rows) > 1:
             print("\nall three criteria met, fraction of the draws:")
             print(places_table(rows))
