@@ -17,7 +17,9 @@ criteria: the peak within 3 mm, the contrast within 30 % of 2, and 90 % of the n
 over the markers within 2 std of the truth. Linear, without model error: a rule that
 fails here fails on the full problem too.
 
-Usage: ``dvs imageweights --seed 7 --grid 23x23x4 --draws 200``.
+Usage: ``dvs imageweights --seed 7 --grid 23x23x4 --draws 200``; with a comma list of
+seeds (``--seed 7,8,9``) it ends with the places table (docs/imaging.md, "At a random
+place"), and ``--oracle-press MM`` adds one press near the disc.
 """
 
 from __future__ import annotations
@@ -69,10 +71,10 @@ def inclusion_datasets(seed: int, oracle_mm: float | None = None):
     from experiments.phantom.simulate import SimulationSettings
 
     centre = np.random.default_rng(seed).uniform(-15.0, 15.0, size=2)
+    oracle = None if oracle_mm is None else oracle_contact(centre, oracle_mm)
     made = []
     for inclusion in ((float(centre[0]), float(centre[1]), DIAMETER_MM, RATIO), None):
         slab = ReferenceSlab(elements=(24, 24, 4), inclusion=inclusion)
-        oracle = None if oracle_mm is None else oracle_contact(centre, oracle_mm)
         forces, contacts = study_cases(slab, oracle)
         measurement = SimulationSettings(noise_mm=0.02, seed=seed)
         made.append(reference_dataset(slab, forces, contacts, 4.0, (9, 9), measurement))
