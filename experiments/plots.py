@@ -60,8 +60,14 @@ def plot_deformation(volume: VolumeSpline, deformed: np.ndarray, path, title: st
     plt.close(fig)
 
 
-def residual_panel(ax, case, error: np.ndarray, top: float, title: str = "", size: int = 70):
-    """One map of marker residuals [um] on the rest skin; returns the scatter for a colorbar."""
+def residual_panel(
+    ax, case, error: np.ndarray, top: float, title: str = "", size: int = 70, compact=False
+):
+    """One map of marker residuals [um] on the rest skin; returns the scatter for a colorbar.
+
+    ``compact``: a two-line title in small type and no axis labels (the caller labels
+    the outer panels of a grid).
+    """
     image = ax.scatter(
         case.rest_points[:, 0],
         case.rest_points[:, 1],
@@ -72,6 +78,11 @@ def residual_panel(ax, case, error: np.ndarray, top: float, title: str = "", siz
         vmax=top,
     )
     rms = np.sqrt(np.mean(error**2)) * 1e3
+    if compact:
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+        ax.set_title(f"{case.label}\nRMS {rms:.0f}, max {error.max() * 1e3:.0f} um", fontsize=8)
+        return image
     heading = f"{title}\n" if title else ""
     ax.set(
         xlabel="x [mm]",

@@ -19,6 +19,7 @@ from volumes import curved_volume
 
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.continuum import (
+    PhysicalGradient,
     body_force_vector,
     box_volume,
     elasticity_matrices,
@@ -45,6 +46,23 @@ def test_lame_round_trip():
     mu_l, lam = lame(20.0, 0.45)
     assert young_poisson(mu_l, lam) == pytest.approx((20.0, 0.45), rel=1e-12)
     assert mu_l == pytest.approx(0.02 / 2.9)
+
+
+@pytest.mark.parametrize(
+    "field", [None, lambda p: 1.0 + p[:, 0] * p[:, 1], lambda p: np.where(p[:, 0] < 0.3, 1.0, 0.0)]
+)
+def test_block_assembly_equals_the_gram_of_the_strain_rows(field):
+    """K_mu, K_lambda from the nine scalar blocks G_ab equal 2 int eps:eps and
+    int (div u)^2 assembled row by row (``PhysicalGradient.gram``), also under a field
+    and a local field."""
+    gradient = PhysicalGradient.of(curved_volume())
+    blocks = gradient.elasticity(field)
+    rows = {
+        "shear": gradient.gram(gradient.strain(), 2.0, field),
+        "volumetric": gradient.gram([gradient.divergence()], 1.0, field),
+    }
+    for name, reference in rows.items():
+        assert abs(blocks[name] - reference).max() <= 1e-14 * abs(reference).max()
 
 
 @pytest.mark.parametrize("volume", [box_volume((10, 8, 3), (5, 4, 3), (2, 2, 2)), curved_volume()])

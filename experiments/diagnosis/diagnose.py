@@ -111,8 +111,14 @@ def _design_text(document: dict) -> str:
     )
 
 
+PANELS_PER_ROW = 5
+"""Cases per row of the residual figure."""
+
+
 def plot_residuals(diagnosis, path: Path) -> None:
-    """Marker residual maps of the base model (left) and the final model (right), per case."""
+    """Marker residual maps of the base model (top block) and the final model (bottom
+    block), one small panel per case, at most ``PANELS_PER_ROW`` to a row, one colour
+    scale for all."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -123,17 +129,26 @@ def plot_residuals(diagnosis, path: Path) -> None:
 
     first, last = diagnosis.steps[0].fit, diagnosis.steps[-1].fit
     cases = first.problem.cases
-    fig, axes = plt.subplots(
-        len(cases), 2, figsize=(10, 4.4 * len(cases)), squeeze=False, layout="constrained"
-    )
+    columns = min(len(cases), PANELS_PER_ROW)
+    rows = -(-len(cases) // columns)
+    fig = plt.figure(figsize=(1.0 + 2.3 * columns, 0.8 + 2 * (0.5 + 2.3 * rows)))
     maps = [first.problem.point_errors(first.residual), last.problem.point_errors(last.residual)]
     top = max(float(e.max()) for errors in maps for e in errors) * 1e3
     titles = ("base model", " + ".join(diagnosis.selected) or "base model (nothing added)")
-    for column, (errors, title) in enumerate(zip(maps, titles)):
-        for row, (case, error) in enumerate(zip(cases, errors)):
-            image = residual_panel(axes[row, column], case, error, top, title, size=60)
-    fig.colorbar(image, ax=axes.ravel().tolist(), label="marker residual [um]")
-    atomic_savefig(fig, path, dpi=110)
+    for block, model, errors, title in zip(fig.subfigures(2, 1), (first, last), maps, titles):
+        axes = block.subplots(rows, columns, squeeze=False, sharex=True, sharey=True)
+        for ax in axes.ravel()[len(cases) :]:
+            ax.set_visible(False)
+        for ax, case, error in zip(axes.ravel(), cases, errors):
+            image = residual_panel(ax, case, error, top, size=14, compact=True)
+        for ax in axes[:, 0]:
+            ax.set_ylabel("y [mm]")
+        for ax in axes[-1]:
+            ax.set_xlabel("x [mm]")
+        rms, _ = model.rms()
+        block.suptitle(f"{title}: RMS {rms * 1e3:.1f} um over all cases")
+        block.colorbar(image, ax=axes.ravel().tolist(), label="residual [um]", shrink=0.9)
+    atomic_savefig(fig, path, dpi=90)
     plt.close(fig)
 
 

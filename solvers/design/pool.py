@@ -174,7 +174,9 @@ class InformationPool:
     @staticmethod
     def _effect_columns(problem, x, effect: Effect, magnitude: float, states, factors):
         """Stacked d r / d theta at theta = 0, and r at theta_1 (eq. D2), of every press."""
-        extended, p, starts, jacobian = extended_linearisation(problem, x, states, factors, effect)
+        extended, p, starts, jacobian = extended_linearisation(
+            problem, x, states, factors, effect, candidate_only=True
+        )
         block = extended.slice_of(effect.name)
         value = np.asarray(magnitude, dtype=float)
         p[block] = value if value.ndim else effect.true_parameters(float(value), 1)

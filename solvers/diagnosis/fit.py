@@ -45,6 +45,9 @@ class EffectFit:
     prior : numpy.ndarray, optional
         The rows P of the effects' priors (``ExtendedProblem.prior_matrix``), whose
         |P p|^2 the fit added to |rho|^2; None without priors.
+    raw_jacobian : numpy.ndarray, optional
+        dr/dp before whitening (natural units): the left-out predictions
+        (``solvers.diagnosis.guard``) whiten its rows with their own cases' noise.
     """
 
     problem: ExtendedProblem
@@ -60,6 +63,7 @@ class EffectFit:
     wall_time_s: float = 0.0
     state_jacobians: list = field(default_factory=list)
     prior: np.ndarray | None = None
+    raw_jacobian: np.ndarray | None = None
 
     @property
     def cost(self) -> float:
@@ -208,4 +212,5 @@ def fit(
         wall_time_s=time.perf_counter() - begin,
         state_jacobians=state_jacobians,
         prior=prior,
+        raw_jacobian=jac,
     )

@@ -14,6 +14,11 @@ load cases, so Cov(r) = sigma^2 (I + P P^T). Residuals and Jacobians are whitene
 with W = (I + P P^T)^-1/2 (closed form, ``solvers.noise``): rho = W r has
 covariance sigma^2 I under pure noise.
 
+A model linear in the state (``ExtendedModel.linear_state``) takes the linear path
+instead (``solvers.diagnosis.linear``): one factorisation of the shared stiffness per
+parameter value, every case and sensitivity solved with it. Newton stays the path of
+the nonlinear bases.
+
 The base solvers stay untouched; ``solvers.diagnosis.fit.fit`` is the generic
 nested least squares over any subset of p (scipy trf, exact Jacobian).
 """
@@ -24,9 +29,9 @@ from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from solvers.componentwise import ORDERING
+from solvers.diagnosis import linear
+from solvers.diagnosis.linear import StateJacobian
 from solvers.diagnosis.numeric import NumericFunction
 from solvers.equilibrium import EquilibriumError
 from solvers.noise import Whitening, rest_noise_map
@@ -84,20 +89,6 @@ class SharedCache(dict):
             _, keys = self._sets.popitem(last=False)
             for old in keys:
                 super().pop(old, None)
-
-
-class StateJacobian:
-    """dg/ds of one case (sparse) with its LU factors, computed on first use."""
-
-    def __init__(self, matrix: sp.spmatrix):
-        self.matrix = sp.csc_matrix(matrix)
-        self._lu = None
-
-    def solve(self, right: np.ndarray) -> np.ndarray:
-        """(dg/ds)^-1 right."""
-        if self._lu is None:
-            self._lu = spla.splu(self.matrix, **ORDERING)
-        return self._lu.solve(right)
 
 
 def _dense(value) -> np.ndarray:
@@ -263,11 +254,58 @@ class ExtendedProblem:
     # ------------------------------------------------------------- evaluation
     def numeric(self, position: int, name: str) -> NumericFunction:
         """A Function of the case at ``position`` wrapped for fast numeric calls."""
-        function = getattr(self.functions(position), name)
+        return self.numeric_of(getattr(self.functions(position), name))
+
+    def numeric_of(self, function) -> NumericFunction:
+        """``function`` (of this effect set) wrapped for fast numeric calls, kept in the
+        shared store with the set."""
         key = ("functions", self.extended.effect_set, "numeric", id(function))
         if key not in self.cache:
             self.cache[key] = (function, NumericFunction(function))
         return self.cache[key][1]
+
+    linear_path = True
+    """Take the linear path where ``linear_state`` allows (False: Newton per case, the
+    reference the tests hold it against)."""
+
+    @property
+    def linear_state(self) -> bool:
+        """True when every case shares one dg/ds that depends on p alone (the linear path)."""
+        return self.linear_path and self.extended.linear_state
+
+    def stiffness_factor(self, p: np.ndarray) -> StateJacobian:
+        """The factorisation of the shared K(p) of a model linear in the state.
+
+        Kept for the last p of each effect set; a K equal entry by entry to the last one
+        factorised (of any set: a candidate at theta = 0, a refit on fewer cases) reuses
+        its factors.
+        """
+        p = np.asarray(p, dtype=float)
+        key = ("functions", self.extended.effect_set, "stiffness_factor")
+        entry = self.cache.get(key)
+        if entry is not None and np.array_equal(entry[0], p):
+            return entry[1]
+        parts = self.extended.linear_parts()
+        matrix = sp.csc_matrix(self.numeric_of(parts.stiffness)(p)[0])
+        last = self.cache.get("last_state_jacobian")
+        factor = last if last is not None and last.same_as(matrix) else StateJacobian(matrix)
+        self.cache["last_state_jacobian"] = factor
+        self.cache[key] = (p.copy(), factor)
+        return factor
+
+    def linearise_all(
+        self, p: np.ndarray, states: list, factor: StateJacobian | None = None, columns=None
+    ):
+        """Stacked r and dr/dp of every case at solved states (linear path only).
+
+        ``factor`` is the factorisation of K(p) when the caller has it (default: made);
+        ``columns`` limits the solve to those entries of p (the others stay zero).
+        """
+        factor = self.stiffness_factor(p) if factor is None else factor
+        residuals, jacobians = linear.linearise(
+            self, p, np.column_stack(states), factor, columns=columns
+        )
+        return np.concatenate(residuals), np.vstack(jacobians)
 
     def solve_state(self, position: int, p: np.ndarray, start=None, tolerance=1e-10):
         """Newton on g(s, p) = 0 for one case; returns the state and its ``StateJacobian``.
@@ -311,13 +349,7 @@ class ExtendedProblem:
         """
         matrix = sp.csc_matrix(matrix)
         last = self.cache.get("last_state_jacobian")
-        if (
-            last is not None
-            and last.matrix.shape == matrix.shape
-            and np.array_equal(last.matrix.indptr, matrix.indptr)
-            and np.array_equal(last.matrix.indices, matrix.indices)
-            and np.array_equal(last.matrix.data, matrix.data)
-        ):
+        if last is not None and last.same_as(matrix):
             return last
         jacobian = StateJacobian(matrix)
         self.cache["last_state_jacobian"] = jacobian
@@ -339,6 +371,17 @@ class ExtendedProblem:
 
     def evaluate_full(self, p: np.ndarray, starts=None):
         """As ``evaluate``, plus the sparse dg/ds of every case."""
+        if self.linear_state:
+            factor = self.stiffness_factor(p)
+            states = linear.equilibria(self, p, factor)
+            residuals, jacobians = linear.linearise(self, p, states, factor)
+            columns = [states[:, k].copy() for k in range(states.shape[1])]
+            return (
+                np.concatenate(residuals),
+                np.vstack(jacobians),
+                columns,
+                [factor] * len(columns),
+            )
         starts = starts or [None] * len(self.positions)
         residuals, jacobians, states, state_jacobians = [], [], [], []
         for position in range(len(self.positions)):
@@ -352,6 +395,14 @@ class ExtendedProblem:
 
     def residual(self, p: np.ndarray, starts=None) -> np.ndarray:
         """Stacked raw residual r(p) alone: the equilibria, no sensitivities."""
+        if self.linear_state:
+            states = linear.equilibria(self, p, self.stiffness_factor(p))
+            return np.concatenate(
+                [
+                    np.ravel(_dense(self.numeric(k, "residual")(states[:, k], p)))
+                    for k in range(states.shape[1])
+                ]
+            )
         starts = starts or [None] * len(self.positions)
         residuals = []
         for position in range(len(self.positions)):

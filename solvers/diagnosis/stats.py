@@ -125,12 +125,18 @@ def robust_sigma(fit: EffectFit) -> float:
     return float(1.4826 * np.median(np.abs(fit.whitened)))
 
 
-def extended_linearisation(problem, p, states, state_jacobians, candidate: Effect):
+def extended_linearisation(
+    problem, p, states, state_jacobians, candidate: Effect, candidate_only: bool = False
+):
     """``problem`` with ``candidate`` added, linearised at theta = 0 from solved states.
+
+    With ``candidate_only`` the linear path solves for the candidate's columns alone
+    and leaves the others zero (at theta = 0 they are the fitted problem's own).
 
     Costs one sensitivity evaluation per load case and one sparse LU where the
     candidate adds state (its new state starts at 0 and stays there); otherwise the
-    cases' own ``state_jacobians`` serve.
+    cases' own ``state_jacobians`` serve. On the linear path the cases share one
+    factorisation and one multi-column solve (``solvers.diagnosis.linear``).
 
     Returns
     -------
@@ -140,12 +146,18 @@ def extended_linearisation(problem, p, states, state_jacobians, candidate: Effec
     """
     extended = problem.with_effects(problem.effects + [candidate])
     p = np.concatenate([p, np.zeros(len(extended.labels) - len(p))])
-    padded, jacobians = [], []
-    for position, state in enumerate(states):
-        n_state = extended.functions(position).n_state
-        state_jacobian = state_jacobians[position] if n_state == state.size else None
-        padded.append(np.concatenate([state, np.zeros(n_state - state.size)]))
-        jacobians.append(extended.linearise(position, p, padded[-1], state_jacobian)[1])
+    n_state = extended.functions(0).n_state
+    padded = [np.concatenate([state, np.zeros(n_state - state.size)]) for state in states]
+    same = [n_state == state.size for state in states]
+    if extended.linear_state:  # one multi-column solve for every case (the linear path)
+        factor = state_jacobians[0] if all(same) else None
+        block = extended.slice_of(candidate.name)
+        columns = np.arange(block.start, block.stop) if candidate_only else None
+        return extended, p, padded, extended.linearise_all(p, padded, factor, columns)[1]
+    jacobians = []
+    for position, state in enumerate(padded):
+        state_jacobian = state_jacobians[position] if same[position] else None
+        jacobians.append(extended.linearise(position, p, state, state_jacobian)[1])
     return extended, p, padded, np.vstack(jacobians)
 
 
@@ -155,9 +167,12 @@ def candidate_jacobian(fit: EffectFit, candidate: Effect):
     The state at phi = 0 is the fitted one (``extended_linearisation``).
     """
     problem, p, _, jacobian = extended_linearisation(
-        fit.problem, fit.p, fit.states, fit.state_jacobians, candidate
+        fit.problem, fit.p, fit.states, fit.state_jacobians, candidate, candidate_only=True
     )
-    return problem, p, problem.whiten(jacobian)
+    whitened = problem.whiten(jacobian)
+    if problem.linear_state:  # the fitted columns are the fit's own (theta = 0)
+        whitened[:, : fit.p.size] = fit.jacobian
+    return problem, p, whitened
 
 
 def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:

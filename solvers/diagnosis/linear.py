@@ -1,0 +1,137 @@
+"""The linear path: every load case and every sensitivity from one factorisation per p.
+
+For a model linear in the state (``symbolic.effects.library.ExtendedModel.linear_state``:
+the linear-elastic base, the paper's base at k0 = 0, and every effect that enters the
+stiffness, the load or the observation linearly) the extended equilibrium (MODEL.md
+eq. 22) of load case k is
+
+    g_k(s, p) = K(p) s + h_0(p) - F_k(p),
+
+with one stiffness K = dh/ds for all cases. Then, with one factorisation of K(p),
+
+    s_k = -K^-1 (h_0 - F_k)                                 (all cases: one solve),
+    ds_k/dp = -K^-1 (dK/dp s_k + dh_0/dp - dF_k/dp)         (one solve, n n_p columns),
+    dr_k/dp = dr_k/ds ds_k/dp + dr_k/dp|_s                  (implicit function theorem).
+
+The numbers come from one CasADi call for K, one for dh/dp at all the states (a mapped
+Function: dK/dp s_k + dh_0/dp) and, per case, the small load and observation Functions: no Newton
+iteration (the solve is exact; one step of iterative refinement restores the last
+digits), no per-case stiffness, no comparison of per-case matrices.
+
+``StateJacobian`` is the factorisation every path shares: SuperLU with a symmetric
+ordering (``solvers.componentwise.ORDERING``; the measured alternatives are in
+docs/inverse.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from solvers.componentwise import ORDERING
+
+REFINE = 1e-12
+"""Relative equilibrium residual |K s - b| / |b| above which one refinement step runs."""
+
+
+class StateJacobian:
+    """dg/ds (sparse) with its LU factors, computed on first use.
+
+    Parameters
+    ----------
+    matrix : scipy.sparse matrix
+        dg/ds, square.
+    """
+
+    def __init__(self, matrix: sp.spmatrix):
+        self.matrix = sp.csc_matrix(matrix)
+        self._lu = None
+
+    def solve(self, right: np.ndarray) -> np.ndarray:
+        """(dg/ds)^-1 right, for one right-hand side or the columns of a matrix."""
+        if self._lu is None:
+            self._lu = spla.splu(self.matrix, **ORDERING)
+        return self._lu.solve(np.asarray(right, dtype=float))
+
+    def same_as(self, matrix: sp.csc_matrix) -> bool:
+        """True when ``matrix`` has this one's pattern and values, entry by entry."""
+        mine = self.matrix
+        return (
+            mine.shape == matrix.shape
+            and np.array_equal(mine.indptr, matrix.indptr)
+            and np.array_equal(mine.indices, matrix.indices)
+            and np.array_equal(mine.data, matrix.data)
+        )
+
+
+def _dense(value) -> np.ndarray:
+    return value.toarray() if sp.issparse(value) else np.asarray(value)
+
+
+def solve_states(factor: StateJacobian, right: np.ndarray) -> np.ndarray:
+    """K^-1 right for the columns of ``right`` (n_state, n), refined once if needed."""
+    states = factor.solve(right)
+    defect = right - factor.matrix @ states
+    scale = max(float(np.abs(right).max()), 1e-300)
+    if float(np.abs(defect).max()) > REFINE * scale:
+        states = states + factor.solve(defect)
+    return states
+
+
+def equilibria(problem, p: np.ndarray, factor: StateJacobian) -> np.ndarray:
+    """The states of every case at p, (n_state, n_cases), from one solve."""
+    parts = problem.extended.linear_parts()
+    offset = np.ravel(_dense(problem.numeric_of(parts.offset)(p)[0]))
+    loads = [
+        np.ravel(_dense(problem.numeric(k, "load")(p)[0])) for k in range(len(problem.positions))
+    ]
+    return solve_states(factor, -(np.column_stack(loads) + offset[:, None]))
+
+
+def linearise(problem, p: np.ndarray, states: np.ndarray, factor: StateJacobian, columns=None):
+    """r and exact dr/dp of every case at solved states, from one multi-column solve.
+
+    Parameters
+    ----------
+    problem : ExtendedProblem
+        A problem whose ``extended.linear_state`` is true.
+    p : numpy.ndarray
+        Parameters (natural units).
+    states : numpy.ndarray
+        Solved states, (n_state, n_cases).
+    factor : StateJacobian
+        The factorisation of K(p).
+    columns : array of int, optional
+        The entries of p whose sensitivities are solved (default all); the others'
+        columns of dr/dp are zero.
+
+    Returns
+    -------
+    tuple
+        Per case, the raw residual r_k and dr_k/dp (dense).
+    """
+    n_cases, n_p = len(problem.positions), p.size
+    parts = problem.extended.linear_parts()
+    dh_dp = _dense(problem.numeric_of(parts.force_dp)(states, p)[0])
+    dg_dp = np.hstack(
+        [
+            dh_dp[:, k * n_p : (k + 1) * n_p] + _dense(problem.numeric(k, "load")(p)[1])
+            for k in range(n_cases)
+        ]
+    )
+    sensitivity = np.zeros_like(dg_dp)
+    wanted = np.ones(n_p, dtype=bool)
+    if columns is not None:
+        wanted[:] = False
+        wanted[np.asarray(columns, dtype=int)] = True
+    moving = np.flatnonzero(np.any(dg_dp != 0.0, axis=0) & np.tile(wanted, n_cases))
+    if moving.size:  # a parameter that moves no state (a per-case measurement) is unsolved
+        sensitivity[:, moving] = -factor.solve(dg_dp[:, moving])
+    residuals, jacobians = [], []
+    for k in range(n_cases):
+        r, dr_ds, dr_dp = problem.numeric(k, "observation")(states[:, k], p)
+        block = sensitivity[:, k * n_p : (k + 1) * n_p]
+        residuals.append(np.ravel(_dense(r)))
+        jacobians.append(dr_ds @ block + _dense(dr_dp) * wanted)
+    return residuals, jacobians

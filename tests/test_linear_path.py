@@ -1,0 +1,163 @@
+"""The linear path (one factorisation per p for every case) against Newton per case.
+
+``solvers.diagnosis.linear`` replaces, for a model linear in the state, the per-case
+Newton solve and sensitivity of ``ExtendedProblem``; these tests hold its residuals,
+Jacobians, score statistics and left-out predictions against that reference, on the
+paper's energy and on a continuum with data from scikit-fem.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+import solvers.diagnosis.linear as linear
+from experiments.diagnosis.diagnose import BASE_NAMES, base_settings
+from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
+from experiments.phantom.fe import ReferenceSlab, SlabSolution, design_cases, reference_dataset
+from experiments.phantom.simulate import simulate_with_effects
+from solvers.diagnosis import guard
+from solvers.diagnosis.fit import fit
+from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.stats import score_test
+from symbolic.effects.library import ALL_EFFECT_NAMES, effect_library
+
+EFFECT_SETS = (
+    (),
+    ("heterogeneity",),
+    ("rigid_motion", "force_direction"),
+    ("base_compliance",),
+    ("contact_patch", "surrounding_tissue", "contact_offset"),
+    ("pre_tension", "measurement_scale"),
+)
+"""Stiffness, per-case measurement, extra state, load and observation effects."""
+
+
+@pytest.fixture(scope="module")
+def paper():
+    """Paper's energy at k0 = 0, diagnosis design (five contacts, ten cases)."""
+    options = {"contacts": DIAGNOSIS_CONTACTS, "tilt_deg": DIAGNOSIS_TILT_DEG}
+    dataset = simulate_with_effects({}, seed=5, **options)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    return problem, fit(problem), effect_library(ALL_EFFECT_NAMES)
+
+
+@pytest.fixture(scope="module")
+def continuum():
+    """The linear-elastic continuum on scikit-fem data of another mesh (diagnosis design)."""
+    slab = ReferenceSlab(elements=(12, 12, 2))
+    forces, contacts = design_cases("diagnosis", slab)
+    dataset = reference_dataset(slab, forces, contacts, 4.0, solver=SlabSolution(slab))
+    base = build_problem(dataset, base_settings(energy="linear-elastic"))
+    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
+    return problem, fit(problem), effect_library(ALL_EFFECT_NAMES, energy="linear-elastic")
+
+
+def _point(problem: ExtendedProblem, base_p: np.ndarray) -> np.ndarray:
+    """x from the base fit, every theta a third of its scale (alternating signs)."""
+    theta = problem.scale[base_p.size :] / 3.0
+    theta = theta * np.where(np.arange(theta.size) % 2, -1.0, 1.0)
+    return np.clip(np.concatenate([base_p, theta]), problem.lower, problem.upper)
+
+
+def _newton(problem: ExtendedProblem) -> ExtendedProblem:
+    """The same problem on the reference path (Newton and a sensitivity per case)."""
+    reference = problem.with_effects(problem.effects)
+    reference.linear_path = False
+    return reference
+
+
+@pytest.mark.parametrize("setting_name", ["paper", "continuum"])
+@pytest.mark.parametrize("names", EFFECT_SETS, ids=lambda n: "+".join(n) or "base")
+def test_linear_path_equals_newton_per_case(request, setting_name, names):
+    """r, dr/dp, the states and r alone agree with the Newton path to 1e-10."""
+    problem, base_fit, library = request.getfixturevalue(setting_name)
+    chosen = [library[n] for n in names if n in library]
+    extended = problem.with_effects(chosen)
+    assert extended.linear_state
+    p = _point(extended, base_fit.p)
+    r, jacobian, states = extended.evaluate(p)
+    r_ref, jacobian_ref, states_ref = _newton(extended).evaluate(p)
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-10 * np.abs(r_ref).max())
+    scale = np.abs(jacobian_ref).max(axis=0) + 1e-300
+    np.testing.assert_allclose(jacobian / scale, jacobian_ref / scale, rtol=0, atol=1e-10)
+    for state, reference in zip(states, states_ref):
+        np.testing.assert_allclose(state, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+    np.testing.assert_allclose(extended.residual(p), r, rtol=0, atol=1e-12 * np.abs(r).max())
+
+
+def test_a_nonlinear_effect_or_energy_keeps_newton(paper):
+    """k0 > 0 makes dg/ds depend on the state: no shared factorisation."""
+    problem, _, library = paper
+    assert problem.linear_state
+    assert not problem.with_effects([library["nonlinear_stiffening"]]).linear_state
+
+
+def test_one_factorisation_serves_every_case_and_sensitivity(continuum, monkeypatch):
+    """One evaluation with sensitivities of ten cases: one LU, where Newton made one per
+    distinct matrix and solved case by case."""
+    problem, base_fit, library = continuum
+    extended = problem.with_effects([library["heterogeneity"], library["rigid_motion"]])
+    calls = []
+    original = spla.splu
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(linear.spla, "splu", counted)
+    p = _point(extended, base_fit.p)
+    extended.evaluate(p)
+    assert len(calls) == 1
+    extended.evaluate(p)  # the same p: the factorisation is kept
+    assert len(calls) == 1
+    assert len(extended.positions) == 10
+
+
+@pytest.mark.parametrize("setting_name", ["paper", "continuum"])
+def test_score_statistics_equal_newtons(request, setting_name):
+    """Every candidate's score statistic and step, from the fit's columns plus the
+    candidate's own, equal those of the full Newton linearisation."""
+    problem, base_fit, library = request.getfixturevalue(setting_name)
+    reference_fit = fit(_newton(problem))
+    for name, effect in library.items():
+        if name == "nonlinear_stiffening" or not effect.energies:
+            continue
+        test = score_test(base_fit, effect, base_fit.problem.sigma or 0.02)
+        expected = score_test(reference_fit, effect, base_fit.problem.sigma or 0.02)
+        assert test.dof == expected.dof, name
+        assert test.statistic == pytest.approx(expected.statistic, rel=1e-7, abs=1e-8), name
+        np.testing.assert_allclose(test.step, expected.step, rtol=1e-6, atol=1e-12)
+
+
+@pytest.mark.parametrize("effect", ["heterogeneity", "contact_offset", "rigid_motion"])
+def test_linearised_guard_agrees_with_refits(paper, effect):
+    """The left-out predictions by one Gauss-Newton step from the full fits give the
+    refits' improvement to 1 %, or to well inside CLEAR_MARGIN near zero: where the
+    linearised improvement decides, the refits would decide the same."""
+    problem, base_fit, library = paper
+    new = fit(problem.with_effects([library[effect]]))
+    sigma = 0.02
+    approximate = guard._check(base_fit, new, sigma, {}, guard.linearised_left_out, "linearised")
+    exact = guard._check(base_fit, new, sigma, {}, guard.predict_left_out, "exact")
+    assert len(approximate.held_out) == 5  # one fold per contact
+    error = abs(approximate.improvement - exact.improvement)
+    assert error <= max(0.01 * abs(exact.improvement), 0.3 * guard.CLEAR_MARGIN), effect
+    if abs(approximate.improvement) >= guard.CLEAR_MARGIN:
+        assert approximate.improves == exact.improves
+    assert approximate.nuisance_after == exact.nuisance_after
+
+
+def test_guard_falls_back_to_refits_near_zero(paper, monkeypatch):
+    """A linearised improvement within CLEAR_MARGIN of zero is decided by refits."""
+    problem, base_fit, library = paper
+    new = fit(problem.with_effects([library["contact_offset"]]))
+    monkeypatch.setattr(guard, "CLEAR_MARGIN", 1e9)
+    check = guard.prediction_check(base_fit, new, 0.02)
+    assert check.method == "exact"
+    assert check.linearised_improvement is not None
+    monkeypatch.setattr(guard, "CLEAR_MARGIN", 0.0)
+    assert guard.prediction_check(base_fit, new, 0.02).method == "linearised"
