@@ -27,6 +27,7 @@ slow: $(STAMP)
 
 bench: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
+	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench --diagnose
 	$(BIN)/dvs boardbench
 	$(BIN)/dvs imagebench
 

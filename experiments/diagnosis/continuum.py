@@ -78,6 +78,70 @@ def scenario_dataset(name: str, study: ContinuumStudy, solvers: dict | None = No
     )
 
 
+def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
+    """``dvs diagnose`` on a saved dataset at the study's grid, timed whole (build, loop,
+    figure and outputs), with one factorisation of its K timed in the same process (the
+    "x floor" unit) and the process's peak memory. Meant for a fresh process
+    (``experiments.inverse.bench.isolated``).
+    """
+    import resource
+    import tempfile
+
+    from experiments.dataset import load_dataset
+    from experiments.diagnosis.diagnose import base_settings, run
+    from experiments.fitting import build_problem
+    from solvers.diagnosis.linear import StateJacobian
+
+    settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
+    with tempfile.TemporaryDirectory() as out:
+        begin = time.perf_counter()
+        document = run(path, Path(out), log=lambda *_: None, base=settings)
+        wall = time.perf_counter() - begin
+    stiffness = build_problem(load_dataset(path), settings).model.stiffness_matrix()
+    factorisations = []
+    for _ in range(3):
+        begin = time.perf_counter()
+        StateJacobian(stiffness).solve(np.ones(stiffness.shape[0]))
+        factorisations.append(time.perf_counter() - begin)
+    return {
+        "wall_s": wall,
+        "factorisation_s": float(np.median(factorisations)),
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "selected": list(document["selected"]),
+        "unexplained": bool(document["unexplained"]),
+        "stiffness_nonzeros": int(stiffness.nnz),
+    }
+
+
+def diagnosis_benchmark(scenario: str = "tilted_force", log=print) -> dict:
+    """The loop-speed row of ``make bench``: ``timed_diagnosis`` at 27 x 27 x 4 (degrees
+    3 x 3 x 2, 10 mm margin) on a 10-load scikit-fem dataset with one hidden effect.
+
+    Targets (the loop-speed issue): <= 60 s, <= 40 factorisations' worth, <= 3 GB.
+    """
+    import tempfile
+
+    from experiments.dataset import save_dataset
+    from experiments.inverse.bench import isolated
+
+    study = ContinuumStudy()
+    with tempfile.TemporaryDirectory() as folder:
+        path = str(Path(folder) / f"{scenario}.npz")
+        save_dataset(path, scenario_dataset(scenario, study))
+        row = isolated(timed_diagnosis, path, study)
+    row["scenario"] = scenario
+    floor = row["wall_s"] / row["factorisation_s"]
+    log(
+        f"diagnose, scikit-fem slab with {scenario}, 10 loads, 27x27x4 (3x3x2, 10 mm margin; "
+        f"K {row['stiffness_nonzeros'] / 1e6:.2f} M nonzeros): {row['wall_s']:.1f} s "
+        f"(target 60 s, {'met' if row['wall_s'] <= 60 else 'MISSED'}), one factorisation "
+        f"{row['factorisation_s']:.2f} s, x floor {floor:.0f} (target 40, "
+        f"{'met' if floor <= 40 else 'MISSED'}), peak {row['peak_mb']:.0f} MB (target 3072, "
+        f"{'met' if row['peak_mb'] <= 3072 else 'MISSED'}); selected {row['selected']}"
+    )
+    return row
+
+
 def run_scenario(name: str, study: ContinuumStudy, solvers=None, log=None) -> dict:
     """Diagnose one scenario; the row of the table."""
     from experiments.diagnosis.diagnose import base_settings, diagnose_dataset

@@ -339,7 +339,9 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
     parser.add_argument("--methods", default="simultaneous,nested", help="inverse methods")
     parser.add_argument("--out", type=path_argument, default=None, help="also write DIR/bench.json")
     parser.add_argument(
-        "--diagnose", action="store_true", help="only time dvs diagnose on 10-load data (60 s)"
+        "--diagnose",
+        action="store_true",
+        help="only time dvs diagnose on 10-load data (9x9x2, and the continuum at 27x27x4)",
     )
     return parser
 
@@ -373,9 +375,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
         if not methods or set(methods) - {"simultaneous", "nested", "paper"}:
             raise UsageError(f"--methods takes simultaneous,nested,paper; got {args.methods!r}")
         if args.diagnose:
+            from experiments.diagnosis.continuum import diagnosis_benchmark
             from experiments.diagnosis.study import diagnosis_timings
 
             diagnosis_timings()
+            diagnosis_benchmark()
             return 0
         print("Forward model (build = TissueModel + residual and Jacobian Functions)", flush=True)
         forward = [isolated(_forward_job, grid, args.k0) for grid in GRIDS]

@@ -377,7 +377,8 @@ class ExtendedModel:
         K_theta, AD doing the other effects; all of it by AD, once, when the base model
         has no tangent (the D-NURBS K(B)).
         """
-        per_case = any(e.per_case for e in self.effects)
+        # a per-case effect outside h (a measurement) leaves it the same for every case
+        per_case = any(e.per_case and enters_model_part(e) for e in self.effects)
         key = (
             "functions",
             self.effect_set,
@@ -415,15 +416,20 @@ class ExtendedModel:
             stiffness = None if tangent is None else tangent(s[: 3 * n_free], x)
         if stiffness is None:
             dh_ds = ca.jacobian(h, s)
+            state_free = not ca.depends_on(dh_ds, s)
         else:
             if linear is not None:
                 stiffness = stiffness + linear[1](p)
-            dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
+            rest_ds = ca.jacobian(rest, s)
+            dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + rest_ds
+            # a linear base's K(x) and the linear effects' K_theta are free of s by
+            # construction; only the other effects' part needs the (costly) check
+            state_free = model.is_linear(self.names) and not ca.depends_on(rest_ds, s)
         made = (
             ca.Function("model_part", [s, p], [h]),
             ca.Function("model_part_ds", [s, p], [dh_ds]),
             ca.Function("model_part_dp", [s, p], [ca.jacobian(h, p)]),
-            not ca.depends_on(dh_ds, s),
+            state_free,
         )
         self._functions[key] = made
         return made
