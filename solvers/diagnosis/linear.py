@@ -79,14 +79,55 @@ def solve_states(factor: StateJacobian, right: np.ndarray) -> np.ndarray:
     return states
 
 
+def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
+    """K(p) = dh/ds: sum_t c_t(p) K_t from the unit terms where the effect set has them
+    (``ExtendedModel.stiffness_terms``), else one call of the CasADi stiffness."""
+    terms = problem.extended.stiffness_terms()
+    if terms is None:
+        parts = problem.extended.linear_parts()
+        return sp.csc_matrix(problem.numeric_of(parts.stiffness)(p)[0])
+    c = np.ravel(_dense(problem.numeric_of(terms.coefficients)(p)[0]))
+    total = sum(value * matrix for value, matrix in zip(c, terms.matrices) if value != 0.0)
+    if np.isscalar(total):  # every coefficient zero
+        total = 0.0 * terms.matrices[0]
+    return sp.csc_matrix(total)
+
+
+def _case(problem, k: int, name: str):
+    """The numeric load or observation Function of case k (``ExtendedModel.case_parts``)."""
+    return problem.numeric_of(getattr(problem.extended.case_parts(k), name))
+
+
 def equilibria(problem, p: np.ndarray, factor: StateJacobian) -> np.ndarray:
     """The states of every case at p, (n_state, n_cases), from one solve."""
-    parts = problem.extended.linear_parts()
-    offset = np.ravel(_dense(problem.numeric_of(parts.offset)(p)[0]))
     loads = [
-        np.ravel(_dense(problem.numeric(k, "load")(p)[0])) for k in range(len(problem.positions))
+        np.ravel(_dense(_case(problem, k, "load")(p)[0])) for k in range(len(problem.positions))
     ]
-    return solve_states(factor, -(np.column_stack(loads) + offset[:, None]))
+    right = -np.column_stack(loads)
+    if problem.extended.stiffness_terms() is None:  # h(0, p) of the effects' other rows
+        parts = problem.extended.linear_parts()
+        right = right - np.ravel(_dense(problem.numeric_of(parts.offset)(p)[0]))[:, None]
+    return solve_states(factor, right)
+
+
+def force_derivatives(problem, p: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """dh/dp at every state, (n_state, n_cases n_p), case by case side by side.
+
+    With unit terms, dh/dp_j s_k = sum_t dc_t/dp_j K_t s_k: one sparse product per term
+    whose coefficient depends on p; otherwise the mapped CasADi dh/dp.
+    """
+    terms = problem.extended.stiffness_terms()
+    if terms is None:
+        parts = problem.extended.linear_parts()
+        return _dense(problem.numeric_of(parts.force_dp)(states, p)[0])
+    slope = _dense(problem.numeric_of(terms.coefficients)(p)[1])  # (T, n_p)
+    n_state, n_cases = states.shape
+    out = np.zeros((n_state, n_cases, p.size))
+    for t in np.flatnonzero(np.any(slope != 0.0, axis=1)):
+        product = terms.matrices[t] @ states  # (n_state, n_cases)
+        columns = np.flatnonzero(slope[t])
+        out[:, :, columns] += product[:, :, None] * slope[t, columns]
+    return out.reshape(n_state, n_cases * p.size)
 
 
 def linearise(problem, p: np.ndarray, states: np.ndarray, factor: StateJacobian, columns=None):
@@ -112,11 +153,10 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor: StateJacobian,
         Per case, the raw residual r_k and dr_k/dp (dense).
     """
     n_cases, n_p = len(problem.positions), p.size
-    parts = problem.extended.linear_parts()
-    dh_dp = _dense(problem.numeric_of(parts.force_dp)(states, p)[0])
+    dh_dp = force_derivatives(problem, p, states)
     dg_dp = np.hstack(
         [
-            dh_dp[:, k * n_p : (k + 1) * n_p] + _dense(problem.numeric(k, "load")(p)[1])
+            dh_dp[:, k * n_p : (k + 1) * n_p] + _dense(_case(problem, k, "load")(p)[1])
             for k in range(n_cases)
         ]
     )
@@ -130,7 +170,7 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor: StateJacobian,
         sensitivity[:, moving] = -factor.solve(dg_dp[:, moving])
     residuals, jacobians = [], []
     for k in range(n_cases):
-        r, dr_ds, dr_dp = problem.numeric(k, "observation")(states[:, k], p)
+        r, dr_ds, dr_dp = _case(problem, k, "observation")(states[:, k], p)
         block = sensitivity[:, k * n_p : (k + 1) * n_p]
         residuals.append(np.ravel(_dense(r)))
         jacobians.append(dr_ds @ block + _dense(dr_dp) * wanted)

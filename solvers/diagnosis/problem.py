@@ -285,8 +285,7 @@ class ExtendedProblem:
         entry = self.cache.get(key)
         if entry is not None and np.array_equal(entry[0], p):
             return entry[1]
-        parts = self.extended.linear_parts()
-        matrix = sp.csc_matrix(self.numeric_of(parts.stiffness)(p)[0])
+        matrix = linear.stiffness_matrix(self, p)
         last = self.cache.get("last_state_jacobian")
         factor = last if last is not None and last.same_as(matrix) else StateJacobian(matrix)
         self.cache["last_state_jacobian"] = factor
@@ -397,11 +396,12 @@ class ExtendedProblem:
         """Stacked raw residual r(p) alone: the equilibria, no sensitivities."""
         if self.linear_state:
             states = linear.equilibria(self, p, self.stiffness_factor(p))
+            observe = [
+                self.numeric_of(self.extended.case_parts(k).observation)
+                for k in range(states.shape[1])
+            ]
             return np.concatenate(
-                [
-                    np.ravel(_dense(self.numeric(k, "residual")(states[:, k], p)))
-                    for k in range(states.shape[1])
-                ]
+                [np.ravel(_dense(f(states[:, k], p)[0])) for k, f in enumerate(observe)]
             )
         starts = starts or [None] * len(self.positions)
         residuals = []

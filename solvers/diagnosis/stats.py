@@ -146,7 +146,7 @@ def extended_linearisation(
     """
     extended = problem.with_effects(problem.effects + [candidate])
     p = np.concatenate([p, np.zeros(len(extended.labels) - len(p))])
-    n_state = extended.functions(0).n_state
+    n_state = extended.extended.n_state
     padded = [np.concatenate([state, np.zeros(n_state - state.size)]) for state in states]
     same = [n_state == state.size for state in states]
     if extended.linear_state:  # one multi-column solve for every case (the linear path)

@@ -239,6 +239,17 @@ class Effect:
         """
         raise NotImplementedError(f"{self.name} is not linear in the state")
 
+    def stiffness_terms(self, model: TissueModel) -> list[sp.spmatrix]:
+        """The unit matrices K_t of a ``linear`` effect, on the free points, stacked
+        (3 n_free)-square, with ``stiffness`` = sum_t c_t K_t for the coefficients c of
+        ``stiffness_coefficients``: the numeric form of the linear path
+        (``solvers.diagnosis.linear``), which never builds K_theta in CasADi."""
+        raise NotImplementedError(f"{self.name} gives no unit stiffness terms")
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        """c_t(x, theta), one per ``stiffness_terms`` entry, (T, 1) [as K_theta / K_t]."""
+        raise NotImplementedError(f"{self.name} gives no unit stiffness terms")
+
     def extra_residual(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
         """Equilibrium rows of the extra state, (k, 3)."""
         return None

@@ -170,10 +170,16 @@ class SurroundingTissue(Effect):
 
         return self.cached(model, "M_L", build)
 
+    def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
+        return self.cached(
+            model, "terms", lambda: [componentwise(model.free_block(self.matrix(model)))]
+        )
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        return theta[0]
+
     def stiffness(self, model: TissueModel, values: dict, theta):
         block = self.cached(
-            model,
-            "M_L_free",
-            lambda: to_casadi_sparse(componentwise(model.free_block(self.matrix(model)))),
+            model, "M_L_free", lambda: to_casadi_sparse(self.stiffness_terms(model)[0])
         )
         return theta[0] * block

@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from symbolic.effects.base import Effect
-from symbolic.effects.stiffness import field_stiffness, scaled_stiffness
+from symbolic.effects.stiffness import FieldStiffness
 from symbolic.field import StiffnessField, tissue_lengths
 from symbolic.model import TissueModel
 
@@ -50,7 +50,7 @@ MEAN_PIN = 1e3
 stiffness is the base model's E (or alpha), not the field's."""
 
 
-class StiffnessFieldEffect(Effect):
+class StiffnessFieldEffect(FieldStiffness, Effect):
     """Every stiffness times 1 + s(u, v) of eq. (F1), with the prior of eq. (F2).
 
     Parameters
@@ -83,15 +83,12 @@ class StiffnessFieldEffect(Effect):
         spot = np.argmin(np.linalg.norm(nodes - [1.0 / 3.0, 2.0 / 3.0], axis=1))
         return tuple(float(k == spot) for k in range(self.field.size))
 
-    def stiffness(self, model: TissueModel, values: dict, theta):
-        def build():
-            shapes = [
-                lambda p, k=k: self.field.collocation(p)[:, k].toarray().ravel()
-                for k in range(self.field.size)
-            ]
-            return field_stiffness(model, shapes)
-
-        return scaled_stiffness(model, values, theta, self.cached(model, "blocks", build))
+    def shapes(self, model: TissueModel):
+        """The field's basis functions phi_k as callables of parameter points."""
+        return [
+            lambda p, k=k: self.field.collocation(p)[:, k].toarray().ravel()
+            for k in range(self.field.size)
+        ]
 
     def prior(self, model: TissueModel) -> np.ndarray:
         """R with R^T R = Q of eq. (F2), and the mean's row, (N + 1, N) [1]."""

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 
 from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState, apply_stacked
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
@@ -120,28 +121,13 @@ class CaseFunctions:
         (s, p) -> r, the observation residual W (y(s, p) - Y), columns stacked [mm].
     sensitivity : casadi.Function
         (s, p) -> (dg/dp, r, dr/ds, dr/dp) for the implicit-function Jacobian.
-    load : casadi.Function
-        p -> (-F_B(p), -dF_B/dp): the case's part of g and of dg/dp (no state, no
-        stiffness), for the shared linear path (``ExtendedModel.linear_parts``).
-    observation : casadi.Function
-        (s, p) -> (r, dr/ds, dr/dp): the observation and its derivatives alone.
     n_state : int
         Length of s.
     """
 
-    def __init__(
-        self,
-        s: ca.MX,
-        p: ca.MX,
-        g: ca.MX,
-        r: ca.MX,
-        dg_ds: ca.MX,
-        dg_dp: ca.MX,
-        load: ca.MX | None = None,
-    ):
+    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX, dg_ds: ca.MX, dg_dp: ca.MX):
         self.s, self.p, self.g, self.r = s, p, g, r
         self.dg_ds, self.dg_dp = dg_ds, dg_dp
-        self.load_expression = load
         self.n_state = int(s.numel())
         self._built: dict[str, ca.Function] = {}
 
@@ -161,24 +147,6 @@ class CaseFunctions:
     @property
     def residual(self) -> ca.Function:
         return self._get("r", lambda: [self.r], ["r"])
-
-    @property
-    def load(self) -> ca.Function:
-        if "load" not in self._built:
-            load = self.load_expression
-            self._built["load"] = ca.Function(
-                "load", [self.p], [load, ca.jacobian(load, self.p)], ["p"], ["g0", "dg0_dp"]
-            )
-        return self._built["load"]
-
-    @property
-    def observation(self) -> ca.Function:
-        s, p, r = self.s, self.p, self.r
-        return self._get(
-            "observation",
-            lambda: [r, ca.jacobian(r, s), ca.jacobian(r, p)],
-            ["r", "dr_ds", "dr_dp"],
-        )
 
     @property
     def sensitivity(self) -> ca.Function:
@@ -226,6 +194,40 @@ def enters_model_part(effect: Effect) -> bool:
     kind = type(effect)
     hooks = ("internal_force", "extra_residual", "extra_points")
     return effect.linear or any(getattr(kind, h) is not getattr(Effect, h) for h in hooks)
+
+
+@dataclass(frozen=True)
+class CaseParts:
+    """The Functions of one load case on the linear path: its load and its observation,
+    without the model part (``ExtendedModel.case_parts``).
+
+    Attributes
+    ----------
+    load : casadi.Function
+        p -> (-F_B(p), -dF_B/dp): the case's part of g and of dg/dp [N].
+    observation : casadi.Function
+        (s, p) -> (r, dr/ds, dr/dp): the observation residual and its derivatives [mm].
+    """
+
+    load: ca.Function
+    observation: ca.Function
+
+
+@dataclass(frozen=True)
+class StiffnessTerms:
+    """K(p) = sum_t c_t(p) K_t of a model linear in the state whose every contribution to
+    h is a unit term: the base model's (eq. 11-18 or C3) and the ``linear`` effects'.
+
+    Attributes
+    ----------
+    matrices : list of scipy.sparse matrices
+        K_t on the free points, stacked, (3 n_free)-square [N/mm per unit c_t].
+    coefficients : casadi.Function
+        p -> (c(p), dc/dp), (T, 1) and (T, n_p): the only symbolic part.
+    """
+
+    matrices: list
+    coefficients: ca.Function
 
 
 class ExtendedModel:
@@ -314,7 +316,66 @@ class ExtendedModel:
         """
         if any(e.per_case and enters_model_part(e) for e in self.effects):
             return False
-        return bool(self._model_part(0)[3])
+        return self.stiffness_terms() is not None or bool(self._model_part(0)[3])
+
+    def stiffness_terms(self) -> StiffnessTerms | None:
+        """K(p) as unit terms, or None unless the base model is linear and every effect
+        that enters h is ``linear`` (and the same for all cases): then the linear path
+        needs no CasADi graph of the stiffness at all (``solvers.diagnosis.linear``).
+        Built once per effect set.
+        """
+        model = self.model
+        inside = [e for e in self.effects if enters_model_part(e)]
+        if not model.is_linear(self.names) or any(not e.linear or e.per_case for e in inside):
+            return None
+        key = ("functions", self.effect_set, "stiffness_terms", tuple(self.labels))
+        if key not in self._functions:
+            x, base, names = model.linear_terms(self.names)
+            p = ca.MX.sym("p", self.n_parameters)
+            values = dict(model.parameters)
+            values.update({name: p[i] for i, name in enumerate(self.names)})
+            base_coefficients = ca.Function("c", [x], [base])(p[: len(self.names)])
+            coefficients = [base_coefficients]
+            matrices = [sp.csr_matrix(model.free_term(t, "kron")) for t in names]
+            for effect in inside:
+                coefficients.append(
+                    effect.stiffness_coefficients(model, values, p[self.slices[effect.name]])
+                )
+                matrices += [sp.csr_matrix(m) for m in effect.stiffness_terms(model)]
+            c = ca.vertcat(*coefficients)
+            self._functions[key] = StiffnessTerms(
+                matrices, ca.Function("coefficients", [p], [c, ca.jacobian(c, p)])
+            )
+        return self._functions[key]
+
+    def case_parts(self, position: int) -> CaseParts:
+        """The load and observation Functions of one case (no model part; built once)."""
+        per_case = any(e.per_case for e in self.effects)
+        key = (
+            "functions",
+            self.effect_set,
+            "case_parts",
+            id(self.cases[position]),
+            position if per_case else 0,
+            tuple(self.labels),
+        )
+        if key not in self._functions:
+            s, p, symbols, thetas = self._symbols(position)
+            load = self._load(self.cases[position], thetas, s.numel())
+            r = self._observation(self.cases[position], symbols, thetas)
+            self._functions[key] = CaseParts(
+                load=ca.Function("load", [p], [load, ca.jacobian(load, p)]),
+                observation=ca.Function(
+                    "observation", [s, p], [r, ca.jacobian(r, s), ca.jacobian(r, p)]
+                ),
+            )
+        return self._functions[key]
+
+    @property
+    def n_state(self) -> int:
+        """Length of s: the free points' displacements and the effects' extra state."""
+        extra = sum(e.extra_points(self.model) for e in self.effects)
+        return 3 * (self.model.n_free + extra)
 
     def linear_parts(self) -> LinearParts | None:
         """The shared Functions of the linear path, or None when ``linear_state`` is false.
@@ -365,7 +426,7 @@ class ExtendedModel:
         load = self._load(self.cases[position], thetas, s.numel())
         g = h(s, p) + load
         r = self._observation(self.cases[position], symbols, thetas)
-        return CaseFunctions(s, p, g, r, h_ds(s, p), h_dp(s, p) + ca.jacobian(load, p), load)
+        return CaseFunctions(s, p, g, r, h_ds(s, p), h_dp(s, p) + ca.jacobian(load, p))
 
     def _model_part(self, position: int) -> tuple:
         """h(s, p) = K(B; x) Delta + the effects' internal forces and extra rows, with

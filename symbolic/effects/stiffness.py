@@ -86,28 +86,52 @@ def weighted_stiffness(model: TissueModel, shapes) -> list[list[sp.csr_matrix]]:
     return out
 
 
-def scaled_stiffness(model: TissueModel, values: dict, theta, blocks) -> ca.MX:
-    """sum_j theta_j sum_t coefficient_t K_jt for the blocks of ``weighted_stiffness``
-    (coefficients: the alpha on the paper's model, the Lame pair on the continuum).
-
-    ``blocks`` is their ``combination`` (flattened j-major): one sparse product, so a
-    Function evaluating it holds U and one result in its work, not a partial sum per (j, t).
-    """
+def scaled_coefficients(model: TissueModel, values: dict, theta, n_fields: int) -> ca.MX:
+    """theta_j coefficient_t for every (field j, term t), j-major: the coefficients of the
+    flattened ``weighted_stiffness`` (the alpha on the paper's model, the Lame pair on the
+    continuum)."""
     if model.energy != "dnurbs":
         coefficients = model.coefficients(values)
     else:
         coefficients = tuple(values[term] for term in ALPHA_TERMS)
-    n_fields = blocks[1].size2() // len(coefficients)
-    products = [theta[j] * c for j in range(n_fields) for c in coefficients]
-    return combined(blocks, ca.vertcat(*products))
+    return ca.vertcat(*[theta[j] * c for j in range(n_fields) for c in coefficients])
 
 
-def field_stiffness(model: TissueModel, shapes) -> tuple[ca.Sparsity, ca.DM]:
-    """The ``combination`` of ``weighted_stiffness`` for ``scaled_stiffness``."""
-    return combination([block for terms in weighted_stiffness(model, shapes) for block in terms])
+def scaled_stiffness(model: TissueModel, values: dict, theta, blocks) -> ca.MX:
+    """sum_j theta_j sum_t coefficient_t K_jt for the blocks of ``weighted_stiffness``.
+
+    ``blocks`` is their ``combination`` (flattened j-major): one sparse product, so a
+    Function evaluating it holds U and one result in its work, not a partial sum per (j, t).
+    """
+    n_terms = 2 if model.energy != "dnurbs" else len(ALPHA_TERMS)
+    n_fields = blocks[1].size2() // n_terms
+    return combined(blocks, scaled_coefficients(model, values, theta, n_fields))
 
 
-class Heterogeneity(Effect):
+class FieldStiffness:
+    """A stiffness effect over fields: its unit terms are ``weighted_stiffness`` of the
+    fields ``shapes(model)``, flattened j-major, and its K_theta their ``combination``
+    with ``scaled_coefficients`` (each made once per model). A mixin of ``Effect``."""
+
+    def terms(self, model: TissueModel) -> list[sp.csr_matrix]:
+        return self.cached(
+            model,
+            "terms",
+            lambda: [b for terms in weighted_stiffness(model, self.shapes(model)) for b in terms],
+        )
+
+    def stiffness(self, model: TissueModel, values: dict, theta):
+        blocks = self.cached(model, "blocks", lambda: combination(self.terms(model)))
+        return scaled_stiffness(model, values, theta, blocks)
+
+    def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
+        return self.terms(model)
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        return scaled_coefficients(model, values, theta, self.dim)
+
+
+class Heterogeneity(FieldStiffness, Effect):
     """alpha_i(u, v) = alpha_i (1 + h_u (2u-1) + h_v (2v-1) + h_uv (2u-1)(2v-1)), eq. (18).
 
     K gains sum_j h_j sum_i alpha_i integral f_j J_i^T J_i (``weighted_gram`` with
@@ -131,9 +155,8 @@ class Heterogeneity(Effect):
     def direction(self):
         return (1.0, -0.5, 0.0)
 
-    def stiffness(self, model: TissueModel, values: dict, theta):
-        blocks = self.cached(model, "blocks", lambda: field_stiffness(model, _bilinear_fields()))
-        return scaled_stiffness(model, values, theta, blocks)
+    def shapes(self, model: TissueModel):
+        return _bilinear_fields()
 
 
 class Bending(Effect):
@@ -155,12 +178,21 @@ class Bending(Effect):
     equation = "beta integral sum_{i<=j} |d_ij V|^2 (eq. 18)"
     energies = ("dnurbs",)
 
-    def stiffness(self, model: TissueModel, values: dict, theta):
+    def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
         def build():
             total = sum(m for t, m in model.terms.items() if t.startswith("beta_"))
-            return to_casadi_sparse(componentwise(model.free_block(total)))
+            return [componentwise(model.free_block(total))]
 
-        return theta[0] * self.cached(model, "K_beta", build)
+        return self.cached(model, "terms", build)
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        return theta[0]
+
+    def stiffness(self, model: TissueModel, values: dict, theta):
+        block = self.cached(
+            model, "K_beta", lambda: to_casadi_sparse(self.stiffness_terms(model)[0])
+        )
+        return theta[0] * block
 
 
 class StackedStiffness(Effect):
@@ -172,11 +204,15 @@ class StackedStiffness(Effect):
 
     linear = True
 
+    def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
+        return self.cached(model, "terms", lambda: [stacked_free_block(model, self.matrix(model))])
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        return theta[0]
+
     def stiffness(self, model: TissueModel, values: dict, theta):
         block = self.cached(
-            model,
-            "free_block",
-            lambda: to_casadi_sparse(stacked_free_block(model, self.matrix(model))),
+            model, "free_block", lambda: to_casadi_sparse(self.stiffness_terms(model)[0])
         )
         return theta[0] * block
 
