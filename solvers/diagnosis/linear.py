@@ -1,24 +1,26 @@
 """The linear path: every load case and every sensitivity from one factorisation per p.
 
-For a model linear in the state (``symbolic.effects.library.ExtendedModel.linear_state``:
-the linear-elastic base, the paper's base at k0 = 0, and every effect that enters the
-stiffness, the load or the observation linearly) the extended equilibrium (MODEL.md
-eq. 22) of load case k is
+For a model linear in the state whose every contribution to the model part h is a
+unit term (``symbolic.effects.library.ExtendedModel.stiffness_terms``: the linear-elastic
+base or the paper's base at k0 = 0, with any effect of the library but
+nonlinear_stiffening) the extended equilibrium (MODEL.md eq. 22) of load case k is
 
-    g_k(s, p) = K(p) s + h_0(p) - F_k(p),
+    g_k(s, p) = K(p) s - F_k(p),      K(p) = sum_t c_t(p) K_t,
 
-with one stiffness K = dh/ds for all cases. Then, with one factorisation of K(p),
+with one stiffness for all cases, the K_t numeric matrices and only the coefficients
+c(p) (and dc/dp) symbolic. With one factorisation of K(p),
 
-    s_k = -K^-1 (h_0 - F_k)                                 (all cases: one solve),
-    ds_k/dp = -K^-1 (dK/dp s_k + dh_0/dp - dF_k/dp)         (one solve, n n_p columns),
-    dr_k/dp = dr_k/ds ds_k/dp + dr_k/dp|_s                  (implicit function theorem).
+    s_k = K^-1 F_k                                              (all cases: one solve),
+    ds_k/dp = -K^-1 (sum_t dc_t/dp K_t s_k - dF_k/dp)           (one solve, n n_p columns),
+    dr_k/dp = dr_k/ds ds_k/dp + dr_k/dp|_s                      (implicit function theorem).
 
-The numbers come from one CasADi call for K, one for dh/dp at all the states (a mapped
-Function: dK/dp s_k + dh_0/dp) and, per case, the small load and observation Functions: no Newton
+K(p) and dK/dp s are sums of scipy products; CasADi evaluates c(p) and, per case, the
+small load and observation Functions (``ExtendedModel.case_parts``). No Newton
 iteration (the solve is exact; one step of iterative refinement restores the last
-digits), no per-case stiffness, no comparison of per-case matrices.
+digits if needed), no per-case stiffness, no CasADi graph holding a stiffness. Effect
+sets outside this form keep Newton case by case (``ExtendedProblem.solve_state``).
 
-``StateJacobian`` is the factorisation every path shares: SuperLU with a symmetric
+``StateJacobian`` is the factorisation both paths share: SuperLU with a symmetric
 ordering (``solvers.componentwise.ORDERING``; the measured alternatives are in
 docs/inverse.md).
 """
@@ -80,12 +82,8 @@ def solve_states(factor: StateJacobian, right: np.ndarray) -> np.ndarray:
 
 
 def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
-    """K(p) = dh/ds: sum_t c_t(p) K_t from the unit terms where the effect set has them
-    (``ExtendedModel.stiffness_terms``), else one call of the CasADi stiffness."""
+    """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``)."""
     terms = problem.extended.stiffness_terms()
-    if terms is None:
-        parts = problem.extended.linear_parts()
-        return sp.csc_matrix(problem.numeric_of(parts.stiffness)(p)[0])
     c = np.ravel(_dense(problem.numeric_of(terms.coefficients)(p)[0]))
     total = sum(value * matrix for value, matrix in zip(c, terms.matrices) if value != 0.0)
     if np.isscalar(total):  # every coefficient zero
@@ -103,23 +101,14 @@ def equilibria(problem, p: np.ndarray, factor: StateJacobian) -> np.ndarray:
     loads = [
         np.ravel(_dense(_case(problem, k, "load")(p)[0])) for k in range(len(problem.positions))
     ]
-    right = -np.column_stack(loads)
-    if problem.extended.stiffness_terms() is None:  # h(0, p) of the effects' other rows
-        parts = problem.extended.linear_parts()
-        right = right - np.ravel(_dense(problem.numeric_of(parts.offset)(p)[0]))[:, None]
-    return solve_states(factor, right)
+    return solve_states(factor, -np.column_stack(loads))
 
 
 def force_derivatives(problem, p: np.ndarray, states: np.ndarray) -> np.ndarray:
-    """dh/dp at every state, (n_state, n_cases n_p), case by case side by side.
-
-    With unit terms, dh/dp_j s_k = sum_t dc_t/dp_j K_t s_k: one sparse product per term
-    whose coefficient depends on p; otherwise the mapped CasADi dh/dp.
-    """
+    """dh/dp at every state, (n_state, n_cases n_p), case by case side by side:
+    dh/dp_j s_k = sum_t dc_t/dp_j K_t s_k, one sparse product per term whose coefficient
+    depends on p."""
     terms = problem.extended.stiffness_terms()
-    if terms is None:
-        parts = problem.extended.linear_parts()
-        return _dense(problem.numeric_of(parts.force_dp)(states, p)[0])
     slope = _dense(problem.numeric_of(terms.coefficients)(p)[1])  # (T, n_p)
     n_state, n_cases = states.shape
     out = np.zeros((n_state, n_cases, p.size))

@@ -153,6 +153,10 @@ class Effect:
     linear : bool
         The internal force is ``stiffness(...)`` vec(Delta): set by the effects that
         implement ``stiffness`` (never per case).
+    unit_terms : bool
+        All the effect adds to h is sum_t c_t K_t of ``stiffness_terms`` and
+        ``stiffness_coefficients`` (every ``linear`` effect, and base_compliance with
+        its extra state): the numeric linear path applies.
     """
 
     name = ""
@@ -167,6 +171,11 @@ class Effect:
     equation = ""
     energies: tuple[str, ...] = ("dnurbs", "linear-elastic", "neo-hookean")
     linear = False
+
+    @property
+    def unit_terms(self) -> bool:
+        """True for every ``linear`` effect (see the class attributes)."""
+        return self.linear
 
     def __init__(self) -> None:
         self._cache: dict = {}
@@ -240,10 +249,11 @@ class Effect:
         raise NotImplementedError(f"{self.name} is not linear in the state")
 
     def stiffness_terms(self, model: TissueModel) -> list[sp.spmatrix]:
-        """The unit matrices K_t of a ``linear`` effect, on the free points, stacked
-        (3 n_free)-square, with ``stiffness`` = sum_t c_t K_t for the coefficients c of
-        ``stiffness_coefficients``: the numeric form of the linear path
-        (``solvers.diagnosis.linear``), which never builds K_theta in CasADi."""
+        """The unit matrices K_t of a ``unit_terms`` effect, with ``stiffness`` = sum_t
+        c_t K_t for the coefficients c of ``stiffness_coefficients``: the numeric form
+        of the linear path (``solvers.diagnosis.linear``), which never builds K_theta in
+        CasADi. On the free points, stacked, (3 n_free)-square; an effect with extra
+        state gives them on [free points; its extra points]."""
         raise NotImplementedError(f"{self.name} gives no unit stiffness terms")
 
     def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:

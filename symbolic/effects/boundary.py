@@ -51,6 +51,7 @@ class BaseCompliance(Effect):
     default_magnitude = 5.0
     magnitude_unit = "mm^3/N"
     equation = "c (K Delta)_I + M_I Delta_I = 0, c = 1/k_b"
+    unit_terms = True
 
     def inner(self, model: TissueModel) -> np.ndarray:
         """Indices of the fixed control points of the inner layer that the foundation frees."""
@@ -80,7 +81,9 @@ class BaseCompliance(Effect):
 
         return self.cached(model, "M_I", build)
 
-    def _blocks(self, model: TissueModel) -> dict:
+    def _matrices(self, model: TissueModel) -> dict:
+        """Per base term, its (free, inner), (inner, free) and (inner, inner) blocks."""
+
         def build():
             inner, free = self.inner(model), model.free
             out = {}
@@ -94,28 +97,72 @@ class BaseCompliance(Effect):
             for term, matrix in terms.items():
                 matrix = sp.csr_matrix(matrix)
                 out[term] = tuple(
-                    to_casadi_sparse(matrix[a][:, b])
+                    sp.csr_matrix(matrix[a][:, b])
                     for a, b in ((free, inner), (inner, free), (inner, inner))
                 )
             return out
 
+        return self.cached(model, "matrices", build)
+
+    def _blocks(self, model: TissueModel) -> dict:
+        """``_matrices`` as CasADi constants."""
+
+        def build():
+            return {
+                term: tuple(to_casadi_sparse(b) for b in blocks)
+                for term, blocks in self._matrices(model).items()
+            }
+
         return self.cached(model, "blocks", build)
+
+    def _terms_used(self, model: TissueModel, values: dict, every: bool = False) -> list:
+        """(term, coefficient) of the base model's terms, as ``_coupled`` sums them (those
+        with a fixed zero coefficient left out unless ``every``)."""
+        if model.energy != "dnurbs":
+            return list(zip(CONTINUUM_TERMS, model.coefficients(values)))
+        pairs = [(term, linear_coefficient(values, term)) for term in self._matrices(model)]
+        return [p for p in pairs if every or not (isinstance(p[1], float) and p[1] == 0.0)]
+
+    def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
+        """Unit terms on [free points; inner points] (this effect's extra state right after
+        the free points), stacked: per base term t, its coupling of the free rows to the
+        inner points (coefficient c_t) and the inner rows (coefficient c c_t), then the
+        foundation (coefficient 1); the order of ``stiffness_coefficients``."""
+
+        def build():
+            blocks = self._matrices(model)
+            n, k = 3 * model.n_free, 3 * self.extra_points(model)
+
+            def stacked(block):
+                return componentwise(block) if model.energy == "dnurbs" else block
+
+            def placed(free_inner=None, inner_free=None, inner_inner=None):
+                inner_inner = sp.csr_matrix((k, k)) if inner_inner is None else inner_inner
+                grid = [[sp.csr_matrix((n, n)), free_inner], [inner_free, inner_inner]]
+                return sp.bmat(grid, format="csr")
+
+            terms = [t for t, _ in self._terms_used(model, dict(model.parameters), every=True)]
+            out = [placed(free_inner=stacked(blocks[t][0])) for t in terms]
+            out += [placed(None, stacked(blocks[t][1]), stacked(blocks[t][2])) for t in terms]
+            out.append(placed(inner_inner=componentwise(self.foundation_matrix(model))))
+            return out
+
+        return self.cached(model, "terms", build)
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        coefficients = [c for _, c in self._terms_used(model, values, every=True)]
+        return ca.vertcat(*coefficients, *[theta[0] * c for c in coefficients], 1.0)
 
     def _coupled(self, model: TissueModel, values: dict, index: int, delta: ca.MX):
         blocks = self._blocks(model)
-        if model.energy != "dnurbs":
-            total = 0
-            for coefficient, term in zip(model.coefficients(values), CONTINUUM_TERMS):
-                block = blocks[term][index]
+        total = 0
+        for term, coefficient in self._terms_used(model, values):
+            block = blocks[term][index]
+            if model.energy != "dnurbs":  # stacked blocks act on vec(Delta)
                 product = ca.mtimes(block, ca.vec(delta))
                 total = total + coefficient * ca.reshape(product, block.shape[0] // 3, 3)
-            return total
-        total = 0
-        for term, pair in blocks.items():
-            coefficient = linear_coefficient(values, term)
-            if isinstance(coefficient, float) and coefficient == 0.0:
-                continue
-            total = total + coefficient * ca.mtimes(pair[index], delta)
+            else:
+                total = total + coefficient * ca.mtimes(block, delta)
         return total
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):

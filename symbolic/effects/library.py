@@ -163,32 +163,6 @@ class CaseFunctions:
         )
 
 
-@dataclass(frozen=True)
-class LinearParts:
-    """The Functions of a model linear in the state, shared by every load case.
-
-    Then h(s, p) = K(p) s + h_0(p) exactly, g_k(s, p) = h(s, p) - F_B,k(p) with one
-    stiffness K = dh/ds for all cases, and dg_k/dp = dh/dp(s_k, p) - dF_B,k/dp
-    (``solvers.diagnosis.linear``).
-
-    Attributes
-    ----------
-    stiffness : casadi.Function
-        p -> K(p) = dh/ds, sparse, (n_state, n_state) [N/mm].
-    offset : casadi.Function
-        p -> h(0, p), the model part at rest (zero for every effect of the library) [N].
-    force_dp : casadi.Function
-        (S, p) -> [dh/dp(s_1, p), ..., dh/dp(s_n, p)]: the model part's parameter
-        derivative at the n states (columns of S), side by side, (n_state, n n_p): one
-        call for every case. (The derivative of K's nonzeros themselves, d nz(K)/dp,
-        took 2-13 s to build per effect set at 27 x 27 x 4, this one 0.01 s.)
-    """
-
-    stiffness: ca.Function
-    offset: ca.Function
-    force_dp: ca.Function
-
-
 def enters_model_part(effect: Effect) -> bool:
     """True when the effect changes h (internal force, stiffness or extra state)."""
     kind = type(effect)
@@ -308,26 +282,23 @@ class ExtendedModel:
 
     @property
     def linear_state(self) -> bool:
-        """True when dg/ds depends on p alone, the same for every case.
-
-        That is a base model linear in the state with effects that enter it linearly
-        (read from the expression of dh/ds) and no per-case effect in h; the cases then
-        share one factorisation per parameter value (``linear_parts``).
-        """
-        if any(e.per_case and enters_model_part(e) for e in self.effects):
-            return False
-        return self.stiffness_terms() is not None or bool(self._model_part(0)[3])
+        """True when dg/ds = K(p), the same for every case, with K(p) = sum_t c_t(p) K_t
+        (``stiffness_terms``): the cases then share one factorisation per parameter
+        value (``solvers.diagnosis.linear``). Otherwise Newton, case by case."""
+        return self.stiffness_terms() is not None
 
     def stiffness_terms(self) -> StiffnessTerms | None:
         """K(p) as unit terms, or None unless the base model is linear and every effect
-        that enters h is ``linear`` (and the same for all cases): then the linear path
-        needs no CasADi graph of the stiffness at all (``solvers.diagnosis.linear``).
-        Built once per effect set.
+        that enters h has ``unit_terms`` (the same for all cases, at most one with extra
+        state): then the linear path needs no CasADi graph of the stiffness at all
+        (``solvers.diagnosis.linear``). Built once per effect set.
         """
         model = self.model
         inside = [e for e in self.effects if enters_model_part(e)]
-        if not model.is_linear(self.names) or any(not e.linear or e.per_case for e in inside):
+        if not model.is_linear(self.names) or any(not e.unit_terms or e.per_case for e in inside):
             return None
+        if sum(1 for e in inside if e.extra_points(model)) > 1:
+            return None  # each effect's terms place its extra state right after the free points
         key = ("functions", self.effect_set, "stiffness_terms", tuple(self.labels))
         if key not in self._functions:
             x, base, names = model.linear_terms(self.names)
@@ -336,12 +307,25 @@ class ExtendedModel:
             values.update({name: p[i] for i, name in enumerate(self.names)})
             base_coefficients = ca.Function("c", [x], [base])(p[: len(self.names)])
             coefficients = [base_coefficients]
-            matrices = [sp.csr_matrix(model.free_term(t, "kron")) for t in names]
+            n = self.n_state
+
+            def padded(matrix):
+                matrix = sp.csr_matrix(matrix)
+                return (
+                    matrix
+                    if matrix.shape[0] == n
+                    else sp.block_diag(
+                        [matrix, sp.csr_matrix((n - matrix.shape[0], n - matrix.shape[0]))],
+                        format="csr",
+                    )
+                )
+
+            matrices = [padded(model.free_term(t, "kron")) for t in names]
             for effect in inside:
                 coefficients.append(
                     effect.stiffness_coefficients(model, values, p[self.slices[effect.name]])
                 )
-                matrices += [sp.csr_matrix(m) for m in effect.stiffness_terms(model)]
+                matrices += [padded(m) for m in effect.stiffness_terms(model)]
             c = ca.vertcat(*coefficients)
             self._functions[key] = StiffnessTerms(
                 matrices, ca.Function("coefficients", [p], [c, ca.jacobian(c, p)])
@@ -377,25 +361,6 @@ class ExtendedModel:
         extra = sum(e.extra_points(self.model) for e in self.effects)
         return 3 * (self.model.n_free + extra)
 
-    def linear_parts(self) -> LinearParts | None:
-        """The shared Functions of the linear path, or None when ``linear_state`` is false.
-
-        Built once per effect set and number of cases.
-        """
-        if not self.linear_state:
-            return None
-        key = ("functions", self.effect_set, "linear_parts", tuple(self.labels), len(self.cases))
-        if key not in self._functions:
-            h, h_ds, h_dp, _ = self._model_part(0)
-            p = ca.MX.sym("p", self.n_parameters)
-            zero = ca.DM.zeros(h.size1_in(0), 1)
-            self._functions[key] = LinearParts(
-                stiffness=ca.Function("stiffness", [p], [h_ds(zero, p)]),
-                offset=ca.Function("offset", [p], [h(zero, p)]),
-                force_dp=h_dp.map("force_dp", "serial", len(self.cases), [1], []),
-            )
-        return self._functions[key]
-
     def _symbols(self, position: int) -> tuple[ca.MX, ca.MX, CaseSymbols, list]:
         """Fresh s and p, the case symbols on s and every effect's theta (a slice of p)."""
         model = self.model
@@ -422,7 +387,7 @@ class ExtendedModel:
         case's only derivatives are the load's d/dp and the observation's.
         """
         s, p, symbols, thetas = self._symbols(position)
-        h, h_ds, h_dp = self._model_part(position)[:3]
+        h, h_ds, h_dp = self._model_part(position)
         load = self._load(self.cases[position], thetas, s.numel())
         g = h(s, p) + load
         r = self._observation(self.cases[position], symbols, thetas)
@@ -432,8 +397,7 @@ class ExtendedModel:
         """h(s, p) = K(B; x) Delta + the effects' internal forces and extra rows, with
         dh/ds and dh/dp: the part of g no load case changes, built once per effect set.
 
-        The fourth entry is True when dh/ds does not depend on s (a model linear in the
-        state). dh/ds is the base model's block in closed form (a linear model's K(x), one
+        dh/ds is the base model's block in closed form (a linear model's K(x), one
         sparse product, or the numeric neo-Hookean tangent) plus the linear effects'
         K_theta, AD doing the other effects; all of it by AD, once, when the base model
         has no tangent (the D-NURBS K(B)).
@@ -477,20 +441,14 @@ class ExtendedModel:
             stiffness = None if tangent is None else tangent(s[: 3 * n_free], x)
         if stiffness is None:
             dh_ds = ca.jacobian(h, s)
-            state_free = not ca.depends_on(dh_ds, s)
         else:
             if linear is not None:
                 stiffness = stiffness + linear[1](p)
-            rest_ds = ca.jacobian(rest, s)
-            dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + rest_ds
-            # a linear base's K(x) and the linear effects' K_theta are free of s by
-            # construction; only the other effects' part needs the (costly) check
-            state_free = model.is_linear(self.names) and not ca.depends_on(rest_ds, s)
+            dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
         made = (
             ca.Function("model_part", [s, p], [h]),
             ca.Function("model_part_ds", [s, p], [dh_ds]),
             ca.Function("model_part_dp", [s, p], [ca.jacobian(h, p)]),
-            state_free,
         )
         self._functions[key] = made
         return made
