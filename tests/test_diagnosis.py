@@ -254,6 +254,23 @@ def test_negative_control_of_the_diagnosis_design():
     assert len(diagnosis.steps[0].fit.problem.cases) == 2 * len(DIAGNOSIS_CONTACTS)
 
 
+@pytest.mark.parametrize("design", [False, True], ids=["2 cases", "10 cases"])
+def test_residual_figure_is_a_compact_grid(tmp_path, design):
+    """One panel per case and model, five to a row: 2 x 2 panels for two cases, 4 x 5
+    for ten, in a figure well under a page tall (it was 44 inches at ten cases)."""
+    import matplotlib.image
+
+    from experiments.diagnosis.diagnose import PANELS_PER_ROW, plot_residuals
+
+    _, diagnosis = diagnosed((), design=design)
+    n_cases = len(diagnosis.steps[0].fit.problem.cases)
+    plot_residuals(diagnosis, tmp_path / "residuals.png")
+    height, width = matplotlib.image.imread(tmp_path / "residuals.png").shape[:2]
+    rows = 2 * -(-n_cases // PANELS_PER_ROW)
+    assert height <= 90 * (1.8 + 2.8 * rows)  # 90 dpi: about 2.8 inches a row of panels
+    assert width <= 90 * (1.2 + 2.3 * min(n_cases, PANELS_PER_ROW))
+
+
 def test_guard_leaves_out_a_contact_at_a_time():
     """Ten cases at five contacts: five folds of two cases; one contact: one case per fold."""
     for contacts, expected in (
