@@ -320,7 +320,10 @@ class ExtendedModel:
                     )
                 )
 
-            matrices = [padded(model.free_term(t, "kron")) for t in names]
+            base_key = ("base_terms", id(model), tuple(names), n)  # kept across sets
+            if base_key not in self._functions:
+                self._functions[base_key] = [padded(model.free_term(t, "kron")) for t in names]
+            matrices = list(self._functions[base_key])
             for effect in inside:
                 coefficients.append(
                     effect.stiffness_coefficients(model, values, p[self.slices[effect.name]])
