@@ -82,7 +82,7 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
     """``dvs diagnose`` on a saved dataset at the study's grid, timed whole (build, loop,
     figure and outputs), with one factorisation of its K timed in the same process (the
     "x floor" unit) and the process's peak memory. Meant for a fresh process
-    (``experiments.inverse.bench.isolated``).
+    (``experiments.isolation.isolated``).
     """
     import resource
     import tempfile
@@ -122,7 +122,7 @@ def diagnosis_benchmark(scenario: str = "tilted_force", log=print) -> dict:
     import tempfile
 
     from experiments.dataset import save_dataset
-    from experiments.inverse.bench import isolated
+    from experiments.isolation import isolated
 
     study = ContinuumStudy()
     with tempfile.TemporaryDirectory() as folder:

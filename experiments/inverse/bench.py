@@ -11,15 +11,14 @@ The model (geometry fit, numeric M, D, K) is made before the clock starts;
 
 from __future__ import annotations
 
-import multiprocessing
 import resource
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
+from experiments.isolation import isolated
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -203,13 +202,6 @@ def _inverse_job(grid, method) -> dict:
     row = time_inverse(grid, (method,))[method]
     row["peak_mb"] = _peak_mb()
     return row
-
-
-def isolated(function, *args):
-    """Run ``function(*args)`` in a fresh process (own memory peak, cold caches)."""
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
-        return pool.submit(function, *args).result()
 
 
 def scaling_exponent(dofs, times) -> float:

@@ -238,7 +238,7 @@ class ExtendedProblem:
         return derivative
 
     def functions(self, position: int):
-        """The CasADi Functions of the case at ``position`` (``library.CaseFunctions``)."""
+        """The CasADi Functions of the case at ``position`` (``symbolic.effects.functions.CaseFunctions``)."""
         return self.extended.functions(position)
 
     def slice_of(self, name: str) -> slice:

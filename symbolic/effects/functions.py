@@ -1,0 +1,103 @@
+"""The CasADi Functions of an extended model's load cases (``symbolic.effects.library``).
+
+``CaseFunctions`` are what Newton and the implicit-function Jacobian need per case;
+``CaseParts`` and ``StiffnessTerms`` are the linear path's (``solvers.diagnosis.linear``):
+each case's load and observation alone, and the stiffness as numeric unit terms with
+symbolic coefficients.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+
+
+class CaseFunctions:
+    """The CasADi Functions of one load case of an extended model, built on first use.
+
+    Attributes
+    ----------
+    equilibrium : casadi.Function
+        (s, p) -> g, the extended equilibrium (eq. 22) [N, and mm^3 for extra rows].
+    newton : casadi.Function
+        (s, p) -> (g, dg/ds): the equilibrium and its sparse Jacobian, given (the
+        model part's, ``ExtendedModel._model_part``; the load does not depend on s).
+    residual : casadi.Function
+        (s, p) -> r, the observation residual W (y(s, p) - Y), columns stacked [mm].
+    sensitivity : casadi.Function
+        (s, p) -> (dg/dp, r, dr/ds, dr/dp) for the implicit-function Jacobian.
+    n_state : int
+        Length of s.
+    """
+
+    def __init__(self, s: ca.MX, p: ca.MX, g: ca.MX, r: ca.MX, dg_ds: ca.MX, dg_dp: ca.MX):
+        self.s, self.p, self.g, self.r = s, p, g, r
+        self.dg_ds, self.dg_dp = dg_ds, dg_dp
+        self.n_state = int(s.numel())
+        self._built: dict[str, ca.Function] = {}
+
+    def _get(self, name: str, outputs, names) -> ca.Function:
+        if name not in self._built:
+            self._built[name] = ca.Function(name, [self.s, self.p], outputs(), ["s", "p"], names)
+        return self._built[name]
+
+    @property
+    def equilibrium(self) -> ca.Function:
+        return self._get("g", lambda: [self.g], ["g"])
+
+    @property
+    def newton(self) -> ca.Function:
+        return self._get("newton", lambda: [self.g, self.dg_ds], ["g", "dg_ds"])
+
+    @property
+    def residual(self) -> ca.Function:
+        return self._get("r", lambda: [self.r], ["r"])
+
+    @property
+    def sensitivity(self) -> ca.Function:
+        s, p, r = self.s, self.p, self.r
+        return self._get(
+            "sensitivity",
+            lambda: [
+                self.dg_dp,
+                r,
+                ca.jacobian(r, s),
+                ca.jacobian(r, p),
+            ],
+            ["dg_dp", "r", "dr_ds", "dr_dp"],
+        )
+
+
+@dataclass(frozen=True)
+class CaseParts:
+    """The Functions of one load case on the linear path: its load and its observation,
+    without the model part (``ExtendedModel.case_parts``).
+
+    Attributes
+    ----------
+    load : casadi.Function
+        p -> (-F_B(p), -dF_B/dp): the case's part of g and of dg/dp [N].
+    observation : casadi.Function
+        (s, p) -> (r, dr/ds, dr/dp): the observation residual and its derivatives [mm].
+    """
+
+    load: ca.Function
+    observation: ca.Function
+
+
+@dataclass(frozen=True)
+class StiffnessTerms:
+    """K(p) = sum_t c_t(p) K_t of a model linear in the state whose every contribution to
+    h is a unit term: the base model's (eq. 11-18 or C3) and the ``linear`` effects'.
+
+    Attributes
+    ----------
+    matrices : list of scipy.sparse matrices
+        K_t on the free points, stacked, (3 n_free)-square [N/mm per unit c_t].
+    coefficients : casadi.Function
+        p -> (c(p), dc/dp), (T, 1) and (T, n_p): the only symbolic part.
+    """
+
+    matrices: list
+    coefficients: ca.Function
