@@ -238,7 +238,8 @@ class ExtendedProblem:
         return derivative
 
     def functions(self, position: int):
-        """The CasADi Functions of the case at ``position`` (``symbolic.effects.functions.CaseFunctions``)."""
+        """The CasADi Functions of the case at ``position`` (``CaseFunctions`` of
+        ``symbolic.effects.functions``)."""
         return self.extended.functions(position)
 
     def slice_of(self, name: str) -> slice:
