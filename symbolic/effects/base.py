@@ -285,6 +285,20 @@ class Effect:
         return per_model(self._cache, model, key, build)
 
 
+class OneTermStiffness:
+    """A mixin of ``Effect`` for K_theta = theta_0 K_1: the effect gives its one unit
+    matrix (``stiffness_terms``); the coefficient and the CasADi K_theta follow."""
+
+    linear = True
+
+    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        return theta[0]
+
+    def stiffness(self, model: TissueModel, values: dict, theta) -> ca.MX:
+        block = self.cached(model, "term", lambda: to_casadi_sparse(self.stiffness_terms(model)[0]))
+        return theta[0] * block
+
+
 def per_model(store: dict, model: TissueModel, key, build):
     """``build()`` once per (model instance, key) in ``store``.
 

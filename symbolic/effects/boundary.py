@@ -25,6 +25,7 @@ from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import (
     CaseSymbols,
     Effect,
+    OneTermStiffness,
     componentwise,
     face_rule,
     linear_coefficient,
@@ -185,7 +186,7 @@ def lateral_rule(model: TissueModel) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack([f[0] for f in faces]), np.concatenate([f[1] for f in faces])
 
 
-class SurroundingTissue(Effect):
+class SurroundingTissue(OneTermStiffness, Effect):
     """k_s [N/mm^3]: the tissue beyond the marked area holds the lateral faces.
 
     The volume ends where the markers end; real tissue goes on. Its resistance is
@@ -205,7 +206,6 @@ class SurroundingTissue(Effect):
     default_magnitude = 0.002
     magnitude_unit = "N/mm^3"
     equation = "k_s integral_lateral |u|^2 dA (Winkler support of the lateral faces)"
-    linear = True
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
         """M_L on all control points, (n, n) [mm^2]."""
@@ -221,12 +221,3 @@ class SurroundingTissue(Effect):
         return self.cached(
             model, "terms", lambda: [componentwise(model.free_block(self.matrix(model)))]
         )
-
-    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
-        return theta[0]
-
-    def stiffness(self, model: TissueModel, values: dict, theta):
-        block = self.cached(
-            model, "M_L_free", lambda: to_casadi_sparse(self.stiffness_terms(model)[0])
-        )
-        return theta[0] * block

@@ -31,13 +31,14 @@ from symbolic.continuum import PhysicalGradient
 from symbolic.continuum_model import CONTINUUM_TERMS
 from symbolic.effects.base import (
     Effect,
+    OneTermStiffness,
     componentwise,
     stacked_free_block,
     surface_rule,
 )
 from symbolic.energy import weighted_gram
 from symbolic.model import TissueModel
-from symbolic.sparse import combination, combined, to_casadi_sparse
+from symbolic.sparse import combination, combined
 
 ALPHA_TERMS = ("alpha_u", "alpha_v", "alpha_w")
 
@@ -159,14 +160,13 @@ class Heterogeneity(FieldStiffness, Effect):
         return _bilinear_fields()
 
 
-class Bending(Effect):
+class Bending(OneTermStiffness, Effect):
     """beta [N/mm] times the rigidity terms sum_{i<=j} J_ij^T J_ij of eq. (18).
 
     Added to the model's own beta (default 0). Realistic magnitude 5e-3 N/mm
     (the probe then moves about 15 % less).
     """
 
-    linear = True
     name = "bending"
     parameter_names = ("beta",)
     units = ("N/mm",)
@@ -185,36 +185,16 @@ class Bending(Effect):
 
         return self.cached(model, "terms", build)
 
-    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
-        return theta[0]
 
-    def stiffness(self, model: TissueModel, values: dict, theta):
-        block = self.cached(
-            model, "K_beta", lambda: to_casadi_sparse(self.stiffness_terms(model)[0])
-        )
-        return theta[0] * block
-
-
-class StackedStiffness(Effect):
+class StackedStiffness(OneTermStiffness, Effect):
     """An effect theta_0 K on the free points, K (3n, 3n) stacked from ``matrix(model)``."""
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
         """K on all control points, (3n, 3n) in stacked order."""
         raise NotImplementedError
 
-    linear = True
-
     def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
         return self.cached(model, "terms", lambda: [stacked_free_block(model, self.matrix(model))])
-
-    def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
-        return theta[0]
-
-    def stiffness(self, model: TissueModel, values: dict, theta):
-        block = self.cached(
-            model, "free_block", lambda: to_casadi_sparse(self.stiffness_terms(model)[0])
-        )
-        return theta[0] * block
 
 
 class PreTension(StackedStiffness):
