@@ -58,12 +58,12 @@ def weighted_stiffness(model: TissueModel, shapes) -> list[list[sp.csr_matrix]]:
 
     The paper's model: sum_i integral f_j J_i^T J_i for alpha_i (times the model's own
     alpha field, if any; ``weighted_gram``), one block per alpha term. The continuum: K_mu
-    and K_lambda of eq. (C3) with both moduli scaled by f_j. ``scaled_stiffness`` combines
-    them with the model's coefficients: the stiffness of a material whose every modulus is
+    and K_lambda of eq. (C3) with both moduli scaled by f_j. ``scaled_coefficients`` gives
+    their coefficients: the stiffness of a material whose every modulus is
     multiplied by 1 + sum_j theta_j f_j, minus the base's.
     """
     if model.energy != "dnurbs":
-        gradient = PhysicalGradient.of(model.volume, model.extra_points)
+        gradient = model.gradient  # the continuum model's own operators (eq. C2)
         out = []
         for shape in shapes:
             matrices = gradient.elasticity(shape)
@@ -98,17 +98,6 @@ def scaled_coefficients(model: TissueModel, values: dict, theta, n_fields: int) 
     return ca.vertcat(*[theta[j] * c for j in range(n_fields) for c in coefficients])
 
 
-def scaled_stiffness(model: TissueModel, values: dict, theta, blocks) -> ca.MX:
-    """sum_j theta_j sum_t coefficient_t K_jt for the blocks of ``weighted_stiffness``.
-
-    ``blocks`` is their ``combination`` (flattened j-major): one sparse product, so a
-    Function evaluating it holds U and one result in its work, not a partial sum per (j, t).
-    """
-    n_terms = 2 if model.energy != "dnurbs" else len(ALPHA_TERMS)
-    n_fields = blocks[1].size2() // n_terms
-    return combined(blocks, scaled_coefficients(model, values, theta, n_fields))
-
-
 class FieldStiffness:
     """A stiffness effect over fields: its unit terms are ``weighted_stiffness`` of the
     fields ``shapes(model)``, flattened j-major, and its K_theta their ``combination``
@@ -122,8 +111,10 @@ class FieldStiffness:
         )
 
     def stiffness(self, model: TissueModel, values: dict, theta):
+        """sum_j theta_j sum_t coefficient_t K_jt as one sparse product (``combined``): a
+        Function evaluating it holds U and one result in its work, not a sum per (j, t)."""
         blocks = self.cached(model, "blocks", lambda: combination(self.terms(model)))
-        return scaled_stiffness(model, values, theta, blocks)
+        return combined(blocks, scaled_coefficients(model, values, theta, self.dim))
 
     def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
         return self.terms(model)
