@@ -58,6 +58,28 @@ def young_poisson(mu_l: float, lam: float) -> tuple[float, float]:
     return 2.0 * mu_l * (1.0 + poisson) / KPA, poisson
 
 
+def _chain_rule(derivatives: list, inverse: np.ndarray) -> tuple[sp.csr_matrix, ...]:
+    """P_j = sum_a diag(d xi_a / d x_j) D_a: on the entries of the one pattern the three
+    D_a share (every basis function's support at every point), else by sparse sums."""
+    first = [sp.csr_matrix(d) for d in derivatives]
+    for d in first:
+        d.sort_indices()
+    same = all(
+        np.array_equal(first[0].indptr, d.indptr) and np.array_equal(first[0].indices, d.indices)
+        for d in first[1:]
+    )
+    if not same:
+        return tuple(
+            sum(sp.diags(inverse[:, a, j]) @ first[a] for a in range(3)).tocsr() for j in range(3)
+        )
+    rows = np.repeat(np.arange(first[0].shape[0]), np.diff(first[0].indptr))
+    shape, pattern = first[0].shape, (first[0].indices, first[0].indptr)
+    return tuple(
+        sp.csr_matrix((sum(inverse[rows, a, j] * first[a].data for a in range(3)), *pattern), shape)
+        for j in range(3)
+    )
+
+
 @dataclass(frozen=True)
 class PhysicalGradient:
     """The physical-gradient operators of a volume spline at quadrature points.
@@ -87,11 +109,7 @@ class PhysicalGradient:
         if np.any(np.abs(determinant) <= 1e-12 * np.max(np.abs(determinant))):
             raise ValueError("the geometry map is singular at a quadrature point (folded volume)")
         inverse = np.linalg.inv(jacobian)  # inverse[q, a, j] = d xi_a / d x_j
-        operators = tuple(
-            sum(sp.diags(inverse[:, a, j]) @ derivatives[a] for a in range(3)).tocsr()
-            for j in range(3)
-        )
-        return cls(operators, weights * np.abs(determinant), points)
+        return cls(_chain_rule(derivatives, inverse), weights * np.abs(determinant), points)
 
     def stacked(self, component: int, direction: int) -> sp.csr_matrix:
         """d u_component / d x_direction as an (n_q, 3 n) operator on vec(Delta)."""
@@ -132,17 +150,47 @@ class PhysicalGradient:
         blocks = {}
         for a in range(3):
             for b in range(a, 3):
-                blocks[a, b] = sp.csr_matrix(operators[a].T @ weighted[b])
-                blocks[b, a] = sp.csr_matrix(blocks[a, b].T)
+                block = sp.csr_matrix(operators[a].T @ weighted[b])
+                if a == b:  # symmetric up to rounding: made exactly so, block by block
+                    block = sp.csr_matrix(0.5 * (block + block.T))
+                blocks[a, b] = block
+                blocks[b, a] = sp.csr_matrix(block.T)
         laplacian = blocks[0, 0] + blocks[1, 1] + blocks[2, 2]
         volumetric = sp.bmat([[blocks[i, k] for k in range(3)] for i in range(3)], format="csr")
         shear = sp.bmat(
             [[blocks[k, i] + (laplacian if i == k else 0) for k in range(3)] for i in range(3)],
             format="csr",
-        )
+        )  # block (k, i) is block (i, k) transposed: both exactly symmetric
+        return {"shear": shear, "volumetric": volumetric}
+
+    def elasticity_product(self, u: np.ndarray, field=None) -> dict[str, np.ndarray]:
+        """K_mu u and K_lambda u of ``elasticity(field)`` without forming either matrix.
+
+        With U_i the component blocks of u (stacked order) and D_ai = P_a U_i at the
+        points, weighted by w = f |det G| w_q:
+
+            (K_lambda u)_i = P_i^T w sum_k D_kk,    (K_mu u)_i = sum_j P_j^T w (D_ji + D_ij).
+
+        Parameters
+        ----------
+        u : numpy.ndarray
+            Displacements on all points, stacked, (3 n,) or (3 n, m) [mm].
+        """
+        scale = 1.0 if field is None else np.asarray(field(self.points), dtype=float)
+        weight = scale * self.volume
+        u = np.asarray(u, dtype=float)
+        n = self.operators[0].shape[1]
+        blocks = u.reshape((3, n) + u.shape[1:])
+        w = weight.reshape((-1,) + (1,) * (u.ndim - 1))
+        d = [[self.operators[a] @ blocks[i] for i in range(3)] for a in range(3)]
+        divergence = w * (d[0][0] + d[1][1] + d[2][2])
+        volumetric = [self.operators[i].T @ divergence for i in range(3)]
+        shear = [
+            sum(self.operators[j].T @ (w * (d[j][i] + d[i][j])) for j in range(3)) for i in range(3)
+        ]
         return {
-            "shear": sp.csr_matrix(0.5 * (shear + shear.T)),
-            "volumetric": sp.csr_matrix(0.5 * (volumetric + volumetric.T)),
+            "shear": np.concatenate(shear).reshape(u.shape),
+            "volumetric": np.concatenate(volumetric).reshape(u.shape),
         }
 
     def gram(self, rows: list[sp.csr_matrix], factor: float = 1.0, field=None) -> sp.csr_matrix:

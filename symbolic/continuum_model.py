@@ -51,7 +51,15 @@ class ContinuumModel(TissueModel):
         self.continuum = {
             t: sp.csc_matrix(self.elasticity[t][free][:, free]) for t in CONTINUUM_TERMS
         }
-        self._continuum_dm = {t: to_casadi_sparse(m) for t, m in self.continuum.items()}
+        self._dm: dict | None = None
+
+    @property
+    def _continuum_dm(self) -> dict:
+        """The free terms as CasADi constants, for the symbolic path only (made on use:
+        0.6 s at 27 x 27 x 4, which the linear path never needs)."""
+        if self._dm is None:
+            self._dm = {t: to_casadi_sparse(m) for t, m in self.continuum.items()}
+        return self._dm
 
     # --------------------------------------------------------------- the terms
     def is_linear(self, names: tuple[str, ...] = ()) -> bool:

@@ -91,8 +91,7 @@ class ProbeForce:
         uv0 = _contact_uv(volume, self.uv, self.point)
         center = volume.evaluate(volume.outer_params(uv0[None]))[0]
         sigma = 0.5 * self.radius
-        params, area = surface_quadrature(volume, spacing=sigma / 3.0)
-        positions = volume.evaluate(params)
+        params, area, positions = _surface_points(volume, sigma / 3.0)
         with np.errstate(over="ignore", under="ignore", divide="ignore"):
             exponent = np.sum((positions - center) ** 2, axis=1) / (2.0 * sigma**2)
             gauss = np.exp(-exponent) * area
@@ -102,6 +101,23 @@ class ProbeForce:
         weights = gauss[keep] / gauss[keep].sum()
         collocation = volume.collocation(params[keep])
         return np.asarray(collocation.T @ (weights[:, None] * self.force[None, :]))
+
+
+_SURFACE_POINTS: dict = {}
+
+
+def _surface_points(volume: VolumeSpline, spacing: float):
+    """``surface_quadrature`` and the rest positions of its points, made once per volume
+    and spacing (every probe of one radius on one model shares them)."""
+    key = (id(volume), float(spacing))
+    entry = _SURFACE_POINTS.get(key)
+    if entry is None or entry[0] is not volume:
+        params, area = surface_quadrature(volume, spacing)
+        entry = (volume, (params, area, volume.evaluate(params)))
+        if len(_SURFACE_POINTS) > 16:
+            _SURFACE_POINTS.clear()
+        _SURFACE_POINTS[key] = entry
+    return entry[1]
 
 
 def surface_quadrature(volume: VolumeSpline, spacing: float) -> tuple[np.ndarray, np.ndarray]:

@@ -97,3 +97,61 @@ class SparseCallback(ca.Callback):
     def eval(self, args):
         matrix = self._evaluate(np.asarray(args[0]).ravel(), np.asarray(args[1]).ravel())
         return [ca.DM(self._pattern, matrix.data)]
+
+
+class ProductTerm:
+    """A unit stiffness term K_t known by its product: ``term @ x`` applies K_t without
+    forming it, and ``matrix()`` assembles it on first need (then products use it).
+
+    For a term whose matrix costs far more than a few products, e.g. a field-weighted
+    K of the continuum at 27 x 27 x 4: a score test needs only K_t s at the fitted states,
+    and K(p) needs K_t only once its coefficient is not zero.
+
+    Parameters
+    ----------
+    size : int
+        K_t is (size, size).
+    product : callable
+        x (size, m) -> K_t x (size, m).
+    assemble : callable
+        () -> K_t as a scipy sparse matrix.
+    """
+
+    def __init__(self, size: int, product, assemble):
+        self.shape = (size, size)
+        self._product, self._assemble, self._matrix = product, assemble, None
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        if self._matrix is not None:
+            return self._matrix @ x
+        return self._product(np.asarray(x, dtype=float))
+
+    def matrix(self) -> sp.csr_matrix:
+        """K_t, assembled once."""
+        if self._matrix is None:
+            self._matrix = sp.csr_matrix(self._assemble())
+        return self._matrix
+
+
+def padded(term, size: int):
+    """A square unit term (matrix or ``ProductTerm``) with zero rows and columns appended
+    up to ``size`` (the extended state's extra points)."""
+    n = term.shape[0]
+    if n == size:
+        return term if isinstance(term, ProductTerm) else sp.csr_matrix(term)
+
+    def grown(matrix):
+        return sp.block_diag([matrix, sp.csr_matrix((size - n, size - n))], format="csr")
+
+    if isinstance(term, ProductTerm):
+
+        def product(x):
+            return np.concatenate([term @ x[:n], np.zeros((size - n,) + x.shape[1:])])
+
+        return ProductTerm(size, product, lambda: grown(term.matrix()))
+    return grown(sp.csr_matrix(term))
+
+
+def term_matrix(term) -> sp.spmatrix:
+    """The sparse matrix of a unit term (a matrix or a ``ProductTerm``)."""
+    return term.matrix() if isinstance(term, ProductTerm) else term

@@ -27,6 +27,7 @@ from symbolic.continuum import (
     young_poisson,
 )
 from symbolic.energy import quadrature
+from symbolic.sparse import ProductTerm, padded, term_matrix
 from symbolic.volume import VolumeSpline
 
 skfem = pytest.importorskip("skfem")
@@ -63,6 +64,30 @@ def test_block_assembly_equals_the_gram_of_the_strain_rows(field):
     }
     for name, reference in rows.items():
         assert abs(blocks[name] - reference).max() <= 1e-14 * abs(reference).max()
+
+
+@pytest.mark.parametrize("field", [None, lambda p: 1.0 + p[:, 0] * p[:, 1]])
+def test_matrix_free_product_equals_the_assembled_terms(field):
+    """``elasticity_product`` applies K_mu and K_lambda of ``elasticity`` without forming
+    them, for one vector and for several columns; a padded ``ProductTerm`` agrees with its
+    padded matrix."""
+    gradient = PhysicalGradient.of(curved_volume())
+    blocks = gradient.elasticity(field)
+    u = np.random.default_rng(3).standard_normal((blocks["shear"].shape[0], 4))
+    for columns in (u, u[:, 0]):
+        products = gradient.elasticity_product(columns, field)
+        for name, matrix in blocks.items():
+            reference = matrix @ columns
+            assert np.abs(products[name] - reference).max() <= 1e-12 * np.abs(reference).max()
+    size = blocks["shear"].shape[0]
+    term = ProductTerm(
+        size, lambda x: gradient.elasticity_product(x, field)["shear"], lambda: blocks["shear"]
+    )
+    grown = padded(term, size + 6)
+    x = np.random.default_rng(4).standard_normal((size + 6, 2))
+    expected = term_matrix(padded(blocks["shear"], size + 6)) @ x
+    assert np.abs(grown @ x - expected).max() <= 1e-12 * np.abs(expected).max()
+    assert abs(term_matrix(grown) - padded(blocks["shear"], size + 6)).max() == 0.0
 
 
 @pytest.mark.parametrize("volume", [box_volume((10, 8, 3), (5, 4, 3), (2, 2, 2)), curved_volume()])

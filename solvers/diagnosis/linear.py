@@ -32,6 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from solvers.componentwise import ORDERING
+from symbolic.sparse import term_matrix
 
 FACTOR_OPTIONS = {**ORDERING, "diag_pivot_thresh": 1e-3}
 """SuperLU with the symmetric ordering and diagonal pivots unless one is below 1e-3 of
@@ -92,9 +93,11 @@ def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
     """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``)."""
     terms = problem.extended.stiffness_terms()
     c = np.ravel(_dense(problem.numeric_of(terms.coefficients)(p)[0]))
-    total = sum(value * matrix for value, matrix in zip(c, terms.matrices) if value != 0.0)
+    total = sum(
+        value * term_matrix(term) for value, term in zip(c, terms.matrices) if value != 0.0
+    )  # a term whose coefficient is zero (an effect at theta = 0) is never assembled
     if np.isscalar(total):  # every coefficient zero
-        total = 0.0 * terms.matrices[0]
+        total = sp.csr_matrix(terms.matrices[0].shape)
     return sp.csc_matrix(total)
 
 

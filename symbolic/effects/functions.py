@@ -93,8 +93,9 @@ class StiffnessTerms:
 
     Attributes
     ----------
-    matrices : list of scipy.sparse matrices
-        K_t on the free points, stacked, (3 n_free)-square [N/mm per unit c_t].
+    matrices : list of scipy.sparse matrices or ``symbolic.sparse.ProductTerm``
+        K_t on the free points, stacked, (3 n_state)-square [N/mm per unit c_t]; a
+        ``ProductTerm`` is applied without its matrix until its coefficient is not zero.
     coefficients : casadi.Function
         p -> (c(p), dc/dp), (T, 1) and (T, n_p): the only symbolic part.
     """

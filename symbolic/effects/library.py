@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
-import scipy.sparse as sp
 
 from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState, apply_stacked
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
@@ -62,7 +61,7 @@ from symbolic.effects.stiffness import (
     VolumetricCoupling,
 )
 from symbolic.model import TissueModel
-from symbolic.sparse import SparseCallback
+from symbolic.sparse import SparseCallback, padded
 
 EFFECT_CLASSES: tuple[type[Effect], ...] = (
     NonlinearStiffening,
@@ -218,26 +217,15 @@ class ExtendedModel:
             coefficients = [base_coefficients]
             n = self.n_state
 
-            def padded(matrix):
-                matrix = sp.csr_matrix(matrix)
-                return (
-                    matrix
-                    if matrix.shape[0] == n
-                    else sp.block_diag(
-                        [matrix, sp.csr_matrix((n - matrix.shape[0], n - matrix.shape[0]))],
-                        format="csr",
-                    )
-                )
-
             base_key = ("base_terms", id(model), tuple(names), n)  # kept across sets
             if base_key not in self._functions:
-                self._functions[base_key] = [padded(model.free_term(t, "kron")) for t in names]
+                self._functions[base_key] = [padded(model.free_term(t, "kron"), n) for t in names]
             matrices = list(self._functions[base_key])
             for effect in inside:
                 coefficients.append(
                     effect.stiffness_coefficients(model, values, p[self.slices[effect.name]])
                 )
-                matrices += [padded(m) for m in effect.stiffness_terms(model)]
+                matrices += [padded(m, n) for m in effect.stiffness_terms(model)]
             c = ca.vertcat(*coefficients)
             self._functions[key] = StiffnessTerms(
                 matrices, ca.Function("coefficients", [p], [c, ca.jacobian(c, p)])

@@ -38,7 +38,7 @@ from symbolic.effects.base import (
 )
 from symbolic.energy import weighted_gram
 from symbolic.model import TissueModel
-from symbolic.sparse import combination, combined
+from symbolic.sparse import ProductTerm, combination, combined
 
 ALPHA_TERMS = ("alpha_u", "alpha_v", "alpha_w")
 
@@ -87,6 +87,29 @@ def weighted_stiffness(model: TissueModel, shapes) -> list[list[sp.csr_matrix]]:
     return out
 
 
+def field_products(model: TissueModel, effect) -> list[ProductTerm]:
+    """The continuum's ``weighted_stiffness`` terms of ``effect`` as ``ProductTerm``s:
+    their products act on the free points through the model's own operators
+    (``PhysicalGradient.elasticity_product``) and their matrices, when a coefficient
+    is no longer zero, are the effect's ``terms`` (assembled once for all of them)."""
+    gradient, n = model.gradient, model.rest.shape[0]
+    index = np.concatenate([model.free + k * n for k in range(3)])
+
+    def product(shape, term):
+        def apply(x):
+            full = np.zeros((3 * n,) + x.shape[1:])
+            full[index] = x
+            return gradient.elasticity_product(full, shape)[term][index]
+
+        return apply
+
+    def assemble(at):
+        return lambda: effect.terms(model)[at]
+
+    pairs = [(shape, term) for shape in effect.shapes(model) for term in CONTINUUM_TERMS]
+    return [ProductTerm(index.size, product(*pair), assemble(k)) for k, pair in enumerate(pairs)]
+
+
 def scaled_coefficients(model: TissueModel, values: dict, theta, n_fields: int) -> ca.MX:
     """theta_j coefficient_t for every (field j, term t), j-major: the coefficients of the
     flattened ``weighted_stiffness`` (the alpha on the paper's model, the Lame pair on the
@@ -116,8 +139,11 @@ class FieldStiffness:
         blocks = self.cached(model, "blocks", lambda: combination(self.terms(model)))
         return combined(blocks, scaled_coefficients(model, values, theta, self.dim))
 
-    def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
-        return self.terms(model)
+    def stiffness_terms(self, model: TissueModel) -> list:
+        """The unit terms; on the continuum as ``ProductTerm``s (``field_products``)."""
+        if model.energy == "dnurbs":
+            return self.terms(model)
+        return self.cached(model, "products", lambda: field_products(model, self))
 
     def stiffness_coefficients(self, model: TissueModel, values: dict, theta) -> ca.MX:
         return scaled_coefficients(model, values, theta, self.dim)
