@@ -37,14 +37,15 @@ def phantom_dataset(effects: dict, seed: int, design: str, noise_mm: float):
     return dataclasses.replace(data, noise_mm=NOISE_MM)
 
 
-def base_fit(dataset, grid=None):
-    """The loop's base fit (``solvers.diagnosis.fit``) of a dataset."""
+def base_fit(dataset, grid=None, base=None):
+    """The loop's base fit (``solvers.diagnosis.fit``) of a dataset; ``base`` is the base
+    model's ``FitSettings`` (default ``base_settings(grid)``: the paper's energy)."""
     from experiments.diagnosis.diagnose import base_settings
     from experiments.fitting import build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
 
-    problem = build_problem(dataset, base_settings(grid))
+    problem = build_problem(dataset, base or base_settings(grid))
     loads = dataset_loads(dataset, problem.model.volume)
     return fit(ExtendedProblem(problem, loads, []))
 

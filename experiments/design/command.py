@@ -1,8 +1,10 @@
 """``dvs design``: which presses to make, with the figures that say why.
 
     dvs design DATASET --budget N --target alpha|EFFECT[=MAG][,EFFECT...]
-               [--criterion d|a|power|maximin] --out DIR
-    dvs design --sequential SCENARIO [--budget N] --out DIR
+               [--criterion d|a|power|maximin] [--energy E --grid G --degrees D
+               --margin MM] --out DIR
+    dvs design --sequential SCENARIO [--budget N] [--grid G --degrees D --margin MM]
+               --out DIR
 
 Writes ``design.json`` (schema ``dvs-design/1``, docs/formats.md), ``design_map.png``
 (the information one more press would add, per contact, with the chosen presses) and
@@ -202,6 +204,25 @@ def build_parser(prog: str = "python -m experiments.design.command"):
         default="auto",
         help="control grid MxNxL; auto: up to 9x9x2 (15x15x3 with --sequential)",
     )
+    parser.add_argument(
+        "--degrees",
+        default=None,
+        help="spline degrees PxQxR (default 3x3x1; 3x3x2 with --sequential)",
+    )
+    parser.add_argument(
+        "--energy",
+        choices=("dnurbs", "linear-elastic", "neo-hookean"),
+        default=None,
+        help="base model, as dvs diagnose: dnurbs (default), linear-elastic or neo-hookean; "
+        "--sequential diagnoses with linear-elastic only",
+    )
+    parser.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        help="width [mm] of tissue beyond the markers the volume also covers (default 0; "
+        "10 with --sequential; e.g. 10 for the continua, docs/continuum.md)",
+    )
     return parser
 
 
@@ -210,7 +231,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
     from experiments.atomic import atomic_write_json, atomic_write_text
     from experiments.dataset import load_dataset
     from experiments.design.report import report_text
-    from experiments.options import UsageError, check_output_dir, parse_grid, run_guarded
+    from experiments.options import UsageError, check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 
@@ -238,12 +259,18 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
             level=args.level,
             augment=args.augment,
         )
-        grid = None if args.grid == "auto" else parse_grid(args.grid)
         if sequential:
-            return run_sequential(args.sequential, settings, args.budget, grid, args.out)
+            if args.energy not in (None, "linear-elastic"):
+                raise UsageError(
+                    f"--energy {args.energy}: --sequential diagnoses with the linear-elastic "
+                    "base only; drop --energy"
+                )
+            model = model_options(args, SEQUENTIAL_MODEL)
+            return run_sequential(args.sequential, settings, args.budget, model, args.out)
+        base = base_model(args)
         out = check_output_dir(args.out)
         dataset = load_dataset(args.dataset)
-        chosen = plan(dataset, settings, grid)
+        chosen = plan(dataset, settings, log=print, base=base)
         document = chosen.document
         document["dataset"] = str(args.dataset)
         out.mkdir(parents=True, exist_ok=True)
@@ -260,31 +287,61 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
     return run_guarded(prog, work)
 
 
+SEQUENTIAL_MODEL = {"grid": None, "degrees": (3, 3, 2), "margin": 10.0}
+"""The sequential loop's model when no option says otherwise (``SequentialSettings``;
+grid None: its 15 x 15 x 3)."""
+
+
+def model_options(args, defaults: dict) -> dict:
+    """``--grid``, ``--degrees`` and ``--margin`` checked (exit 2 with one line when bad),
+    each the mode's default when not given: {"grid", "degrees", "margin"}."""
+    from experiments.options import check_grid, check_margin, parse_degrees, parse_grid
+
+    degrees = defaults["degrees"] if args.degrees is None else parse_degrees(args.degrees)
+    grid = defaults["grid"]
+    if args.grid != "auto":
+        grid = check_grid(parse_grid(args.grid), degrees, args.grid)
+    margin = check_margin(_given(args.margin, defaults["margin"]))
+    return {"grid": grid, "degrees": degrees, "margin": margin}
+
+
+def base_model(args):
+    """The base model's ``FitSettings`` of ``dvs design DATASET``, as ``dvs diagnose``
+    builds it from ``--energy``, ``--grid``, ``--degrees`` and ``--margin``."""
+    from experiments.diagnosis.diagnose import base_settings
+
+    energy = args.energy or "dnurbs"
+    model = model_options(args, {"grid": None, "degrees": base_settings().degrees, "margin": 0.0})
+    degrees = None if args.degrees is None else model["degrees"]
+    return base_settings(model["grid"], energy, degrees, model["margin"])
+
+
 def _given(value, default):
     """The option's value, or the mode's default when it was not given."""
     return default if value is None else value
 
 
-def run_sequential(scenario: str, candidates, budget: int, grid, out: Path) -> int:
+def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Path) -> int:
     """``dvs design --sequential SCENARIO``: the loop against FE continuum data; writes
-    sequential.json, report.md and path.png."""
+    sequential.json, report.md and path.png. ``model`` is ``model_options``'s (grid None:
+    the loop's default)."""
     from experiments.atomic import atomic_write_json, atomic_write_text
     from experiments.design.lab import ContinuumLab
     from experiments.design.pathreport import plot_path, report_text
     from experiments.design.sequential import SequentialSettings, run
     from experiments.diagnosis.continuum import SCENARIOS
-    from experiments.options import UsageError, check_grid, check_output_dir
+    from experiments.options import UsageError, check_output_dir
     from experiments.phantom.fe import require_skfem
 
     if scenario not in SCENARIOS:
         raise UsageError(
             f"--sequential: unknown scenario {scenario!r}; choose from {', '.join(SCENARIOS)}"
         )
-    settings = SequentialSettings(budget=budget, candidates=candidates)
-    if grid is not None:
-        settings = replace(
-            settings, grid=check_grid(grid, settings.degrees, "x".join(map(str, grid)))
-        )
+    settings = SequentialSettings(
+        budget=budget, candidates=candidates, degrees=model["degrees"], margin=model["margin"]
+    )
+    if model["grid"] is not None:
+        settings = replace(settings, grid=model["grid"])
     out = check_output_dir(out)
     require_skfem()
     print(f"{scenario}: FE continuum data (scikit-fem), starting from the paper's design")

@@ -164,37 +164,49 @@ def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
     return presses, seen
 
 
-def add_candidates(pool: InformationPool, dataset, settings, own, seen, log=print):
-    """Add the candidate presses of ``settings`` (``contacts``, ``forces()``, ``tilt_deg``,
-    ``azimuths``) to ``pool``, with the dataset's probe radius and occlusion rule.
+def candidate_set(pool: InformationPool, dataset, settings, own, seen):
+    """The candidate presses of ``settings`` (``contacts``, ``forces()``, ``tilt_deg``,
+    ``azimuths``) for ``pool``, with the dataset's probe radius and occlusion rule.
 
     ``own`` and ``seen`` are the dataset's presses and the markers each capture sees
-    (``dataset_presses``). Returns the candidates' pool indices, the contacts (u, v)
-    and the occlusion radius [mm].
+    (``dataset_presses``). Returns the presses, the markers each sees, the contacts
+    (u, v) and the occlusion radius [mm].
     """
-    begin = time.perf_counter()
     model = pool.model
     rest = dataset.outer_rest.reshape(-1, 3)
     radius = occlusion_radius(rest, dataset.contacts, np.array(seen))
     probe = float(np.median([p.probe_radius for p in own]))  # the candidates use the dataset's
     contacts = contact_grid(pool.marker_uv, settings.contacts)
-    candidates = []
-    for k, uv in enumerate(contacts):
-        presses = candidate_presses(
+    presses, visible = [], []
+    for uv in contacts:
+        batch = candidate_presses(
             model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths, probe
         )
-        visible = [~hidden_markers(rest, contact_point(model, uv), radius)] * len(presses)
-        candidates += pool.add(presses, visible)
-        if (k + 1) % max(1, len(contacts) // 5) == 0 or k + 1 == len(contacts):
-            log(
-                f"  information of {len(candidates)} candidate presses ({k + 1}/{len(contacts)} "
-                f"contacts, {time.perf_counter() - begin:.1f} s)"
-            )
-    return candidates, contacts, radius
+        presses += batch
+        visible += [~hidden_markers(rest, contact_point(model, uv), radius)] * len(batch)
+    return presses, visible, contacts, radius
 
 
-def plan(dataset, settings: DesignSettings, grid=None, log=print) -> Plan:
-    """The design of ``settings`` for ``dataset`` (``Plan``)."""
+def add_with_candidates(pool: InformationPool, dataset, settings, own, seen, log=print):
+    """Add the dataset's presses and the candidates of ``settings`` (``candidate_set``)
+    to ``pool`` in one evaluation (one factorisation per parameter value for all).
+
+    Returns the pool indices of the dataset's presses and of the candidates, the
+    contacts (u, v) and the occlusion radius [mm].
+    """
+    begin = time.perf_counter()
+    presses, visible, contacts, radius = candidate_set(pool, dataset, settings, own, seen)
+    indices = pool.add(list(own) + presses, list(seen) + visible)
+    log(
+        f"  information of {len(own)} dataset presses and {len(presses)} candidate presses "
+        f"({len(contacts)} contacts, {time.perf_counter() - begin:.1f} s)"
+    )
+    return indices[: len(own)], indices[len(own) :], contacts, radius
+
+
+def plan(dataset, settings: DesignSettings, grid=None, log=print, base=None) -> Plan:
+    """The design of ``settings`` for ``dataset`` (``Plan``); ``base`` is the base model's
+    ``FitSettings`` (default ``base_settings(grid)``, as ``dvs diagnose``)."""
     from experiments.design.calibration import base_fit
     from symbolic.effects.library import make_effect
 
@@ -203,15 +215,16 @@ def plan(dataset, settings: DesignSettings, grid=None, log=print) -> Plan:
         raise ValueError("the dataset declares no noise_mm; a design needs the noise level")
     sigma = float(dataset.noise_mm)
     log(f"fitting the base model to {dataset.n_loads} load case(s)")
-    fit = base_fit(dataset, grid)
+    fit = base_fit(dataset, grid, base)
     model = fit.problem.model
     rest = dataset.outer_rest.reshape(-1, 3)
     marker_uv, _ = model.volume.project_to_outer(rest)
     effects = [(make_effect(n), float(m)) for n, m in settings.target.items() if n != "alpha"]
     pool = InformationPool(fit, marker_uv, effects)
     own, seen = dataset_presses(dataset, model)
-    own_index = pool.add(own, seen)
-    candidates, contacts, radius = add_candidates(pool, dataset, settings, own, seen, log)
+    own_index, candidates, contacts, radius = add_with_candidates(
+        pool, dataset, settings, own, seen, log
+    )
     criterion = Criterion(settings.chosen_criterion, pool.layout, sigma, settings.level)
     start = own_index if settings.augment else []
     searched = time.perf_counter()

@@ -24,7 +24,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from experiments.design.plan import DesignSettings, add_candidates, dataset_presses, press_document
+from experiments.design.plan import (
+    DesignSettings,
+    add_with_candidates,
+    dataset_presses,
+    press_document,
+)
 from solvers.design.discrimination import Discrimination, questions, standings
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
@@ -118,8 +123,7 @@ def step(dataset, settings: SequentialSettings, remaining: int, log=print) -> di
     marker_uv, _ = model.volume.project_to_outer(dataset.outer_rest.reshape(-1, 3))
     pool = InformationPool(fit, marker_uv, effects)
     own, seen = dataset_presses(dataset, model)
-    own_index = pool.add(own, seen)
-    candidates, _, _ = add_candidates(
+    own_index, candidates, _, _ = add_with_candidates(
         pool, dataset, settings.candidates, own, seen, log=lambda _: None
     )
     asked = questions(

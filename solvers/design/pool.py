@@ -28,7 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solvers.design import shared
 from solvers.design.candidates import Press
+from solvers.design.loads import press_loads
 from solvers.diagnosis.fit import EffectFit
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import extended_linearisation
@@ -133,13 +135,15 @@ class InformationPool:
         """Compute the information of ``presses`` (each with the markers it sees, bool
         (m,)); returns their indices in the pool.
 
-        One equilibrium and its sparse LU per press (shared between presses when the
-        model is linear in the state), one sensitivity evaluation per press and effect,
-        and one equilibrium per press and effect at the effect's magnitude.
+        Linear in the state (the linear path): one factorisation of K(x) for all presses
+        (the fit's own), their states in one solve, their sensitivities by eq. (D9)
+        (``solvers.design.shared``); per effect, one more factorisation where it adds
+        state, and one at its magnitude where it changes K. Otherwise Newton per press.
+        Pass all presses in one call: each call makes its own equilibria.
         """
         if not presses:
             return []
-        loads = [press.load() for press in presses]
+        loads = press_loads(presses, self.model.volume)
         base = self.fit.problem.base
         cases = []
         for load, mask in zip(loads, seen):
@@ -153,7 +157,14 @@ class InformationPool:
             sigma=self.fit.problem.sigma,
         )
         x = self.fit.p[: len(self.fit.problem.names)]
-        r0, jac, states, factors = problem.evaluate_full(x)
+        if problem.linear_state:  # the fit's factorisation of K(x) serves every press
+            fitted = self.fit.state_jacobians
+            if fitted and fitted[0] is not None:
+                problem.cache["last_state_jacobian"] = fitted[0]
+            r0, jac, states, factor = shared.evaluate(problem, x)
+            factors = [factor] * len(states)
+        else:
+            r0, jac, states, factors = problem.evaluate_full(x)
         stacked = np.zeros((r0.size, self.width))  # C_k of every press, stacked
         stacked[:, self.layout.nuisance] = jac[:, self.fit.estimated()]
         for (effect, magnitude), (theta, signal) in zip(self.layout.effects, self.layout.blocks):
@@ -174,12 +185,24 @@ class InformationPool:
     @staticmethod
     def _effect_columns(problem, x, effect: Effect, magnitude: float, states, factors):
         """Stacked d r / d theta at theta = 0, and r at theta_1 (eq. D2), of every press."""
-        extended, p, starts, jacobian = extended_linearisation(
-            problem, x, states, factors, effect, candidate_only=True
-        )
+        extended = problem.with_effects(problem.effects + [effect])
         block = extended.slice_of(effect.name)
+        if extended.linear_state:  # eq. (D9): the sensitivities from the shared rows
+            p = np.concatenate([x, np.zeros(len(extended.labels) - len(x))])
+            n_state = extended.extended.n_state
+            starts = [np.concatenate([s, np.zeros(n_state - s.size)]) for s in states]
+            same = all(n_state == s.size for s in states)
+            factor = factors[0] if same else extended.stiffness_factor(p)
+            columns = np.arange(block.start, block.stop)
+            _, jacobian = shared.linearise(extended, p, np.column_stack(starts), factor, columns)
+        else:
+            extended, p, starts, jacobian = extended_linearisation(
+                problem, x, states, factors, effect, candidate_only=True
+            )
         value = np.asarray(magnitude, dtype=float)
         p[block] = value if value.ndim else effect.true_parameters(float(value), 1)
+        if extended.linear_state:
+            return jacobian[:, block], shared.residual(extended, p)
         return jacobian[:, block], extended.residual(p, starts)
 
     def _totals(self, marker_index: np.ndarray, block: np.ndarray) -> Totals:

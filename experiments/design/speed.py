@@ -1,0 +1,152 @@
+"""The design rows of ``make bench`` (the loop-speed issue): ``dvs design`` over 250
+candidates and one step of ``dvs design --sequential``, at 27 x 27 x 4.
+
+The model is the continuum study's (``experiments.diagnosis.continuum.ContinuumStudy``:
+the linear-elastic volume spline, degrees 3 x 3 x 2, 10 mm of tissue beyond the
+markers). Each row runs in a fresh process (``experiments.isolation.isolated``) and
+reports its wall time, its "x floor" (the time over one factorisation of the same K,
+timed in the same process, so that a loaded machine scales both) and the process's
+peak memory (``ru_maxrss``).
+
+Targets: the search <= 60 s; a 10-press sequential run <= 15 minutes, i.e. about
+100 s for each of its 9 steps (from 2 presses to 10). A full run is too long for
+``make bench``: the row is the first step (2 presses, nothing named yet; later
+steps diagnose more presses and refit named effects), and the 10-press run is
+measured once in docs/design.md.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+SEARCH_TARGET_S = 60.0
+"""``dvs design`` over 250 candidates at 27 x 27 x 4 [s]."""
+
+RUN_TARGET_S = 900.0
+"""One 10-press ``dvs design --sequential`` run at 27 x 27 x 4 [s]."""
+
+STEP_TARGET_S = RUN_TARGET_S / 9
+"""A step's share of the run: 9 steps from the paper's 2 presses to 10 [s]."""
+
+
+def factorisation_seconds(stiffness) -> float:
+    """The median of three factorisations (and one solve) of ``stiffness`` [s]."""
+    from solvers.diagnosis.linear import StateJacobian
+
+    times = []
+    for _ in range(3):
+        begin = time.perf_counter()
+        StateJacobian(stiffness).solve(np.ones(stiffness.shape[0]))
+        times.append(time.perf_counter() - begin)
+    return float(np.median(times))
+
+
+def _peak_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def timed_search(path: str, study) -> dict:
+    """``plan`` (the work of ``dvs design PATH --energy linear-elastic``: base fit,
+    information of the dataset's presses and 250 candidates, search for 10) at the
+    study's model, timed, with one factorisation of its K and the peak memory. Meant
+    for a fresh process."""
+    from experiments.dataset import load_dataset
+    from experiments.design.plan import DesignSettings, plan
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.fitting import build_problem
+
+    settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
+    dataset = load_dataset(path)
+    begin = time.perf_counter()
+    document = plan(dataset, DesignSettings(), log=lambda _: None, base=settings).document
+    wall = time.perf_counter() - begin
+    stiffness = build_problem(dataset, settings).model.stiffness_matrix()
+    return {
+        "wall_s": wall,
+        "factorisation_s": factorisation_seconds(stiffness),
+        "peak_mb": _peak_mb(),
+        "candidates": document["candidates"]["count"],
+        "score": document["search"]["score"],
+        "presses": [(p["uv"], p["force_N"]) for p in document["presses"]],
+    }
+
+
+def timed_step(scenario: str, study) -> dict:
+    """The first step of the sequential loop on ``scenario`` (the paper's 2 presses:
+    diagnosis, questions, information of 45 candidates, the next press) at the study's
+    model, timed, with one factorisation of its K and the peak memory. The lab's FE
+    data are made before the clock starts. Meant for a fresh process."""
+    from experiments.design.lab import ContinuumLab
+    from experiments.design.sequential import SequentialSettings, step
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.fitting import build_problem
+
+    settings = SequentialSettings(grid=study.grid, degrees=study.degrees, margin=study.margin)
+    dataset = ContinuumLab(scenario).start(settings.start)
+    begin = time.perf_counter()
+    row = step(dataset, settings, settings.budget - dataset.n_loads, log=lambda _: None)
+    wall = time.perf_counter() - begin
+    base = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
+    stiffness = build_problem(dataset, base).model.stiffness_matrix()
+    return {
+        "wall_s": wall,
+        "diagnosis_s": row["diagnosis_s"],
+        "factorisation_s": factorisation_seconds(stiffness),
+        "peak_mb": _peak_mb(),
+        "press": row["press"],
+        "selected": row["selected"],
+    }
+
+
+def _verdict(value: float, target: float) -> str:
+    return "met" if value <= target else "MISSED"
+
+
+def design_search_benchmark(scenario: str = "tilted_force", log=print) -> dict:
+    """The "design search" row: ``timed_search`` on the 10-load scikit-fem dataset of
+    ``scenario`` (the diagnosis row's data) at 27 x 27 x 4."""
+    import tempfile
+
+    from experiments.dataset import save_dataset
+    from experiments.diagnosis.continuum import ContinuumStudy, scenario_dataset
+    from experiments.isolation import isolated
+
+    study = ContinuumStudy()
+    with tempfile.TemporaryDirectory() as folder:
+        path = str(Path(folder) / f"{scenario}.npz")
+        save_dataset(path, scenario_dataset(scenario, study))
+        row = isolated(timed_search, path, study)
+    row["scenario"] = scenario
+    log(
+        f"design search, {row['candidates']} candidates, 10 presses, scikit-fem slab with "
+        f"{scenario}, 27x27x4 (3x3x2, 10 mm margin): {row['wall_s']:.1f} s (target "
+        f"{SEARCH_TARGET_S:.0f} s, {_verdict(row['wall_s'], SEARCH_TARGET_S)}), one "
+        f"factorisation {row['factorisation_s']:.2f} s, x floor "
+        f"{row['wall_s'] / row['factorisation_s']:.0f}, peak {row['peak_mb']:.0f} MB"
+    )
+    return row
+
+
+def sequential_step_benchmark(scenario: str = "stiffness_gradient", log=print) -> dict:
+    """The "one sequential step" row: ``timed_step`` on ``scenario`` at 27 x 27 x 4."""
+    from experiments.diagnosis.continuum import ContinuumStudy
+    from experiments.isolation import isolated
+
+    row = isolated(timed_step, scenario, ContinuumStudy())
+    row["scenario"] = scenario
+    press = row["press"]
+    chosen = f"press for '{press['answers']}'" if press else "stopped"
+    log(
+        f"one sequential step, {scenario}, the paper's 2 presses, 45 candidates, 27x27x4 "
+        f"(3x3x2, 10 mm margin): {row['wall_s']:.1f} s (diagnosis {row['diagnosis_s']:.1f} s; "
+        f"target {STEP_TARGET_S:.0f} s, a 10-press run's 15 minutes over its 9 steps, "
+        f"{_verdict(row['wall_s'], STEP_TARGET_S)}), one factorisation "
+        f"{row['factorisation_s']:.2f} s, x floor {row['wall_s'] / row['factorisation_s']:.0f}, "
+        f"peak {row['peak_mb']:.0f} MB; {chosen}"
+    )
+    return row
