@@ -30,11 +30,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
 
 from symbolic.basis import FIRST_DERIVATIVES, BSplineBasis, VolumeBasis
+from symbolic.elements import ElementAssembly
 from symbolic.energy import quadrature
 from symbolic.volume import VolumeSpline
 
@@ -59,23 +61,25 @@ def young_poisson(mu_l: float, lam: float) -> tuple[float, float]:
 
 
 def _chain_rule(derivatives: list, inverse: np.ndarray) -> tuple[sp.csr_matrix, ...]:
-    """P_j = sum_a diag(d xi_a / d x_j) D_a: on the entries of the one pattern the three
-    D_a share (every basis function's support at every point), else by sparse sums."""
-    first = [sp.csr_matrix(d) for d in derivatives]
-    for d in first:
-        d.sort_indices()
-    same = all(
-        np.array_equal(first[0].indptr, d.indptr) and np.array_equal(first[0].indices, d.indices)
-        for d in first[1:]
-    )
-    if not same:
-        return tuple(
-            sum(sp.diags(inverse[:, a, j]) @ first[a] for a in range(3)).tocsr() for j in range(3)
-        )
-    rows = np.repeat(np.arange(first[0].shape[0]), np.diff(first[0].indptr))
-    shape, pattern = first[0].shape, (first[0].indices, first[0].indptr)
+    """P_j = sum_a diag(d xi_a / d x_j) D_a, all three on the union pattern of the D_a
+    (every basis function's support at every point, zeros kept: ``symbolic.elements``
+    groups the points by it)."""
+    union = sp.csr_matrix(sum(abs(sp.csr_matrix(d)) for d in derivatives))
+    union.sort_indices()
+    n = union.shape[1]
+    rows = np.repeat(np.arange(union.shape[0]), np.diff(union.indptr))
+    keys = rows.astype(np.int64) * n + union.indices
+    data = []
+    for d in derivatives:
+        d = sp.coo_matrix(d)
+        values = np.zeros(keys.size)
+        values[np.searchsorted(keys, d.row.astype(np.int64) * n + d.col)] = d.data
+        data.append(values)
     return tuple(
-        sp.csr_matrix((sum(inverse[rows, a, j] * first[a].data for a in range(3)), *pattern), shape)
+        sp.csr_matrix(
+            (sum(inverse[rows, a, j] * data[a] for a in range(3)), union.indices, union.indptr),
+            union.shape,
+        )
         for j in range(3)
     )
 
@@ -143,6 +147,8 @@ class PhysicalGradient:
         """
         scale = 1.0 if field is None else np.asarray(field(self.points), dtype=float)
         weight = scale * self.volume
+        if self._assembly is not None and np.all(weight != 0.0):
+            return self._batched(weight)
         keep = np.flatnonzero(weight)  # a local field: only the points of its support
         operators = [op[keep] for op in self.operators] if keep.size < weight.size else None
         operators = operators or list(self.operators)
@@ -192,6 +198,19 @@ class PhysicalGradient:
             "shear": np.concatenate(shear).reshape(u.shape),
             "volumetric": np.concatenate(volumetric).reshape(u.shape),
         }
+
+    @cached_property
+    def _assembly(self) -> ElementAssembly | None:
+        """The points grouped by element (``symbolic.elements``), or None."""
+        return ElementAssembly.of(self.operators)
+
+    def _batched(self, weight: np.ndarray) -> dict[str, sp.csr_matrix]:
+        """``elasticity`` by element-batched assembly: the same blocks, no sparse product."""
+        assembly = self._assembly
+        blocks = assembly.scalar_blocks(weight)
+        laplacian = blocks[0, 0] + blocks[1, 1] + blocks[2, 2]
+        shear = {(i, k): blocks[k, i] + (laplacian if i == k else 0.0) for i, k in blocks}
+        return {"shear": assembly.stacked(shear), "volumetric": assembly.stacked(blocks)}
 
     def gram(self, rows: list[sp.csr_matrix], factor: float = 1.0, field=None) -> sp.csr_matrix:
         """factor * integral f sum_rows row^T row dV, symmetrised (3 n, 3 n).

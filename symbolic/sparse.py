@@ -13,8 +13,12 @@ import scipy.sparse as sp
 
 
 def to_casadi_sparse(matrix: sp.spmatrix) -> ca.DM:
-    """A scipy sparse matrix as a CasADi sparse DM (structural zeros kept out)."""
-    csc = sp.csc_matrix(matrix)
+    """A scipy sparse matrix as a CasADi sparse DM (structural zeros kept out).
+
+    The matrix is copied first: ``eliminate_zeros`` works in place, and a CSC input would
+    otherwise share (and lose) its arrays.
+    """
+    csc = sp.csc_matrix(matrix, copy=True)
     csc.eliminate_zeros()
     csc.sort_indices()
     pattern = ca.Sparsity(csc.shape[0], csc.shape[1], csc.indptr.tolist(), csc.indices.tolist())

@@ -53,10 +53,12 @@ def test_lame_round_trip():
     "field", [None, lambda p: 1.0 + p[:, 0] * p[:, 1], lambda p: np.where(p[:, 0] < 0.3, 1.0, 0.0)]
 )
 def test_block_assembly_equals_the_gram_of_the_strain_rows(field):
-    """K_mu, K_lambda from the nine scalar blocks G_ab equal 2 int eps:eps and
-    int (div u)^2 assembled row by row (``PhysicalGradient.gram``), also under a field
-    and a local field."""
+    """K_mu, K_lambda from the nine scalar blocks G_ab (element-batched; by sparse
+    products for a local field) equal 2 int eps:eps and int (div u)^2 assembled row by
+    row (``PhysicalGradient.gram``), also under a field and a local field, and are
+    exactly symmetric."""
     gradient = PhysicalGradient.of(curved_volume())
+    assert gradient._assembly is not None  # element-batched unless the field has zeros
     blocks = gradient.elasticity(field)
     rows = {
         "shear": gradient.gram(gradient.strain(), 2.0, field),
@@ -64,6 +66,7 @@ def test_block_assembly_equals_the_gram_of_the_strain_rows(field):
     }
     for name, reference in rows.items():
         assert abs(blocks[name] - reference).max() <= 1e-14 * abs(reference).max()
+        assert abs(blocks[name] - blocks[name].T).max() == 0.0
 
 
 @pytest.mark.parametrize("field", [None, lambda p: 1.0 + p[:, 0] * p[:, 1]])
@@ -332,3 +335,18 @@ def test_inverse_recovers_young_and_poisson_from_scikit_fem_data(reference_data)
     errors = np.concatenate(problem.point_errors(nested.states))
     noise_level = np.sqrt(6.0) * 0.02  # rest and loaded markers, three coordinates each
     assert np.sqrt(np.mean(errors**2)) < 1.1 * noise_level
+
+
+def test_casadi_copy_leaves_a_matrix_with_explicit_zeros_intact():
+    """Element-batched K keeps exact zeros in its pattern; converting it for CasADi (which
+    drops them) must not change the scipy matrix the linear path goes on using."""
+    import scipy.sparse as sp
+
+    from symbolic.sparse import to_casadi_sparse
+
+    matrix = sp.csc_matrix((np.array([1.0, 0.0, 2.0]), np.array([0, 1, 1]), [0, 1, 3]), (2, 2))
+    before = (matrix.data.copy(), matrix.indices.copy(), matrix.indptr.copy())
+    dm = to_casadi_sparse(matrix)
+    assert dm.nnz() == 2
+    for now, then in zip((matrix.data, matrix.indices, matrix.indptr), before):
+        np.testing.assert_array_equal(now, then)
