@@ -218,8 +218,12 @@ class VolumeBasis:
         """Number of control points n = M N L."""
         return int(np.prod(self.shape))
 
-    def _polynomial(self, points: np.ndarray, derivative: DerivativeOrder) -> sp.csr_matrix:
-        """Row-wise Kronecker product of the three univariate collocations."""
+    def _polynomial(
+        self, points: np.ndarray, derivative: DerivativeOrder, keep_zeros: bool = False
+    ) -> sp.csr_matrix:
+        """Row-wise Kronecker product of the three univariate collocations (with
+        ``keep_zeros`` every row holds its whole support, in one order for every
+        derivative)."""
         (vu, iu), (vv, iv), (vw, iw) = (
             basis.local(points[:, k], derivative[k]) for k, basis in enumerate(self.bases)
         )
@@ -231,11 +235,12 @@ class VolumeBasis:
         matrix = sp.csr_matrix(
             (values.reshape(-1), (rows, columns.reshape(-1))), shape=(n_points, self.size)
         )
-        matrix.eliminate_zeros()
+        if not keep_zeros:
+            matrix.eliminate_zeros()
         return matrix
 
     def collocation(
-        self, points: np.ndarray, derivative: DerivativeOrder = (0, 0, 0)
+        self, points: np.ndarray, derivative: DerivativeOrder = (0, 0, 0), keep_zeros=False
     ) -> sp.csr_matrix:
         """Sparse matrix of J (or a derivative of it) at parameter points.
 
@@ -251,7 +256,8 @@ class VolumeBasis:
         -------
         scipy.sparse.csr_matrix
             Shape (n_points, M N L); row i is J_d(u_i, v_i, w_i), so the
-            geometry derivative is ``matrix @ B``.
+            geometry derivative is ``matrix @ B``. With ``keep_zeros`` (polynomial
+            bases) a row keeps the exact zeros of its support.
         """
         points = np.atleast_2d(np.asarray(points, dtype=float))
         if points.ndim != 2 or points.shape[1] != 3:
@@ -260,7 +266,7 @@ class VolumeBasis:
         if len(derivative) != 3 or min(derivative) < 0:
             raise ValueError(f"derivative must be three non-negative orders, got {derivative}")
         if self.weights is None:
-            return self._polynomial(points, derivative)
+            return self._polynomial(points, derivative, keep_zeros)
         return self._rational(points, derivative)
 
     def _rational(self, points: np.ndarray, derivative: DerivativeOrder) -> sp.csr_matrix:

@@ -64,6 +64,20 @@ def _chain_rule(derivatives: list, inverse: np.ndarray) -> tuple[sp.csr_matrix, 
     """P_j = sum_a diag(d xi_a / d x_j) D_a, all three on the union pattern of the D_a
     (every basis function's support at every point, zeros kept: ``symbolic.elements``
     groups the points by it)."""
+    first = derivatives[0]
+    if all(
+        np.array_equal(first.indptr, d.indptr) and np.array_equal(first.indices, d.indices)
+        for d in derivatives[1:]
+    ):  # one pattern already (a polynomial basis with its zeros kept)
+        rows = np.repeat(np.arange(first.shape[0]), np.diff(first.indptr))
+        pattern = (first.indices, first.indptr)
+        return tuple(
+            sp.csr_matrix(
+                (sum(inverse[rows, a, j] * derivatives[a].data for a in range(3)), *pattern),
+                first.shape,
+            )
+            for j in range(3)
+        )
     union = sp.csr_matrix(sum(abs(sp.csr_matrix(d)) for d in derivatives))
     union.sort_indices()
     n = union.shape[1]
@@ -107,7 +121,9 @@ class PhysicalGradient:
     def of(cls, volume: VolumeSpline, extra_points: int = 0) -> PhysicalGradient:
         """The operators at the spline's Gauss rule (plus ``extra_points`` per span)."""
         points, weights = quadrature(volume.basis, extra_points)
-        derivatives = [volume.collocation(points, d) for d in FIRST_DERIVATIVES.values()]
+        derivatives = [
+            volume.basis.collocation(points, d, keep_zeros=True) for d in FIRST_DERIVATIVES.values()
+        ]
         jacobian = np.stack([d @ volume.control_points for d in derivatives], axis=-1)
         determinant = np.linalg.det(jacobian)  # jacobian[q, i, a] = d x_i / d xi_a
         if np.any(np.abs(determinant) <= 1e-12 * np.max(np.abs(determinant))):

@@ -32,8 +32,11 @@ class ElementAssembly:
         n_q, n = first.shape
         k = int(first.indptr[1] - first.indptr[0])
         support = first.indices.reshape(n_q, k)
-        elements, owner = np.unique(support, axis=0, return_inverse=True)
-        owner = np.ravel(owner)
+        # a span's support is a block of the tensor grid: its first index names it
+        _, at, owner = np.unique(support[:, 0], return_index=True, return_inverse=True)
+        elements, owner = support[at], np.ravel(owner)
+        if not np.array_equal(elements[owner], support):
+            raise ValueError("the points' supports are not blocks of a tensor grid")
         per_element = np.bincount(owner)
         if np.any(per_element != per_element[0]):
             raise ValueError("the elements hold different numbers of Gauss points")
