@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.blas import one_thread
 from solvers.componentwise import ORDERING
 from symbolic.sparse import term_matrix
 
@@ -62,7 +63,8 @@ class StateJacobian:
         """(dg/ds)^-1 right, for one right-hand side or the columns of a matrix."""
         if self._lu is None:
             self._lu = spla.splu(self.matrix, **FACTOR_OPTIONS)
-        return self._lu.solve(np.asarray(right, dtype=float))
+        with one_thread():  # thin BLAS blocks: threads only wait on each other
+            return self._lu.solve(np.asarray(right, dtype=float))
 
     def same_as(self, matrix: sp.csc_matrix) -> bool:
         """True when ``matrix`` has this one's pattern and values, entry by entry."""
