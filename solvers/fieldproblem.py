@@ -20,14 +20,22 @@ with A_k, b_k those of ``InverseProblem`` (markers observed on the skin) and W t
 whitening of the rest-marker noise every case shares (``solvers.noise``), so that
 under pure noise 2 Phi_d ~ chi^2 with n_residuals degrees of freedom. Every load
 case shares M(c): one sparse factorisation per c serves all forward and adjoint
-solves. The derivative of K(c) s along a direction v of the field is
+solves (SuperLU with the options of ``solvers.diagnosis.linear``, ``Factor``). The
+derivative of K(c) s along a direction v of the field is
 
     (dK/dc v) Delta = G^T (f (x) (w_q E(q) (Phi v)_q) * (G Delta)),                 (I5)
 
 so the adjoint gradient of Phi_d is -Phi^T (w_q E(q) sum_b f_b (G_b lam)(G_b Delta))
 with M lam = A^T r / sigma^2 (one adjoint solve per case), and Gauss-Newton products
 J v and J^T y cost one solve each. ``sensitivities`` forms the N columns of J (the
-implicit-function route); the adjoint route never does.
+implicit-function route); the adjoint route never does. Every case observes the same
+markers (less those hidden in it), so the rows of all A_k are a few distinct rows U,
+and J is formed as
+
+    A_k M^-1 B_k = (M^-1 U^T)[:, rows_k]^T B_k,      B_k = G^T diag(h'_k) Phi_7,    (I6)
+
+one solve with the distinct rows' columns (3 x 81 for 9 x 9 markers) for all cases,
+not N per case (2560 for 16 x 16 and 10 cases), whichever is fewer.
 """
 
 from __future__ import annotations
@@ -35,13 +43,45 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg as sl
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.diagnosis.linear import FACTOR_OPTIONS
+from solvers.fieldsensitivity import ForceOperators, point_weights
 from solvers.noise import Whitening
 from solvers.problem import InverseProblem
 from symbolic.continuum import KPA, PhysicalGradient, lame
 from symbolic.field import StiffnessField
+
+DENSE_RIGHT_SIDES = 64
+"""From this many right-hand sides on, ``Factor`` solves with its factors made dense."""
+
+
+class Factor:
+    """The sparse LU factors of M(c) (SuperLU, ``FACTOR_OPTIONS``) and solves with them.
+
+    SuperLU solves its right-hand sides one at a time: 243 of them at 27 x 27 x 4 took
+    three to five times the factorisation. With many right-hand sides (``sensitivities``)
+    the factors (a fifth of n^2 nonzeros there) are copied to dense triangles for the
+    call and solved by BLAS-3 triangular solves (P_r M P_c = L U), the same solution to
+    rounding (the copies, 2 n^2 doubles, are not kept).
+    """
+
+    def __init__(self, matrix: sp.spmatrix):
+        self.lu = spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
+
+    def solve(self, right: np.ndarray) -> np.ndarray:
+        """M^-1 right, for one right-hand side or the columns of a matrix."""
+        right = np.asarray(right, dtype=float)
+        if right.ndim < 2 or right.shape[1] < DENSE_RIGHT_SIDES:
+            return self.lu.solve(right)
+        permuted = np.empty_like(right)
+        permuted[self.lu.perm_r] = right
+        middle = sl.solve_triangular(
+            self.lu.L.toarray(), permuted, lower=True, unit_diagonal=True, check_finite=False
+        )
+        return sl.solve_triangular(self.lu.U.toarray(), middle, check_finite=False)[self.lu.perm_c]
 
 
 @dataclass
@@ -57,6 +97,8 @@ class Forward:
     point_moduli: np.ndarray = field(repr=False)
     """w_q E(q) at the Gauss points [N/mm^2 mm^3] (eq. I2 without f)."""
     solve: object = field(repr=False)
+    strains: np.ndarray | None = field(default=None, repr=False)
+    """G Delta_k of every case, (7 n_q, n_cases), made on first use (one product)."""
 
     @property
     def misfit(self) -> float:
@@ -103,6 +145,7 @@ class FieldProblem:
             gradient.volume,
             gradient.points,
         )
+        self._free_gradient = free
         blocks = free.strain() + [free.divergence()]
         self.G = sp.vstack(blocks).tocsr()
         self.poisson = float(model.parameters["nu"] if poisson is None else poisson)
@@ -118,6 +161,9 @@ class FieldProblem:
         self.n_displacement = 3 * model.n_free
         self.right_hand_sides = np.column_stack([self._rhs(case) for case in problem.cases])
         self.A = [problem.case_residual_jacobian(c) for c in problem.cases]
+        self.observed_rows, self.rows_of_case = distinct_rows(self.A)
+        """U of eq. (I6), the distinct rows of all A_k, and per case the index of each
+        of its rows in U."""
         self.b = [problem.case_offset(c) for c in problem.cases]
         n = sum(len(b) for b in self.b)
         noise = Whitening.of(problem.rest_noise_map(), n)
@@ -126,6 +172,7 @@ class FieldProblem:
         self.noise_rms_mm = noise.noise_rms(self.sigma)
         """The RMS marker distance of a pure-noise residual [mm]."""
         self._cache: Forward | None = None
+        self._force_operators: ForceOperators | None = None
         self.nlp_cache: dict = {}
         """Simultaneous NLPs built for this problem (``solvers.imaging.simultaneous``)."""
 
@@ -157,7 +204,21 @@ class FieldProblem:
         return np.kron(self.moduli, self.volume * self.modulus(c) * KPA)
 
     def stiffness(self, c: np.ndarray) -> sp.csc_matrix:
-        """K(c) on the free control points, stacked (eq. I2) [N/mm]."""
+        """K(c) on the free control points, stacked (eq. I2) [N/mm].
+
+        Assembled as mu' K_mu + lambda' K_lambda (``PhysicalGradient.elasticity``, six
+        scalar products) with the modulus field E(q), mu' and lambda' the Lame moduli
+        per unit E: the same matrix as G^T diag(h(c)) G to rounding, a third of the time.
+        """
+        modulus = self.modulus(c) * KPA
+        matrices = self._free_gradient.elasticity(lambda points: modulus)
+        mu_unit, lam_unit = lame(1.0, self.poisson)
+        return sp.csc_matrix(
+            (mu_unit / KPA) * matrices["shear"] + (lam_unit / KPA) * matrices["volumetric"]
+        )
+
+    def reference_stiffness(self, c: np.ndarray) -> sp.csc_matrix:
+        """K(c) = G^T diag(h(c)) G of eq. (I2) as written, symmetrised (tests)."""
         matrix = self.G.T @ sp.diags(self.weights(c)) @ self.G
         return sp.csc_matrix(0.5 * (matrix + matrix.T))
 
@@ -172,7 +233,7 @@ class FieldProblem:
         c = np.asarray(c, dtype=float)
         if self._cache is not None and np.array_equal(self._cache.coefficients, c):
             return self._cache
-        solve = spla.factorized(self.saddle(c))
+        solve = Factor(self.saddle(c)).solve
         states = solve(self.right_hand_sides)
         states = [states[:, k] for k in range(states.shape[1])]
         raw = np.concatenate([a @ s + b for a, s, b in zip(self.A, states, self.b)])
@@ -183,8 +244,15 @@ class FieldProblem:
     def _scaled_strains(self, state: Forward, k: int) -> np.ndarray:
         """h'(Delta_k) = f (x) (w_q E(q)) * (G Delta_k), (7 n_q,): with it eq. (I5) is
         (dK/dc v) Delta_k = G^T (h' * (Phi_7 v)), Phi_7 the field repeated per row of G."""
-        strains = (self.G @ state.states[k][: self.n_displacement]).reshape(7, -1)
+        strains = self._strains(state)[:, k].reshape(7, -1)
         return (self.moduli[:, None] * strains * state.point_moduli).reshape(-1)
+
+    def _strains(self, state: Forward) -> np.ndarray:
+        """G Delta_k of every case at a kept state, (7 n_q, n_cases), cached on it."""
+        if state.strains is None:
+            displacements = np.column_stack(state.states)[: self.n_displacement]
+            state.strains = self.G @ displacements
+        return state.strains
 
     def _padded(self, displacement_part: np.ndarray) -> np.ndarray:
         """[x; 0]: a force on the displacements, zero on the constraint rows of eq. (I3)."""
@@ -233,14 +301,41 @@ class FieldProblem:
         )
         return -(self._phi_stacked.T @ total)
 
-    def sensitivities(self, c: np.ndarray) -> np.ndarray:
-        """J = d r / dc, all N columns (n_residuals, N): the implicit-function route."""
+    def sensitivities(self, c: np.ndarray, route: str = "auto") -> np.ndarray:
+        """J = d r / dc, all N columns (n_residuals, N): the implicit-function route.
+
+        ``route`` "adjoint" solves for the distinct observed rows once (eq. I6),
+        "forward" for the N columns of each case; "auto" takes the fewer solves.
+        """
         state = self.forward(c)
-        columns = []
-        for k, a in enumerate(self.A):
-            forces = self.G.T @ sp.diags(self._scaled_strains(state, k)) @ self._phi_stacked
-            columns.append(-(a @ state.solve(self._padded(forces.toarray()))))
+        n_rows, n_forward = self.observed_rows.shape[0], self.size * len(self.A)
+        if route == "adjoint" or (route == "auto" and n_rows < n_forward):
+            columns = self._adjoint_sensitivities(state)
+        elif route in ("forward", "auto"):
+            columns = []
+            for k, a in enumerate(self.A):
+                forces = self.G.T @ sp.diags(self._scaled_strains(state, k)) @ self._phi_stacked
+                columns.append(-(a @ state.solve(self._padded(forces.toarray()))))
+        else:
+            raise ValueError("route must be 'auto', 'adjoint' or 'forward'")
         return self.whitening @ np.vstack(columns)
+
+    def _adjoint_sensitivities(self, state: Forward) -> list[np.ndarray]:
+        """The per-case blocks -A_k M^-1 B_k of eq. (I6): Z = M^-1 U^T in one solve,
+        then B_k^T Z = sum_i T_ik Z_i by eq. (I7) (``solvers.fieldsensitivity``)."""
+        adjoints = state.solve(self.observed_rows.T.toarray())[: self.n_displacement]
+        if self._force_operators is None:
+            self._force_operators = ForceOperators(self.Phi, self._free_gradient.operators)
+        scaled = np.stack(
+            [self._scaled_strains(state, k).reshape(7, -1) for k in range(len(self.A))], axis=-1
+        )
+        components = np.split(adjoints, 3)
+        blocks = []
+        for parts, rows in zip(
+            self._force_operators.blocks(point_weights(scaled)), self.rows_of_case
+        ):
+            blocks.append(-sum(t @ z[:, rows] for t, z in zip(parts, components)).T)
+        return blocks
 
     def poisson_sensitivity(self, c: np.ndarray) -> np.ndarray:
         """d r / d nu at c, the held nu's column (n_residuals,): one solve per case.
@@ -256,7 +351,7 @@ class FieldProblem:
         )
         forces = []
         for k in range(len(self.A)):
-            strains = (self.G @ state.states[k][: self.n_displacement]).reshape(7, -1)
+            strains = self._strains(state)[:, k].reshape(7, -1)
             forces.append(self.G.T @ ((rate[:, None] * strains * state.point_moduli).ravel()))
         return self._response(state, self._padded(np.column_stack(forces)))
 
@@ -267,3 +362,24 @@ class FieldProblem:
     def rms_um(self, c: np.ndarray) -> float:
         """RMS marker distance [um] (unwhitened, as the reports give it)."""
         return float(1e3 * np.sqrt(3.0 * np.mean(self.forward(c).raw ** 2)))
+
+
+def distinct_rows(matrices) -> tuple[sp.csr_matrix, list[np.ndarray]]:
+    """The distinct rows U of the stacked sparse ``matrices`` (same column count), and
+    for each matrix the index in U of each of its rows (rows equal entry by entry)."""
+    index, rows, where = {}, [], []
+    for matrix in matrices:
+        matrix = sp.csr_matrix(matrix)
+        matrix.sort_indices()
+        positions = np.empty(matrix.shape[0], dtype=int)
+        for i in range(matrix.shape[0]):
+            span = slice(matrix.indptr[i], matrix.indptr[i + 1])
+            key = (matrix.indices[span].tobytes(), matrix.data[span].tobytes())
+            if key not in index:
+                index[key] = len(rows)
+                rows.append(matrix[i])
+            positions[i] = index[key]
+        where.append(positions)
+    width = matrices[0].shape[1]
+    stacked = sp.vstack(rows).tocsr() if rows else sp.csr_matrix((0, width))
+    return stacked, where

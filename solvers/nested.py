@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from solvers.componentwise import ScalarSystem
+from solvers.continuumfit import ContinuumSystem
 from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
 from solvers.problem import InverseProblem
 from solvers.result import InverseResult
@@ -48,7 +49,9 @@ class NestedSolver:
     For the linear model (``TissueModel.componentwise``) every evaluation factorises the
     scalar block A(x) once (``solvers.componentwise``) and solves the three components,
     every load case and every sensitivity column with it; no CasADi Function is built.
-    Otherwise each case is a Newton solve of the full system (``EquilibriumSolver``).
+    The linear-elastic model does the same with its full saddle system
+    (``solvers.continuumfit``). Otherwise each case is a Newton solve of the full
+    system (``EquilibriumSolver``).
 
     Parameters
     ----------
@@ -73,9 +76,11 @@ class NestedSolver:
         self.tolerance = tolerance
         self.max_evaluations = max_evaluations
         model = problem.model
-        self.scalar = None
+        self.scalar = self.continuum = None
         if model.componentwise and model.is_linear(problem.names):
             self.scalar = ScalarSystem(model, problem.names)
+        elif ContinuumSystem.applies(problem):
+            self.continuum = ContinuumSystem(problem)
         else:
             self.equilibrium = EquilibriumSolver(model, problem.names, residual=problem.g)
             s, x, force, prescribed = problem.g.mx_in()
@@ -104,9 +109,13 @@ class NestedSolver:
         x = problem.space.to_natural(z)
         dx_dz = problem.space.natural_derivative(z)
         factor = None if self.scalar is None else self.scalar.factor(x)
+        every = None if self.continuum is None else self.continuum.evaluate(x)
         residuals, jacobians = [], []
         for k, case in enumerate(problem.cases):
-            state, sensitivity = self._case(k, case, x, factor)
+            if every is None:
+                state, sensitivity = self._case(k, case, x, factor)
+            else:  # the linear-elastic model: all cases from one factorisation
+                state, sensitivity = every[0][:, k], every[1][:, k]
             self.forward_solves += 1
             self._states[k] = state
             residuals.append(problem.case_residual(case, state))
@@ -120,6 +129,8 @@ class NestedSolver:
         """Parameters that move the equilibrium (without building g on the fast path)."""
         if self.scalar is not None:
             return self.scalar.influential
+        if self.continuum is not None:
+            return self.problem.model.influential(self.problem.names)
         return self.problem.active
 
     def solve(self, start: np.ndarray | None = None) -> InverseResult:

@@ -54,17 +54,29 @@ def discrepancy_weight(
 
     chi^2 grows with beta. From the largest beta (nearly homogeneous) the weight falls
     a decade at a time until chi^2 drops below the target, then bisects to
-    ``tolerance`` decades, each solve warm-started from the nearest one before. When
-    even the largest beta meets the target, the data ask for no field (returned,
-    ``reached`` False); when the smallest does not, the model cannot reach the noise.
+    ``tolerance`` decades (``morozov_walk``). When even the largest beta meets the
+    target, the data need no field (returned, ``reached`` False); when the smallest
+    does not, the model cannot reach the noise.
+
+    The walk's comparisons are not all solves: a comparison is implied by a solved
+    weight (chi^2 at a larger beta below the target, or at a smaller one above it),
+    else predicted from the nearest solved estimate's Gauss-Newton model (eq. I10',
+    when the solver formed J), and only the weights the answer is made of (the last
+    bracket's ends) are solved, one per walk, each warm-started from the nearest solved
+    one. Once they are, every comparison of the walk is implied (the brackets are nested) or it
+    is walked again with what they showed; after ``PREDICTED_ROUNDS`` rounds the first
+    unknown comparison is solved, as in plain bisection. The answer is the bisection's:
+    the same bracket, its end nearer the target, typically from 3 solves instead of 10-15.
     """
     solve = solve or SOLVERS["nested-adjoint"]
     target = float(fp.n_residuals if target is None else target)
-    path, estimates = [], {}
+    path, solved, models = [], {}, {}
 
-    def run(beta, start):
+    def run(beta):
+        nearest = min(solved, key=lambda b: abs(np.log10(b / beta)), default=None)
+        start = None if nearest is None else solved[nearest].coefficients
         estimate = solve(fp, regularizer, beta, start)
-        estimates[beta] = estimate
+        solved[beta] = estimate
         path.append((beta, estimate.chi2))
         if log:
             log(
@@ -73,29 +85,106 @@ def discrepancy_weight(
             )
         return estimate
 
+    def known(beta):
+        if beta in solved:
+            return solved[beta].chi2 > target
+        if any(b <= beta and e.chi2 > target for b, e in solved.items()):
+            return True
+        if any(b >= beta and e.chi2 <= target for b, e in solved.items()):
+            return False
+        return None
+
+    def predicted(beta):
+        with_model = [b for b, e in solved.items() if e.jacobian is not None]
+        if not with_model:
+            return None
+        nearest = min(with_model, key=lambda b: abs(np.log10(b / beta)))
+        if nearest not in models:
+            models[nearest] = _chi2_model(regularizer, solved[nearest])
+        value = models[nearest](beta)
+        side = solved[nearest].chi2 > target
+        others = [b for b, e in solved.items() if (e.chi2 > target) != side]
+        if others:  # the model's error at the nearest solve across the target, grown
+            other = min(others, key=lambda b: abs(np.log10(b / nearest)))  # quadratically
+            error = solved[other].chi2 - models[nearest](other)
+            value += error * (np.log(beta / nearest) / np.log(other / nearest)) ** 2
+        return value > target
+
     high = bounds[1]
-    above = run(high, None)
-    if above.chi2 <= target:
-        return WeightChoice(above, target, False, path, "the data need no field")
-    low = high
-    below = above
-    while below.chi2 > target:
-        high, above = low, below
-        low = low / 10.0
-        if low < bounds[0]:
-            return WeightChoice(
-                below, target, False, path, "chi2 above target at the smallest weight"
-            )
-        below = run(low, above.coefficients)
-    while np.log10(high / low) > tolerance:
-        middle = np.sqrt(high * low)
-        estimate = run(middle, below.coefficients)
-        if estimate.chi2 > target:
-            high, above = middle, estimate
-        else:
-            low, below = middle, estimate
+    if run(high).chi2 <= target:
+        return WeightChoice(solved[high], target, False, path, "the data need no field")
+    for round_ in range(PREDICTED_ROUNDS + 100):
+        guesses = []
+
+        def compare(beta, predict=round_ < PREDICTED_ROUNDS, guesses=guesses):
+            answer = known(beta)
+            if answer is None and predict:
+                answer = predicted(beta)
+            if answer is None:  # no model: solve it now (plain bisection)
+                answer = run(beta).chi2 > target
+            elif known(beta) is None:
+                guesses.append(beta)
+            return answer
+
+        outcome, ends = morozov_walk(high, bounds[0], tolerance, compare)
+        missing = [beta for beta in ends if beta not in solved]
+        if missing:  # one at a time: the next walk predicts from the nearer solve
+            run(missing[0])
+        elif not guesses:
+            break
+        else:  # unreachable when the brackets nest; solve the first guess
+            run(guesses[0])
+    if outcome == "smallest":
+        estimate = solved[ends[0]]
+        return WeightChoice(
+            estimate, target, False, path, "chi2 above target at the smallest weight"
+        )
+    below, above = solved[ends[0]], solved[ends[1]]
     best = below if abs(below.chi2 - target) <= abs(above.chi2 - target) else above
     return WeightChoice(best, target, True, path, "chi2 = target")
+
+
+PREDICTED_ROUNDS = 4
+"""Rounds of ``discrepancy_weight`` that may predict a comparison before it solves."""
+
+
+def morozov_walk(high: float, smallest: float, tolerance: float, above) -> tuple[str, tuple]:
+    """The weights Morozov's search visits, given ``above(beta)``: chi^2(beta) > target.
+
+    From ``high`` (above the target) down a decade at a time to the first beta below it,
+    then bisection in log10 beta to ``tolerance`` decades. Returns ("bracket", (low,
+    high)), the last bracket, or ("smallest", (beta,)) when the decades fall below
+    ``smallest`` first, beta the last one tried.
+    """
+    low = high
+    while above(low):
+        high, low = low, low / 10.0
+        if low < smallest:
+            return "smallest", (high,)
+    while np.log10(high / low) > tolerance:
+        middle = np.sqrt(high * low)
+        if above(middle):
+            high = middle
+        else:
+            low = middle
+    return "bracket", (low, high)
+
+
+def _chi2_model(regularizer, estimate: FieldEstimate):
+    """chi^2(beta) predicted by the Gauss-Newton model about a converged estimate (eq.
+    I10'): Delta = -(J^T J + beta R'')^-1 (J^T r + beta g), with J^T r = -beta_e g at
+    the estimate's own weight beta_e (stationarity), chi^2 ~ |r|^2 + 2 (J^T r) Delta +
+    |J Delta|^2."""
+    c, jac = estimate.coefficients, estimate.jacobian
+    data = jac.T @ jac
+    curvature, pull = regularizer.hessian(c).toarray(), regularizer.gradient(c)
+    slope = -estimate.weight * pull
+
+    def chi2(beta: float) -> float:
+        delta = -np.linalg.solve(data + beta * curvature, slope + beta * pull)
+        return float(estimate.chi2 + 2.0 * slope @ delta + delta @ data @ delta)
+
+    return chi2
 
 
 def lcurve_weight(

@@ -89,6 +89,87 @@ def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list
     return rows
 
 
+IMAGING_GRID, IMAGING_DEGREES, IMAGING_FIELD = "27x27x4", "3x3x2", "16x16"
+"""The loop-speed issue's imaging case: ``dvs image --grid 27x27x4 --degrees 3x3x2
+--margin 10 --field 16x16`` (Morozov weight)."""
+
+
+def timed_imaging(path: str) -> dict:
+    """``dvs image`` on a saved dataset at ``IMAGING_GRID``, timed whole (build, fits,
+    weight, Laplace, figures and outputs), with one factorisation of the model's K timed
+    in the same process (the "x floor" unit) and the process's peak memory. Meant for a
+    fresh process (``experiments.isolation.isolated``).
+    """
+    import contextlib
+    import io
+    import json
+    import resource
+    import tempfile
+    from pathlib import Path
+
+    from experiments.dataset import load_dataset
+    from experiments.fitting import FitSettings, build_problem
+    from experiments.imaging.command import main
+    from experiments.options import parse_degrees, parse_grid
+    from solvers.diagnosis.linear import StateJacobian
+
+    with tempfile.TemporaryDirectory() as out:
+        arguments = [path, "--grid", IMAGING_GRID, "--degrees", IMAGING_DEGREES]
+        arguments += ["--margin", "10", "--field", IMAGING_FIELD, "--out", out]
+        begin = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = main(arguments)
+        wall = time.perf_counter() - begin
+        record = json.loads((Path(out) / "image.json").read_text()) if code == 0 else {}
+    grid, degrees = parse_grid(IMAGING_GRID), parse_degrees(IMAGING_DEGREES)
+    settings = FitSettings(("E", "nu"), "linear-elastic", grid=grid, degrees=degrees, margin=10.0)
+    stiffness = build_problem(load_dataset(path), settings).model.stiffness_matrix()
+    factorisations = []
+    for _ in range(3):
+        begin = time.perf_counter()
+        StateJacobian(stiffness).solve(np.ones(stiffness.shape[0]))
+        factorisations.append(time.perf_counter() - begin)
+    return {
+        "wall_s": wall,
+        "exit": code,
+        "factorisation_s": float(np.median(factorisations)),
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "beta_mm2": record.get("weight", {}).get("beta_mm2"),
+        "chi2_over_n": record.get("residual", {}).get("chi2_over_n"),
+        "stiffness_nonzeros": int(stiffness.nnz),
+    }
+
+
+def imaging_benchmark(log=print) -> dict:
+    """The imaging row of the loop-speed benchmark (``make bench``, --diagnose):
+    ``timed_imaging`` in a fresh process on the disc dataset of the weight study
+    (``experiments.imaging.weightstudy.inclusion_datasets(7)``: scikit-fem slab with a
+    stiff disc, 10 loads, 9 x 9 markers, 0.02 mm noise). Target: <= 120 s.
+    """
+    import tempfile
+    from pathlib import Path
+
+    from experiments.dataset import save_dataset
+    from experiments.imaging.weightstudy import inclusion_datasets
+    from experiments.isolation import isolated
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = str(Path(folder) / "disc.npz")
+        save_dataset(path, inclusion_datasets(7)[0])
+        row = isolated(timed_imaging, path)
+    floor = row["wall_s"] / row["factorisation_s"]
+    log(
+        f"image, scikit-fem slab with a stiff disc, 10 loads, {IMAGING_GRID} "
+        f"({IMAGING_DEGREES}, 10 mm margin; K {row['stiffness_nonzeros'] / 1e6:.2f} M "
+        f"nonzeros), --field {IMAGING_FIELD}, Morozov: {row['wall_s']:.1f} s (target 120 s, "
+        f"{'met' if row['wall_s'] <= 120 and row['exit'] == 0 else 'MISSED'}), one "
+        f"factorisation {row['factorisation_s']:.2f} s, x floor {floor:.0f}, peak "
+        f"{row['peak_mb']:.0f} MB; beta {row['beta_mm2']:.3g} mm^2, chi2/n "
+        f"{row['chi2_over_n']:.3f}"
+    )
+    return row
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: one line per grid and N, seconds per method, the fastest named."""
     methods = sorted({r["method"] for r in rows}, key=lambda m: METHODS.index(m))

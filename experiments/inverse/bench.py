@@ -370,9 +370,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
             from experiments.design.speed import design_search_benchmark, sequential_step_benchmark
             from experiments.diagnosis.continuum import diagnosis_benchmark
             from experiments.diagnosis.study import diagnosis_timings
+            from experiments.imaging.bench import imaging_benchmark
 
             diagnosis_timings()
             diagnosis_benchmark()
+            imaging_benchmark()
             design_search_benchmark()
             sequential_step_benchmark()
             return 0

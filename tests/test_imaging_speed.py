@@ -1,0 +1,112 @@
+"""The fast paths of stiffness imaging equal the straightforward ones (docs/imaging.md,
+"Speed"): K(c) by the elasticity blocks, J by the distinct observed rows (eq. I6-I7),
+the dense triangular solves, Morozov's search with predicted comparisons, and the
+homogeneous fit's one-factorisation path."""
+
+import copy
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import solvers.nested as nested
+from experiments.diagnosis.diagnose import base_settings
+from experiments.fitting import build_problem
+from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
+from experiments.phantom.simulate import SimulationSettings
+from solvers.fieldproblem import Factor, FieldProblem
+from solvers.imaging import SOLVERS
+from solvers.regularization import Tikhonov
+from solvers.weight import discrepancy_weight
+from symbolic.field import StiffnessField
+
+LENGTHS = (40.0, 40.0, 5.0)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    slab = ReferenceSlab(elements=(12, 12, 2), gradient=0.5)
+    forces, contacts = design_cases("diagnosis", slab)
+    data = reference_dataset(
+        slab, forces, contacts, 4.0, (7, 7), SimulationSettings(noise_mm=0.02, seed=3)
+    )
+    return build_problem(data, base_settings((7, 7, 2), "linear-elastic"))
+
+
+@pytest.fixture(scope="module")
+def field_problem(problem):
+    return FieldProblem(problem, StiffnessField((4, 4)))
+
+
+def test_stiffness_from_the_elasticity_blocks_is_eq_I2(field_problem):
+    c = np.random.default_rng(0).normal(0.0, 0.3, field_problem.size)
+    fast, reference = field_problem.stiffness(c), field_problem.reference_stiffness(c)
+    assert abs(fast - reference).max() <= 1e-12 * abs(reference).max()
+
+
+def test_sensitivities_by_the_observed_rows_equal_the_forward_columns(field_problem):
+    fp = field_problem
+    c = np.random.default_rng(1).normal(0.0, 0.3, fp.size)
+    adjoint, forward = fp.sensitivities(c, "adjoint"), fp.sensitivities(c, "forward")
+    assert np.abs(adjoint - forward).max() <= 1e-10 * np.abs(forward).max()
+    v = np.random.default_rng(2).normal(size=fp.size)
+    assert np.allclose(adjoint @ v, fp.jvp(c, v), rtol=1e-9, atol=1e-12 * np.abs(adjoint).max())
+
+
+def test_dense_triangular_solves_equal_superlus(field_problem):
+    matrix = field_problem.saddle(np.zeros(field_problem.size))
+    factor = Factor(matrix)
+    right = np.random.default_rng(3).normal(size=(matrix.shape[0], 70))
+    dense = factor.solve(right)  # 70 >= DENSE_RIGHT_SIDES columns: the dense path
+    assert np.abs(dense - factor.lu.solve(right)).max() <= 1e-10 * np.abs(dense).max()
+    assert np.abs(matrix @ dense - right).max() <= 1e-8 * np.abs(right).max()
+
+
+def plain_bisection(fp, regularizer, solve, target, bounds=(1e-2, 1e10), tolerance=0.02):
+    """Morozov's search as it was before the predictions: every comparison a solve."""
+    high = bounds[1]
+    above = below = solve(fp, regularizer, high, None)
+    low = high
+    while below.chi2 > target:
+        high, above = low, below
+        low /= 10.0
+        below = solve(fp, regularizer, low, above.coefficients)
+    while np.log10(high / low) > tolerance:
+        middle = np.sqrt(high * low)
+        estimate = solve(fp, regularizer, middle, below.coefficients)
+        if estimate.chi2 > target:
+            high, above = middle, estimate
+        else:
+            low, below = middle, estimate
+    return below if abs(below.chi2 - target) <= abs(above.chi2 - target) else above
+
+
+def test_predicted_morozov_search_gives_the_bisections_weight_and_map(field_problem):
+    fp = copy.copy(field_problem)
+    fp._cache = None
+    nodes = fp.field.nodes()
+    truth = 0.8 * np.exp(-((nodes[:, 0] - 0.6) ** 2 + (nodes[:, 1] - 0.4) ** 2) / 0.1)
+    rng = np.random.default_rng(5)
+    states = field_problem.forward(truth).states
+    fp.b = [-(a @ s) + rng.normal(0.0, fp.sigma, a.shape[0]) for a, s in zip(fp.A, states)]
+    fp.whitening = sp.identity(fp.n_residuals, format="csr") / fp.sigma
+    regularizer = Tikhonov(fp.field, LENGTHS)
+    solve = SOLVERS["nested-sensitivity"]
+    reference = plain_bisection(fp, regularizer, solve, float(fp.n_residuals))
+    choice = discrepancy_weight(fp, regularizer, solve)
+    assert choice.reached
+    assert choice.estimate.weight == reference.weight
+    scale = np.abs(reference.coefficients).max()
+    assert np.abs(choice.estimate.coefficients - reference.coefficients).max() <= 1e-6 * scale
+    assert len(choice.path) < 10  # the bisection made 14 solves here
+
+
+def test_homogeneous_fit_by_one_factorisation_equals_the_newton_path(problem, monkeypatch):
+    z = problem.space.to_internal(np.array([18.0, 0.42]))
+    fast = nested.NestedSolver(problem)
+    assert fast.continuum is not None
+    monkeypatch.setattr(nested.ContinuumSystem, "applies", staticmethod(lambda p: False))
+    reference = nested.NestedSolver(problem)
+    (r_fast, j_fast), (r_ref, j_ref) = fast.evaluate(z), reference.evaluate(z)
+    assert np.abs(r_fast - r_ref).max() <= 1e-10 * np.abs(r_ref).max()
+    assert np.abs(j_fast - j_ref).max() <= 1e-10 * np.abs(j_ref).max()
