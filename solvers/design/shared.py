@@ -149,29 +149,27 @@ def force_columns(problem, p: np.ndarray, states: np.ndarray, picked: np.ndarray
 
 
 RANK = 1e-13
-"""Columns of the loads below this fraction of the largest pivot of their pivoted QR
-are dependent on the others (``equilibria``)."""
+"""Directions of a set of columns below this fraction of the largest singular value
+are dropped (``compress``)."""
 
 
 def compress(columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``columns`` (n, m) as Q C with Q (n, r) orthonormal and r its numerical rank, by a
-    pivoted QR: the columns below ``RANK`` of the largest pivot are combinations of the
-    others."""
-    from scipy.linalg import qr
-
-    q, r, order = qr(columns, mode="economic", pivoting=True)
-    diagonal = np.abs(np.diag(r))
-    rank = int(np.sum(diagonal > RANK * max(float(diagonal.max(initial=0.0)), 1e-300)))
-    coefficients = np.empty((rank, columns.shape[1]))
-    coefficients[:, order] = r[:rank]
-    return q[:, :rank], coefficients
+    """``columns`` (n, m) as Q C with Q (n, r) orthonormal and r its numerical rank: a
+    QR, then the SVD of the small R; singular values below ``RANK`` of the largest
+    are dropped (those columns are combinations of the others). (A pivoted QR gives
+    the same, but its many small BLAS calls took 0.9 s for 57 columns on the loaded
+    two-core machine, against milliseconds for the blocked QR.)"""
+    q, r = np.linalg.qr(columns)
+    u, singular, vt = np.linalg.svd(r)
+    rank = int(np.sum(singular > RANK * max(float(singular.max(initial=0.0)), 1e-300)))
+    return q @ u[:, :rank], singular[:rank, None] * vt[:rank]
 
 
 def equilibria(problem, p: np.ndarray, factor) -> np.ndarray:
     """The states of every case at p, (n_state, n_cases), from one solve per
     independent load: the presses at one contact have F_B = b f^T (eq. D8), so their
     loads span three directions per contact, whatever their forces (``compress`` finds
-    the independent ones); K^-1 F = (K^-1 Q) C."""
+    them); K^-1 F = (K^-1 Q) C."""
     right = -np.column_stack([np.ravel(_dense(part[0])) for part in load_parts(problem, p)])
     basis, coefficients = compress(right)
     if not coefficients.shape[0]:
