@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.blas import one_thread
 from solvers.diagnosis.linear import FACTOR_OPTIONS
 from symbolic.continuum import KPA
 
@@ -79,7 +80,8 @@ class ContinuumSystem:
         mu_l, lam = self.model.coefficients(values)
         stiffness = float(mu_l) * terms["shear"] + float(lam) * terms["volumetric"]
         factor = spla.splu(self._saddle(stiffness), **FACTOR_OPTIONS)
-        states = factor.solve(self.right_hand_sides)
+        with one_thread():  # SuperLU's thin BLAS calls (solvers/blas.py)
+            states = factor.solve(self.right_hand_sides)
         n, n_cases = self.n_displacement, states.shape[1]
         slopes = lame_derivatives(young, poisson)
         sensitivities = np.zeros(states.shape + (len(self.names),))
@@ -90,7 +92,8 @@ class ContinuumSystem:
             for i, (_, which) in enumerate(moved):
                 block = slopes[0, which] * shear + slopes[1, which] * volumetric
                 forces[:n, i * n_cases : (i + 1) * n_cases] = block
-            solved = -factor.solve(forces)
+            with one_thread():
+                solved = -factor.solve(forces)
             for i, (j, _) in enumerate(moved):
                 sensitivities[:, :, j] = solved[:, i * n_cases : (i + 1) * n_cases]
         return states, sensitivities

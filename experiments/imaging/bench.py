@@ -122,7 +122,9 @@ def timed_imaging(path: str) -> dict:
         wall = time.perf_counter() - begin
         record = json.loads((Path(out) / "image.json").read_text()) if code == 0 else {}
     grid, degrees = parse_grid(IMAGING_GRID), parse_degrees(IMAGING_DEGREES)
-    settings = FitSettings(("E", "nu"), "linear-elastic", grid=grid, degrees=degrees, margin=10.0)
+    settings = FitSettings(
+        names=("E", "nu"), energy="linear-elastic", grid=grid, degrees=degrees, margin=10.0
+    )
     stiffness = build_problem(load_dataset(path), settings).model.stiffness_matrix()
     factorisations = []
     for _ in range(3):
