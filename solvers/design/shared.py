@@ -15,8 +15,11 @@ with E_k picking press k's rows. Z costs one solve per distinct row; every press
 sensitivity is then a dense product Z^T dg_k/dp. The rows are matched entry by entry
 (pattern and values), never assumed equal. K^-T = K^-1 needs K symmetric, checked
 entry by entry too; otherwise, or when the presses have fewer sensitivity columns than
-distinct rows, ``linearise`` is ``solvers.diagnosis.linear.linearise``'s forward path.
-The answers are the forward path's to rounding (the products are regrouped).
+distinct rows, ``linearise`` solves forward as ``solvers.diagnosis.linear.linearise``
+does, for the wanted columns alone. Either way dh/dp s_k is formed for the wanted
+columns only, each unit term acting on a basis of the states (``compress``), and the
+states themselves come from the independent loads (``equilibria``). The answers are
+the forward path's to rounding (the products are regrouped).
 """
 
 from __future__ import annotations
