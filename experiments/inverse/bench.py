@@ -333,7 +333,8 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
     parser.add_argument(
         "--diagnose",
         action="store_true",
-        help="only time dvs diagnose on 10-load data (9x9x2, and the continuum at 27x27x4)",
+        help="only the loop-speed rows: dvs diagnose at 9x9x2, and at 27x27x4 diagnose, "
+        "image, a design search and one sequential step",
     )
     return parser
 
