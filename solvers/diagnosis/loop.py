@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from solvers.blas import one_thread
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.guard import PredictionCheck, prediction_check
 from solvers.diagnosis.problem import ExtendedProblem
@@ -310,7 +311,9 @@ def _refit(current: EffectFit, effect, test: ScoreTest) -> EffectFit:
 def diagnose(
     base: InverseProblem, loads: list, settings: DiagnosisSettings | None = None, log=None
 ) -> Diagnosis:
-    """Run the loop on a base problem.
+    """Run the loop on a base problem, with BLAS on one thread (``solvers.blas``: the
+    loop's dense work is small SVDs and QRs of Jacobians, which two OpenBLAS threads
+    on a busy machine slow tenfold).
 
     Parameters
     ----------
@@ -324,8 +327,12 @@ def diagnose(
     log : callable, optional
         Progress lines.
     """
-    settings = settings or DiagnosisSettings()
-    log = log or (lambda *_: None)
+    with one_thread():
+        return _diagnose(base, loads, settings or DiagnosisSettings(), log or (lambda *_: None))
+
+
+def _diagnose(base: InverseProblem, loads: list, settings: DiagnosisSettings, log) -> Diagnosis:
+    """``diagnose``'s loop."""
     library = effect_library(settings.candidates, base.model.energy)
     current = fit(ExtendedProblem(base, loads, []))
     if base.noise_mm is not None:
