@@ -64,6 +64,19 @@ def _point(problem: ExtendedProblem, base_p: np.ndarray) -> np.ndarray:
     return np.clip(np.concatenate([base_p, theta]), problem.lower, problem.upper)
 
 
+def _count_factorisations(monkeypatch) -> list:
+    """A list that grows by one at every sparse LU of the linear and Newton paths."""
+    calls = []
+    original = spla.splu
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(linear.spla, "splu", counted)
+    return calls
+
+
 def _newton(problem: ExtendedProblem) -> ExtendedProblem:
     """The same problem on the reference path (Newton and a sensitivity per case)."""
     reference = problem.with_effects(problem.effects)
@@ -103,14 +116,7 @@ def test_one_factorisation_serves_every_case_and_sensitivity(continuum, monkeypa
     distinct matrix and solved case by case."""
     problem, base_fit, library = continuum
     extended = problem.with_effects([library["heterogeneity"], library["rigid_motion"]])
-    calls = []
-    original = spla.splu
-
-    def counted(*args, **kwargs):
-        calls.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(linear.spla, "splu", counted)
+    calls = _count_factorisations(monkeypatch)
     p = _point(extended, base_fit.p)
     extended.evaluate(p)
     assert len(calls) == 1
@@ -126,14 +132,7 @@ def test_a_newton_steps_factorisation_serves_its_sensitivities(paper, monkeypatc
     problem, base_fit, library = paper
     extended = problem.with_effects([library["nonlinear_stiffening"]])
     p = _point(extended, base_fit.p)
-    calls = []
-    original = spla.splu
-
-    def counted(*args, **kwargs):
-        calls.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(linear.spla, "splu", counted)
+    calls = _count_factorisations(monkeypatch)
     state, jacobian = extended.solve_state(0, p)
     steps = len(calls)
     r, dr = extended.linearise(0, p, state, jacobian)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
+from experiments.isolation import factorisation_seconds, peak_mb
 
 SEARCH_TARGET_S = 60.0
 """``dvs design`` over 250 candidates at 27 x 27 x 4 [s]."""
@@ -30,24 +30,6 @@ RUN_TARGET_S = 900.0
 
 STEP_TARGET_S = RUN_TARGET_S / 9
 """A step's share of the run: 9 steps from the paper's 2 presses to 10 [s]."""
-
-
-def factorisation_seconds(stiffness) -> float:
-    """The median of three factorisations (and one solve) of ``stiffness`` [s]."""
-    from solvers.diagnosis.linear import StateJacobian
-
-    times = []
-    for _ in range(3):
-        begin = time.perf_counter()
-        StateJacobian(stiffness).solve(np.ones(stiffness.shape[0]))
-        times.append(time.perf_counter() - begin)
-    return float(np.median(times))
-
-
-def _peak_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def timed_search(path: str, study) -> dict:
@@ -69,7 +51,7 @@ def timed_search(path: str, study) -> dict:
     return {
         "wall_s": wall,
         "factorisation_s": factorisation_seconds(stiffness),
-        "peak_mb": _peak_mb(),
+        "peak_mb": peak_mb(),
         "candidates": document["candidates"]["count"],
         "score": document["search"]["score"],
         "presses": [(p["uv"], p["force_N"]) for p in document["presses"]],
@@ -97,7 +79,7 @@ def timed_step(scenario: str, study) -> dict:
         "wall_s": wall,
         "diagnosis_s": row["diagnosis_s"],
         "factorisation_s": factorisation_seconds(stiffness),
-        "peak_mb": _peak_mb(),
+        "peak_mb": peak_mb(),
         "press": row["press"],
         "selected": row["selected"],
     }

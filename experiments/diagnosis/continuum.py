@@ -84,13 +84,12 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
     "x floor" unit) and the process's peak memory. Meant for a fresh process
     (``experiments.isolation.isolated``).
     """
-    import resource
     import tempfile
 
     from experiments.dataset import load_dataset
     from experiments.diagnosis.diagnose import base_settings, run
     from experiments.fitting import build_problem
-    from solvers.diagnosis.linear import StateJacobian
+    from experiments.isolation import factorisation_seconds, peak_mb
 
     settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
     with tempfile.TemporaryDirectory() as out:
@@ -98,15 +97,10 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
         document = run(path, Path(out), log=lambda *_: None, base=settings)
         wall = time.perf_counter() - begin
     stiffness = build_problem(load_dataset(path), settings).model.stiffness_matrix()
-    factorisations = []
-    for _ in range(3):
-        begin = time.perf_counter()
-        StateJacobian(stiffness).solve(np.ones(stiffness.shape[0]))
-        factorisations.append(time.perf_counter() - begin)
     return {
         "wall_s": wall,
-        "factorisation_s": float(np.median(factorisations)),
-        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "factorisation_s": factorisation_seconds(stiffness),
+        "peak_mb": peak_mb(),
         "selected": list(document["selected"]),
         "unexplained": bool(document["unexplained"]),
         "stiffness_nonzeros": int(stiffness.nnz),

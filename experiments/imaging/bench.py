@@ -103,15 +103,14 @@ def timed_imaging(path: str) -> dict:
     import contextlib
     import io
     import json
-    import resource
     import tempfile
     from pathlib import Path
 
     from experiments.dataset import load_dataset
     from experiments.fitting import FitSettings, build_problem
     from experiments.imaging.command import main
+    from experiments.isolation import factorisation_seconds, peak_mb
     from experiments.options import parse_degrees, parse_grid
-    from solvers.diagnosis.linear import StateJacobian
 
     with tempfile.TemporaryDirectory() as out:
         arguments = [path, "--grid", IMAGING_GRID, "--degrees", IMAGING_DEGREES]
@@ -126,16 +125,11 @@ def timed_imaging(path: str) -> dict:
         names=("E", "nu"), energy="linear-elastic", grid=grid, degrees=degrees, margin=10.0
     )
     stiffness = build_problem(load_dataset(path), settings).model.stiffness_matrix()
-    factorisations = []
-    for _ in range(3):
-        begin = time.perf_counter()
-        StateJacobian(stiffness).solve(np.ones(stiffness.shape[0]))
-        factorisations.append(time.perf_counter() - begin)
     return {
         "wall_s": wall,
         "exit": code,
-        "factorisation_s": float(np.median(factorisations)),
-        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "factorisation_s": factorisation_seconds(stiffness),
+        "peak_mb": peak_mb(),
         "beta_mm2": record.get("weight", {}).get("beta_mm2"),
         "chi2_over_n": record.get("residual", {}).get("chi2_over_n"),
         "stiffness_nonzeros": int(stiffness.nnz),

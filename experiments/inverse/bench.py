@@ -11,14 +11,13 @@ The model (geometry fit, numeric M, D, K) is made before the clock starts;
 
 from __future__ import annotations
 
-import resource
 import time
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
-from experiments.isolation import isolated
+from experiments.isolation import isolated, peak_mb
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -173,11 +172,6 @@ def time_inverse(grid: tuple[int, int, int], methods=("simultaneous", "nested"))
     return rows
 
 
-def _peak_mb() -> float:
-    """Peak resident memory of this process [MB] (ru_maxrss is in kB on Linux)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def _load_libraries() -> None:
     """Load IPOPT and MUMPS once (a one-off cost per process, not part of any method)."""
     x = ca.MX.sym("x")
@@ -193,14 +187,14 @@ def _load_libraries() -> None:
 def _forward_job(grid, k0) -> ForwardTiming:
     _load_libraries()
     timing = time_forward(grid, k0)
-    timing.peak_mb = _peak_mb()
+    timing.peak_mb = peak_mb()
     return timing
 
 
 def _inverse_job(grid, method) -> dict:
     _load_libraries()
     row = time_inverse(grid, (method,))[method]
-    row["peak_mb"] = _peak_mb()
+    row["peak_mb"] = peak_mb()
     return row
 
 
