@@ -105,6 +105,24 @@ def test_a_clamped_side_holds_a_spring_side_gives_and_a_free_side_moves():
     assert 1e-4 < moved["elastic"] < moved["free"]
 
 
+def test_a_compliant_base_gives_and_tends_to_the_fixed_one_as_it_stiffens():
+    """On base springs the base under the probe moves and the skin sags more than on a
+    fixed base; the difference falls monotonically as the springs stiffen."""
+    contact = np.array([0.0, 0.0, 5.0])
+    fixed = TissueSolution(TissuePatch(**SMALL))
+    reference = fixed.at(fixed.displacement((0, 0, -0.2), contact, 2.5), contact[None])[0, 2]
+    gaps = []
+    for spring in (0.002, 0.02, 0.2, 2.0):
+        solver = TissueSolution(TissuePatch(**SMALL, base_spring=spring))
+        field = solver.displacement((0, 0, -0.2), contact, 2.5)
+        top = solver.at(field, contact[None])[0, 2]
+        bottom = solver.at(field, np.array([[0.0, 0.0, 0.0]]))[0, 2]
+        assert top < reference < 0 and bottom < 0
+        gaps.append(reference - top)
+    assert all(b < a for a, b in zip(gaps, gaps[1:]))
+    assert gaps[-1] < 0.05 * gaps[0]
+
+
 def test_a_skin_layer_of_ratio_one_is_the_monolayer_and_a_stiffer_one_resists():
     """skin_ratio 1 gives the monolayer's field (same node planes); ratio 5 less sag."""
     flat = dict(SMALL, thickness=6.0, layers=4)

@@ -67,6 +67,9 @@ class TissuePatch:
     gradient : float
         E(x) = E (1 + gradient 2 x / marked_x), at least 0.05 E (an injected
         stiffness gradient, as ``fe.ReferenceSlab``).
+    base_spring : float or None
+        None fixes the base; a number rests it on Robin springs of this stiffness in
+        every direction [N/mm^3] (an injected compliant base: muscle under the fat).
     spacing_mm : float
         Element size over the marked area (x and y); beyond it elements grow by
         ``growth`` per element up to the tissue's edge.
@@ -87,6 +90,7 @@ class TissuePatch:
     skin_mm: float = 0.0
     skin_ratio: float = 1.0
     gradient: float = 0.0
+    base_spring: float | None = None
     spacing_mm: float = 2.5
     growth: float = 1.5
     layers: int = 3
@@ -102,6 +106,8 @@ class TissuePatch:
             raise ValueError("need spacing > 0, growth >= 1, layers >= 1, lateral_spring >= 0")
         if not abs(self.gradient) < 1.0:
             raise ValueError("need |gradient| < 1")
+        if self.base_spring is not None and not self.base_spring > 0:
+            raise ValueError("need a positive base_spring (or None for a fixed base)")
 
     @property
     def lengths(self) -> tuple[float, float, float]:
@@ -230,15 +236,23 @@ class TissueSolution:
             return np.nonzero(predicate(flat.p[:, flat.facets]).all(axis=0))[0]
 
         lateral = on(lambda x: np.isclose(np.abs(x[0]), lx / 2) | np.isclose(np.abs(x[1]), ly / 2))
-        if patch.support == "elastic" and patch.lateral_spring > 0:
+        base = on(lambda x: np.isclose(x[2], 0.0))
 
+        def add_springs(stiffness: float, facets) -> None:
             @skfem.BilinearForm
             def springs(u, v, w):
-                return patch.lateral_spring * dot(u, v)
+                return stiffness * dot(u, v)
 
-            sides = skfem.FacetBasis(mesh, element, facets=lateral)
-            self.matrix = self.matrix + springs.assemble(sides)
-        fixed = on(lambda x: np.isclose(x[2], 0.0))
+            self.matrix = self.matrix + springs.assemble(
+                skfem.FacetBasis(mesh, element, facets=facets)
+            )
+
+        if patch.support == "elastic" and patch.lateral_spring > 0:
+            add_springs(patch.lateral_spring, lateral)
+        fixed = base
+        if patch.base_spring is not None:  # the flat base's facets: nodes at z = 0 before the sag
+            add_springs(patch.base_spring, base)
+            fixed = np.zeros(0, dtype=int)
         if patch.support == "clamped":
             fixed = np.union1d(fixed, lateral)
         self.free = self.basis.complement_dofs(self.basis.get_dofs(facets=fixed))
