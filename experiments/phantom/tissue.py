@@ -7,7 +7,8 @@ it wherever tissue may differ from the tuned slab:
   mesh uniform over the marked area and geometrically graded beyond it, against
   ``fe``'s P2 tetrahedra on a uniform mesh;
 - extent and lateral support: the tissue ends ``extent_mm`` beyond the marked area
-  and is held there free, clamped, or on Robin springs; the base is fixed;
+  and is held there free, clamped, or on Robin springs; the base is fixed or on
+  springs (a compliant base);
 - shape: a doubly curved patch, z -= x^2 / (2 R_x) + y^2 / (2 R_y) applied to every
   node (the thickness stays vertical); the skin normal and the probe follow it;
 - material: E and nu, optionally a stiffer skin layer over the fat;
