@@ -131,7 +131,15 @@ class SlabSolution:
             return base | side
 
         self.free = self.basis.complement_dofs(self.basis.get_dofs(fixed))
-        self.factor = spla.splu(matrix[self.free][:, self.free].tocsc(), permc_spec="MMD_AT_PLUS_A")
+        # symmetric positive definite: diagonal pivots and a symmetric ordering (partial
+        # pivoting at nu = 0.49 on 24 x 24 x 4 cells: 31.7 s against 8.6 s, same
+        # solution to 3e-14)
+        self.factor = spla.splu(
+            matrix[self.free][:, self.free].tocsc(),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
         top = mesh.facets_satisfying(lambda x: np.isclose(x[2], lz))
         self.top = skfem.FacetBasis(mesh, element, facets=top, intorder=6)
 
@@ -212,7 +220,7 @@ def design_cases(design: str, slab: ReferenceSlab, forces=(0.17, 0.25)):
     return np.array(all_forces), np.array(all_xy)
 
 
-def _rigid(positions: list, rest: np.ndarray, magnitude: float) -> list:
+def rigid_departure(positions: list, rest: np.ndarray, magnitude: float) -> list:
     """Every capture moved rigidly about the rest centroid (``RigidMotion`` pattern)."""
     from scipy.spatial.transform import Rotation
 
@@ -262,7 +270,7 @@ def reference_dataset(
         field = solver.displacement(true_force, c + shift, radius * departure.radius_factor)
         positions.append(rest + solver.at(field, rest))
     if departure.rigid_mm:
-        positions = _rigid(positions, rest, departure.rigid_mm)
+        positions = rigid_departure(positions, rest, departure.rigid_mm)
     return measured_dataset(
         rest,
         inner,

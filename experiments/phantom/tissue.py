@@ -29,7 +29,7 @@ import scipy.sparse.linalg as spla
 from scipy.spatial.transform import Rotation
 
 from experiments.dataset import Dataset
-from experiments.phantom.fe import Departure, _rigid, design_cases, require_skfem
+from experiments.phantom.fe import Departure, design_cases, require_skfem, rigid_departure
 from experiments.phantom.simulate import SimulationSettings, measured_dataset
 from symbolic.continuum import lame
 
@@ -411,7 +411,7 @@ def tissue_dataset(
         field = solver.displacement(tilted, c, radius * departure.radius_factor, probe)
         positions.append(rest + solver.at(field, rest))
     if departure.rigid_mm:
-        positions = _rigid(positions, rest, departure.rigid_mm)
+        positions = rigid_departure(positions, rest, departure.rigid_mm)
     radii = np.full(len(declared), float(radius))
     dataset = measured_dataset(
         rest, inner, positions, declared, contacts, measurement, markers, radii
