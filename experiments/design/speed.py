@@ -18,7 +18,6 @@ measured once in docs/design.md.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 from experiments.isolation import factorisation_seconds, peak_mb
 
@@ -92,18 +91,9 @@ def _verdict(value: float, target: float) -> str:
 def design_search_benchmark(scenario: str = "tilted_force", log=print) -> dict:
     """The "design search" row: ``timed_search`` on the 10-load scikit-fem dataset of
     ``scenario`` (the diagnosis row's data) at 27 x 27 x 4."""
-    import tempfile
+    from experiments.diagnosis.continuum import ContinuumStudy, timed_on_scenario
 
-    from experiments.dataset import save_dataset
-    from experiments.diagnosis.continuum import ContinuumStudy, scenario_dataset
-    from experiments.isolation import isolated
-
-    study = ContinuumStudy()
-    with tempfile.TemporaryDirectory() as folder:
-        path = str(Path(folder) / f"{scenario}.npz")
-        save_dataset(path, scenario_dataset(scenario, study))
-        row = isolated(timed_search, path, study)
-    row["scenario"] = scenario
+    row = timed_on_scenario(timed_search, scenario, ContinuumStudy())
     log(
         f"design search, {row['candidates']} candidates, 10 presses, scikit-fem slab with "
         f"{scenario}, 27x27x4 (3x3x2, 10 mm margin): {row['wall_s']:.1f} s (target "

@@ -107,23 +107,30 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
     }
 
 
+def timed_on_scenario(timed, scenario: str, study: ContinuumStudy) -> dict:
+    """``timed(path, study)`` in a fresh process (``experiments.isolation.isolated``) on
+    the scenario's dataset saved to a temporary file; the row gains its ``scenario``."""
+    import tempfile
+
+    from experiments.dataset import save_dataset
+    from experiments.isolation import isolated
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = str(Path(folder) / f"{scenario}.npz")
+        save_dataset(path, scenario_dataset(scenario, study))
+        row = isolated(timed, path, study)
+    row["scenario"] = scenario
+    return row
+
+
 def diagnosis_benchmark(scenario: str = "tilted_force", log=print) -> dict:
     """The loop-speed row of ``make bench``: ``timed_diagnosis`` at 27 x 27 x 4 (degrees
     3 x 3 x 2, 10 mm margin) on a 10-load scikit-fem dataset with one hidden effect.
 
     Targets (the loop-speed issue): <= 60 s, <= 40 factorisations' worth, <= 3 GB.
     """
-    import tempfile
-
-    from experiments.dataset import save_dataset
-    from experiments.isolation import isolated
-
     study = ContinuumStudy()
-    with tempfile.TemporaryDirectory() as folder:
-        path = str(Path(folder) / f"{scenario}.npz")
-        save_dataset(path, scenario_dataset(scenario, study))
-        row = isolated(timed_diagnosis, path, study)
-    row["scenario"] = scenario
+    row = timed_on_scenario(timed_diagnosis, scenario, study)
     floor = row["wall_s"] / row["factorisation_s"]
     log(
         f"diagnose, scikit-fem slab with {scenario}, 10 loads, 27x27x4 (3x3x2, 10 mm margin; "

@@ -94,10 +94,7 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor, columns=None, 
         Stacked raw residual r (not whitened) and dr/dp, (n_r,) and (n_r, n_p).
     """
     n_cases, n_p = states.shape[1], p.size
-    wanted = np.ones(n_p, dtype=bool)
-    if columns is not None:
-        wanted[:] = False
-        wanted[np.asarray(columns, dtype=int)] = True
+    wanted = linear.wanted_columns(n_p, columns)
     observe = problem.extended.case_parts
     observed = [problem.numeric_of(observe(k).observation)(states[:, k], p) for k in range(n_cases)]
     rows, where = distinct_rows([o[1] for o in observed])

@@ -131,6 +131,15 @@ def force_derivatives(problem, p: np.ndarray, states: np.ndarray) -> np.ndarray:
     return out.reshape(n_state, n_cases * p.size)
 
 
+def wanted_columns(n_p: int, columns=None) -> np.ndarray:
+    """The mask of the entries of p whose sensitivities are wanted (all when None)."""
+    if columns is None:
+        return np.ones(n_p, dtype=bool)
+    wanted = np.zeros(n_p, dtype=bool)
+    wanted[np.asarray(columns, dtype=int)] = True
+    return wanted
+
+
 def linearise(problem, p: np.ndarray, states: np.ndarray, factor: StateJacobian, columns=None):
     """r and exact dr/dp of every case at solved states, from one multi-column solve.
 
@@ -162,10 +171,7 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor: StateJacobian,
         ]
     )
     sensitivity = np.zeros_like(dg_dp)
-    wanted = np.ones(n_p, dtype=bool)
-    if columns is not None:
-        wanted[:] = False
-        wanted[np.asarray(columns, dtype=int)] = True
+    wanted = wanted_columns(n_p, columns)
     moving = np.flatnonzero(np.any(dg_dp != 0.0, axis=0) & np.tile(wanted, n_cases))
     if moving.size:  # a parameter that moves no state (a per-case measurement) is unsolved
         sensitivity[:, moving] = -factor.solve(dg_dp[:, moving])
