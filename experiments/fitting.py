@@ -165,10 +165,30 @@ def build_problem(
 ) -> InverseProblem:
     """The inverse problem of a dataset (all load cases jointly, or the chosen ones)."""
     settings = settings or FitSettings()
+    model, uv = build_model(dataset, settings)
+    return problem_on(model, uv, dataset, settings, cases)
+
+
+def build_model(dataset: Dataset, settings: FitSettings) -> tuple[TissueModel, np.ndarray]:
+    """The model of a dataset's rest geometry (``rest_geometry``) and the markers' (u, v).
+
+    The load cases are not part of it: ``problem_on`` poses the inverse problem of any
+    loads on it (step 0 of the loop fits several probe sizes on one model).
+    """
     volume, uv = rest_geometry(dataset, settings)
     boundary = BoundaryConditions(fix_lateral=settings.fix_lateral)
-    model = ENERGIES[settings.energy](volume, dict(settings.fixed or {}), boundary)
-    loads = dataset_loads(dataset, volume)
+    return ENERGIES[settings.energy](volume, dict(settings.fixed or {}), boundary), uv
+
+
+def problem_on(
+    model: TissueModel,
+    uv: np.ndarray,
+    dataset: Dataset,
+    settings: FitSettings,
+    cases: list[int] | None = None,
+) -> InverseProblem:
+    """The inverse problem of a dataset's load cases on a built model (``build_model``)."""
+    loads = dataset_loads(dataset, model.volume)
     chosen = range(dataset.n_loads) if cases is None else cases
     problem_cases = []
     for k in chosen:

@@ -33,10 +33,22 @@ def margin_rows(grid: np.ndarray, margin: float) -> int:
     """
     if margin <= 0:
         return 0
-    spacing = min(
+    return max(1, int(np.ceil(margin / marker_spacing(grid) - 1e-9)))
+
+
+def marker_spacing(grid: np.ndarray) -> float:
+    """The smaller of the median marker spacings along the grid's two directions [mm]."""
+    return min(
         float(np.median(np.linalg.norm(np.diff(grid, axis=axis), axis=-1))) for axis in (0, 1)
     )
-    return max(1, int(np.ceil(margin / spacing - 1e-9)))
+
+
+def marked_lengths(grid: np.ndarray) -> tuple[float, float]:
+    """Mean lengths [mm] of the marker grid's lines along u and along v (on the skin)."""
+    return tuple(
+        float(np.mean(np.sum(np.linalg.norm(np.diff(grid, axis=axis), axis=-1), axis=axis)))
+        for axis in (0, 1)
+    )
 
 
 def extend_grid(grid: np.ndarray, margin: float, rows: int | None = None) -> np.ndarray:

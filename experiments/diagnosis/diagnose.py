@@ -33,16 +33,35 @@ def base_settings(grid=None, energy: str = "dnurbs", degrees=None, margin: float
     return FitSettings(names=names, grid=grid, energy=energy, margin=margin, **extra)
 
 
-def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=None):
-    """Build the base problem of a dataset and run the loop; returns the Diagnosis.
+AUTO = "auto"
+"""``base`` of ``diagnose_dataset`` and ``run``: step 0 chooses the base model."""
 
-    ``grid`` is the control grid (M, N, L); None follows the data (``control_grid``).
-    ``base`` is the base model's ``FitSettings`` (default ``base_settings(grid)``).
+
+def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=AUTO):
+    """Choose the base model (step 0), build its problem and run the loop; the Diagnosis.
+
+    ``base`` is the base model's ``FitSettings``, or ``AUTO`` (the default): step 0
+    (``experiments.basemodel.choose_base``) fits the paper's energy and the continuum
+    family and keeps what the data support; the choice is recorded as
+    ``Diagnosis.base_choice``. A ``grid`` (M, N, L) without ``base`` is the paper's
+    energy on that grid.
     """
     from experiments.fitting import build_problem, dataset_loads
-    from solvers.diagnosis.loop import diagnose
+    from solvers.diagnosis.loop import DiagnosisSettings, diagnose
 
-    problem = build_problem(dataset, base or base_settings(grid))
+    settings = settings or DiagnosisSettings()
+    log = log or (lambda *_: None)
+    if base == AUTO and grid is None:
+        from experiments.basemodel import choose_base
+
+        choice = choose_base(dataset, lambda line: log("step 0: " + line), settings.level)
+        log(choice.line())
+        start = choice.chosen.fit
+        problem = start.problem
+        diagnosis = diagnose(problem.base, problem.loads, settings, log, start=start)
+        diagnosis.base_choice = choice.record()
+        return diagnosis
+    problem = build_problem(dataset, base_settings(grid) if base == AUTO else base)
     loads = dataset_loads(dataset, problem.model.volume)
     return diagnose(problem, loads, settings, log)
 
@@ -53,7 +72,7 @@ def run(
     log=print,
     settings=None,
     grid=None,
-    base=None,
+    base=AUTO,
     check_refinement: bool = True,
 ) -> dict:
     """Diagnose a dataset (object or ``.npz`` path); write diagnosis.json, report.md, figures.
@@ -68,7 +87,8 @@ def run(
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
-    base = base or base_settings(grid)
+    if base == AUTO and grid is not None:
+        base = base_settings(grid)
     for line in dataset_warnings(dataset):
         print(f"dvs diagnose: warning: {line}", file=sys.stderr)
     out = Path(out)
@@ -79,17 +99,28 @@ def run(
     begin = time.perf_counter()
     diagnosis = diagnose_dataset(dataset, settings, lambda line: log("  " + line), base=base)
     document = diagnosis.document()
-    if check_refinement:
-        from experiments.diagnosis.refinement import refinement_check, summary
+    choice = document.get("base_choice")
+    if choice is not None:
+        energy = choice["chosen"]
+        reason = "the base model's resolution is step 0's (base_choice.resolution)"
+        if energy == "dnurbs":
+            reason = "the paper's energy is defined on its grid (alpha depend on it)"
+        document["refinement"] = {"verdict": "not checked", "reason": reason}
+    else:
+        energy = base.energy
+        if check_refinement:
+            from experiments.diagnosis.refinement import refinement_check, summary
 
-        document["refinement"] = refinement_check(diagnosis, dataset, base)
-        log("  " + summary(document["refinement"]))
+            document["refinement"] = refinement_check(diagnosis, dataset, base)
+            log("  " + summary(document["refinement"]))
     document["wall_time_s"] = time.perf_counter() - begin
-    document["design"] = design_note(dataset, base.energy)
+    document["design"] = design_note(dataset, energy)
     out.mkdir(parents=True, exist_ok=True)
     plot_residuals(diagnosis, out / "residuals.png")
     atomic_write_json(out / "diagnosis.json", document)
     text = report(diagnosis, document) + f"\n## The design\n\n{_design_text(document)}\n"
+    if choice is not None:
+        text += f"\n## Step 0: the base model\n\n{step0_text(choice)}\n"
     if "refinement" in document:
         from experiments.diagnosis.refinement import summary
 
@@ -101,6 +132,21 @@ def run(
     )
     log(f"note: {document['design']['note']}")
     return document
+
+
+def step0_text(choice: dict) -> str:
+    """Step 0 in words: the finding, the surroundings and resolution chosen."""
+    lines = [f"- {choice['finding']}."]
+    if choice["surroundings"] is not None and choice["chosen"] != "dnurbs":
+        lines.append(f"- surroundings preferred by the data: {choice['preference'] or 'only one'}.")
+    for check in choice["resolution"]:
+        grid, fine = ("x".join(map(str, check[k])) for k in ("grid", "refined_grid"))
+        lines.append(
+            f"- resolution: {grid} -> {fine} moves the predicted markers by chi2 "
+            f"{check['prediction_chi2']:.1f} (limit {check['limit']:.1f}): {check['verdict']}."
+        )
+    lines.append(f"- step 0 took {choice['seconds']:.0f} s.")
+    return "\n".join(lines)
 
 
 def _design_text(document: dict) -> str:
@@ -186,10 +232,11 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     )
     parser.add_argument(
         "--energy",
-        choices=("dnurbs", "linear-elastic", "neo-hookean"),
-        default="dnurbs",
-        help="base model: dnurbs (eq. 18, default), linear-elastic or neo-hookean "
-        "(docs/continuum.md)",
+        choices=(AUTO, "dnurbs", "linear-elastic", "neo-hookean"),
+        default=AUTO,
+        help="base model: auto (step 0 chooses between the paper's energy and the "
+        "linear-elastic continuum with the tissue beyond the markers and the probe size "
+        "estimated, docs/continuum.md), or dnurbs (eq. 18), linear-elastic or neo-hookean",
     )
     add_margin_argument(parser)
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
@@ -237,7 +284,18 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         if args.grid != "auto":
             checked = degrees or base_settings().degrees
             grid = check_grid(parse_grid(args.grid), checked, args.grid)
-        base = base_settings(grid, args.energy, degrees, check_margin(args.margin))
+        margin = check_margin(args.margin)
+        if args.energy == AUTO:
+            chosen = [f"--{n}" for n, v in (("grid", grid), ("degrees", degrees)) if v is not None]
+            chosen += ["--margin"] if margin > 0 else []
+            if chosen:
+                raise UsageError(
+                    f"{', '.join(chosen)} set the volume of a chosen --energy; with --energy "
+                    "auto (the default) step 0 chooses the volume, or give --energy too"
+                )
+            base = AUTO
+        else:
+            base = base_settings(grid, args.energy, degrees, margin)
         check_output_dir(args.out)
         settings = DiagnosisSettings(
             level=args.level,

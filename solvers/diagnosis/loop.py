@@ -169,6 +169,8 @@ class Diagnosis:
     noise_rms_mm: float
     level: float
     rejected: list[dict] = field(default_factory=list)
+    base_choice: dict | None = None
+    """How the base model was chosen (step 0, ``experiments.basemodel``), if it was."""
 
     @property
     def selected(self) -> list[str]:
@@ -201,6 +203,7 @@ class Diagnosis:
             "level": self.level,
             "rejected": self.rejected,
             "rivals": self.rivals,
+            **({} if self.base_choice is None else {"base_choice": self.base_choice}),
         }
 
 
@@ -309,7 +312,11 @@ def _refit(current: EffectFit, effect, test: ScoreTest) -> EffectFit:
 
 
 def diagnose(
-    base: InverseProblem, loads: list, settings: DiagnosisSettings | None = None, log=None
+    base: InverseProblem,
+    loads: list,
+    settings: DiagnosisSettings | None = None,
+    log=None,
+    start: EffectFit | None = None,
 ) -> Diagnosis:
     """Run the loop on a base problem, with BLAS on one thread (``solvers.blas``: the
     loop's dense work is small SVDs and QRs of Jacobians, which two OpenBLAS threads
@@ -326,15 +333,22 @@ def diagnose(
         Level, candidates, limits.
     log : callable, optional
         Progress lines.
+    start : EffectFit, optional
+        A fit of the base model already made on ``base`` and ``loads`` (step 0's): the
+        base fit starts from its estimate and reuses its problem's factorisations.
     """
     with one_thread():
-        return _diagnose(base, loads, settings or DiagnosisSettings(), log or (lambda *_: None))
+        quiet = log or (lambda *_: None)
+        return _diagnose(base, loads, settings or DiagnosisSettings(), quiet, start)
 
 
-def _diagnose(base: InverseProblem, loads: list, settings: DiagnosisSettings, log) -> Diagnosis:
+def _diagnose(base, loads: list, settings: DiagnosisSettings, log, start=None) -> Diagnosis:
     """``diagnose``'s loop."""
     library = effect_library(settings.candidates, base.model.energy)
-    current = fit(ExtendedProblem(base, loads, []))
+    if start is None:
+        current = fit(ExtendedProblem(base, loads, []))
+    else:
+        current = fit(start.problem, start.p, states=start.states)
     if base.noise_mm is not None:
         sigma, source = float(base.noise_mm), "given"
     else:
