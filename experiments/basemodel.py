@@ -9,7 +9,9 @@ base model (docs/continuum.md, "Step 0"):
    markers (knot spans of half the marker spacing, ``starting_resolution``) and whose
    surroundings are estimated, not assumed: how far the tissue goes on beyond the
    markers (``MARGINS_MM``), whether it is free or clamped there (``SUPPORTS``), and,
-   when the dataset does not declare it, the probe's radius (a profile over
+   when the dataset does not declare it (or declares point forces, which a continuum
+   cannot carry: its displacement under a point is unbounded), the probe's radius (a
+   profile over
    ``RADII_MM``, refined by a parabola through the best three). Each member of this
    family has the same two estimated parameters, so the family's chi^2 values compare
    directly (a profile likelihood); the search is coordinate-wise: the radius at a
@@ -67,11 +69,20 @@ as closely with a fine reference (docs/continuum.md, "Step 0")."""
 SPAN_OF_SPACING = 0.5
 """Knot span of the starting volume along the skin, in marker spacings."""
 
+SEARCH_SPAN_OF_SPACING = 2.0 / 3.0
+"""Knot span of the volumes of the search over surroundings, in marker spacings: a third
+of the cost of ``SPAN_OF_SPACING`` per fit, and the same choices on the tissue data
+of docs/continuum.md ("Step 0")."""
+
 REFINEMENT = 1.5
 """Factor by which the resolution check divides the knot span along the skin."""
 
 MAX_REFINEMENTS = 2
 """Most refinements the resolution check makes (the last one adopted unchecked)."""
+
+MAX_CHECK_POINTS = 20000
+"""Largest volume (control points) the resolution check refits on: 53 x 42 x 7 takes
+about 20 s to build and factor once; the next step up costs 5x that."""
 
 TOLERANCE = 1e-6
 """Relative tolerance of the family's fits (chi^2 to well below 0.01)."""
@@ -140,15 +151,18 @@ class Trial:
         }
 
 
-def starting_resolution(dataset: Dataset) -> tuple[float, int]:
-    """Knot span along the skin [mm] and layers through the thickness of the start volume.
+def starting_resolution(dataset: Dataset, spacings: float = SPAN_OF_SPACING) -> tuple[float, int]:
+    """Knot span along the skin [mm] and layers through the thickness of a volume.
+
+    ``spacings`` is the span in marker spacings: ``SPAN_OF_SPACING`` for the start of
+    the resolution check, ``SEARCH_SPAN_OF_SPACING`` for the search of the surroundings.
 
     The span is ``SPAN_OF_SPACING`` marker spacings (two cubic spans between markers:
     the displacement between markers is what the markers do not show, and a probe's
     near field is about its radius, of the order of the spacing). Through the thickness
     the spans are as long as along the skin, at least two.
     """
-    span = SPAN_OF_SPACING * marker_spacing(dataset.outer_rest)
+    span = spacings * marker_spacing(dataset.outer_rest)
     thickness = float(np.median(np.linalg.norm(dataset.outer_rest - dataset.inner_rest, axis=-1)))
     return span, DEGREES[2] + max(2, math.ceil(thickness / span))
 
@@ -182,7 +196,8 @@ class _Family:
         self.sigma = sigma
         self.models: dict = {}
         self.trials: dict[Surroundings, Trial] = {}
-        self.declared = dataset.probe_radius is not None
+        radius = dataset.probe_radius
+        self.declared = radius is not None and bool(np.all(np.asarray(radius) > 0))
 
     def key(self, margin: float, support: str, radius: float | None) -> Surroundings:
         return Surroundings(margin, support, None if self.declared else round(radius, 2))
@@ -295,6 +310,13 @@ class BaseChoice:
         """The base model's ``FitSettings`` for the loop."""
         return self.chosen.settings
 
+    def fit_settings(self) -> FitSettings:
+        """The ``FitSettings`` of ``dvs fit`` on the chosen model: the paper's estimates
+        mu and gamma too (as ``dvs fit --energy dnurbs``), the continuum E and nu."""
+        from experiments.fitting import ENERGY_NAMES
+
+        return replace(self.settings, names=ENERGY_NAMES[self.settings.energy])
+
     def dataset(self, dataset: Dataset) -> Dataset:
         """The dataset the loop runs on: with the estimated probe radius, if any."""
         surroundings = self.chosen.surroundings
@@ -391,7 +413,7 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
         sigma = float(dataset.noise_mm) if dataset.noise_mm else robust_sigma(paper.fit)
         paper.chi2, paper.dof = _chi2(paper.fit, sigma)
         log(f"paper's energy (auto grid, ending at the markers): chi2 {paper.chi2:.0f}/{paper.dof}")
-        span, layers = starting_resolution(dataset)
+        span, layers = starting_resolution(dataset, SEARCH_SPAN_OF_SPACING)
         family = _Family(dataset, span, layers, sigma, log)
         best = family.radius_profile(MARGINS_MM[1], SUPPORTS[0])
         radius = best.surroundings.radius_mm
@@ -408,7 +430,12 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
         chosen = paper if paper.bic <= continuum.bic else continuum
         resolution = []
         if chosen is continuum:
-            chosen, resolution = _checked_resolution(dataset, family, continuum, sigma, level, log)
+            span, layers = starting_resolution(dataset)
+            start = _Family(dataset, span, layers, sigma, log)
+            key = best.surroundings
+            begun = start.trial(key.margin_mm, key.support, key.radius_mm, best.fit.p)
+            chosen, resolution = _checked_resolution(dataset, start, begun, sigma, level, log)
+            continuum = chosen
     choice = BaseChoice(chosen, paper, continuum, trials, resolution, sigma)
     choice.seconds = time.perf_counter() - begin
     return choice
@@ -445,6 +472,20 @@ def _checked_resolution(dataset, family, trial, sigma, level, log):
         begin = time.perf_counter()
         finer = _Family(dataset, family.span / REFINEMENT, family.layers + 1, sigma, _quiet)
         key = trial.surroundings
+        settings = span_settings(dataset, key.margin_mm, key.support, finer.span, finer.layers)
+        if math.prod(settings.grid) > MAX_CHECK_POINTS:
+            grid = "x".join(map(str, settings.grid))
+            records.append(
+                {
+                    "grid": list(trial.settings.grid),
+                    "refined_grid": list(settings.grid),
+                    "verdict": "not checked",
+                    "reason": f"the check's volume {grid} "
+                    f"exceeds {MAX_CHECK_POINTS} control points",
+                }
+            )
+            log(f"resolution: {records[-1]['reason']}; not checked")
+            break
         settings, problem = finer.problem(key)
         predicted, estimate = _linearised_refit(problem, trial.fit.p)
         change = trial.fit.whitened - predicted

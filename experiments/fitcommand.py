@@ -45,10 +45,11 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
     )
     parser.add_argument(
         "--energy",
-        choices=tuple(ENERGIES),
-        default="dnurbs",
-        help="base model: the paper's eq. 18, isotropic linear elasticity or neo-Hookean "
-        "(docs/continuum.md)",
+        choices=("auto", *ENERGIES),
+        default="auto",
+        help="base model: auto (step 0 of dvs diagnose chooses between the paper's eq. 18 and "
+        "isotropic linear elasticity with its surroundings, docs/continuum.md), dnurbs, "
+        "linear-elastic or neo-hookean",
     )
     parser.add_argument(
         "--params",
@@ -59,7 +60,9 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
         "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
     )
     parser.add_argument(
-        "--degrees", default="3x3x1", help="degrees PxQxR along u, v and through the thickness"
+        "--degrees",
+        default=None,
+        help="degrees PxQxR along u, v and through the thickness (default 3x3x1)",
     )
     add_margin_argument(parser)
     parser.add_argument(
@@ -101,11 +104,28 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
 
     def work() -> int:
         objective = "control_points" if args.method == "paper" else "markers"
-        degrees = parse_degrees(args.degrees)
+        energy = args.energy
+        if energy == "auto" and (args.method == "paper" or args.objective == "control_points"):
+            energy = "dnurbs"  # the paper's method and objective are the paper's model's
+        if energy == "auto":
+            chosen = [
+                f"--{name}"
+                for name, value in (("grid", args.grid != "auto"), ("degrees", args.degrees))
+                if value
+            ]
+            chosen += ["--margin"] * (check_margin(args.margin) > 0)
+            chosen += ["--params"] * (args.params is not None)
+            if chosen:
+                raise UsageError(
+                    f"{', '.join(chosen)} set the model of a chosen --energy; with --energy "
+                    "auto (the default) step 0 chooses it, or give --energy too"
+                )
+        degrees = parse_degrees(args.degrees or "3x3x1")
         if check_margin(args.margin) > 0 and (args.objective or objective) != "markers":
             raise UsageError("--margin needs --objective markers (control points follow the grid)")
-        names = parse_names(args.params or ",".join(ENERGY_NAMES[args.energy]))
-        check_energy_names(args.energy, names)
+        named = "dnurbs" if energy == "auto" else energy
+        names = parse_names(args.params or ",".join(ENERGY_NAMES[named]))
+        check_energy_names(named, names)
         settings = FitSettings(
             names=names,
             grid=None
@@ -113,7 +133,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
             else check_grid(parse_grid(args.grid), degrees, args.grid),
             degrees=degrees,
             objective=args.objective or objective,
-            energy=args.energy,
+            energy=named,
             margin=check_margin(args.margin),
         )
         check_output_dir(args.out)
@@ -122,6 +142,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
         warn(early)
         cases = plural(dataset.n_loads, "load case")
         print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
+        choice = None
+        if energy == "auto":
+            from experiments.basemodel import choose_base
+
+            choice = choose_base(dataset, lambda line: print(f"  step 0: {line}", flush=True))
+            dataset, settings = choice.dataset(dataset), choice.fit_settings()
+            print(f"  {choice.line()}", flush=True)
         grid, degrees = model_grid(dataset, settings)
         print(
             f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
@@ -129,6 +156,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
         )
         progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
         problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
+        if choice is not None:
+            document["base_choice"] = choice.record()
         write_fit_outputs(args.out, problem, result, document)
         if args.method == "auto":
             print(f"  method {result.method} ({document['method_choice']['reason']})")

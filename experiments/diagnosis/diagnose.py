@@ -141,6 +141,9 @@ def step0_text(choice: dict) -> str:
         lines.append(f"- surroundings preferred by the data: {choice['preference'] or 'only one'}.")
     for check in choice["resolution"]:
         grid, fine = ("x".join(map(str, check[k])) for k in ("grid", "refined_grid"))
+        if "prediction_chi2" not in check:
+            lines.append(f"- resolution {grid} not checked: {check['reason']}.")
+            continue
         lines.append(
             f"- resolution: {grid} -> {fine} moves the predicted markers by chi2 "
             f"{check['prediction_chi2']:.1f} (limit {check['limit']:.1f}): {check['verdict']}."

@@ -20,6 +20,7 @@ pre_tension          sigma0 [N/mm]              ``stiffness``
 volumetric_coupling  lambda [N/mm^2]            ``stiffness`` (section 4)
 shear_coupling       mu_L [N/mm^2]              ``stiffness`` (eq. C3)
 surrounding_tissue   k_s [N/mm^3]               ``boundary`` (section 2)
+layering             s_1, s_2 [1]               ``stiffness`` (skin over fat)
 ==================== ========================== ==================================
 
 Each effect names the base energies it extends (``Effect.energies``); on the
@@ -56,6 +57,7 @@ from symbolic.effects.stiffening import NonlinearStiffening
 from symbolic.effects.stiffness import (
     Bending,
     Heterogeneity,
+    Layering,
     PreTension,
     ShearCoupling,
     VolumetricCoupling,
@@ -77,6 +79,7 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     VolumetricCoupling,
     ShearCoupling,
     SurroundingTissue,
+    Layering,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
 """The default library: every effect name of DESIGN.md but ``stiffness_field``, in order."""
