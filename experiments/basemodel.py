@@ -340,10 +340,11 @@ class BaseChoice:
 
     def preference(self) -> str:
         """How strongly the data preferred the chosen surroundings over the runner-up of
-        each setting (chi^2 differences at the same number of parameters)."""
-        best = self.continuum
-        if best is None:
+        each setting (chi^2 differences at the same number of parameters, on the search's
+        volumes)."""
+        if self.continuum is None:
             return ""
+        best = min(self.trials, key=lambda t: t.chi2)  # the search's volumes, one resolution
         parts = []
         s = best.surroundings
         others = [t for t in self.trials if t is not best]
@@ -431,7 +432,7 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
         resolution = []
         if chosen is continuum:
             span, layers = starting_resolution(dataset)
-            start = _Family(dataset, span, layers, sigma, log)
+            start = _Family(dataset, span, layers, sigma, _quiet)
             key = best.surroundings
             begun = start.trial(key.margin_mm, key.support, key.radius_mm, best.fit.p)
             chosen, resolution = _checked_resolution(dataset, start, begun, sigma, level, log)

@@ -1,16 +1,17 @@
-"""Issue 40's acceptance, written before its fix: default ``dvs diagnose`` on tissue.
+"""Issue 40's acceptance: default ``dvs diagnose`` on tissue the model was not tuned on.
 
 The data are FE patches from the generator the model was not tuned on
 (``experiments.phantom.tissue``): the tissue goes on beyond the markers by an amount
 the dataset does not declare and is held there in ways it does not declare, the probe's
 radius is not in the file, the marker grid is not square. The rows are those of the
-baseline table in docs/continuum.md ("Tissue the model was not tuned on").
+table in docs/continuum.md ("Tissue the model was not tuned on").
 
-Today the defaults (the paper's energy up to 9x9x2, ending at the markers) add stand-ins
-and end "unexplained", so these tests are strict expected failures: the day a change
-makes one pass, the suite says so and the marker comes off. They are the strong form
-the issue asks for: the named effect (or only physics the data have), never a stand-in
-at any step, and explained at <= 1.1x the noise level.
+They are the strong form the issue asks for: the named effect (or only physics the data
+have), never a stand-in at any step, and explained at <= 1.1x the noise level. Written
+before the fix as strict expected failures; step 0 (``experiments.basemodel``) and the
+layering effect made rows A, D, G and the slab pass. Row E (curved, 8 mm, 10 mm free)
+still fails: the resolution check stops at its budget before the predicted markers
+converge, and the loop then adds layering for the discretisation's share.
 """
 
 from __future__ import annotations
@@ -26,7 +27,10 @@ PHYSICAL = frozenset(
 continuum's volume and shear coupling. Anything else added without an injected effect
 is a stand-in (rigid motion, a per-capture scale, a stiffening, a pre-tension, ...)."""
 
-ISSUE_40 = "issue 40: the defaults add stand-ins and end unexplained on tissue"
+UNCONVERGED = (
+    "issue 40: on row E the resolution check's next volume (70x59x8) is over its budget, "
+    "the adopted one moves the markers by chi2 92 against 6.6, and layering stands in"
+)
 
 ROWS = {  # name: (TissuePatch fields, design, markers, probe, radius [mm])
     "A": (
@@ -100,8 +104,18 @@ def _diagnosed(row, seed: int) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=ISSUE_40)
-@pytest.mark.parametrize("name", sorted(ROWS))
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(
+            name,
+            marks=[pytest.mark.xfail(strict=True, raises=AssertionError, reason=UNCONVERGED)]
+            if name == "E"
+            else [],
+        )
+        for name in sorted(ROWS)
+    ],
+)
 def test_without_an_effect_the_defaults_explain_tissue_with_physics_only(name):
     """No effect injected: explained at <= 1.1x the noise, only physical terms added."""
     document = _diagnosed(ROWS[name], seed=sorted(ROWS).index(name))
@@ -111,7 +125,6 @@ def test_without_an_effect_the_defaults_explain_tissue_with_physics_only(name):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=ISSUE_40)
 def test_a_bilayer_is_named_as_layering_or_left_unexplained_without_stand_ins():
     """A bilayer is named (a layering effect) or left unexplained; never heterogeneity
     or base_compliance, and no stand-in at any step."""
@@ -122,13 +135,13 @@ def test_a_bilayer_is_named_as_layering_or_left_unexplained_without_stand_ins():
     assert "layering" in selected or document["unexplained"]
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=ISSUE_40)
 def test_out_of_library_data_get_no_stand_in_at_any_step():
     """The strong form of test_diagnosis's out-of-library check (FE slab, stiff skin on
-    soft fat, point probe, the paper's design): only physics the slab has may be added,
-    explained or not. Today measurement_scale is added first and the verdict is
-    unexplained, which the weak check accepts."""
+    soft fat, point probe, the paper's design): only physics the slab has may be added
+    (its skin layer included), explained or not. Before step 0 measurement_scale was
+    added first and the verdict was unexplained, which the weak check accepted."""
     from experiments.diagnosis.outoflibrary import simulate_slab
 
     document = diagnose_dataset(simulate_slab(seed=0)).document()
-    assert set(document["selected"]) <= PHYSICAL, document["selected"]
+    assert document["base_choice"]["chosen"] == "linear-elastic"
+    assert set(document["selected"]) <= PHYSICAL | {"layering"}, document["selected"]

@@ -1,0 +1,132 @@
+"""Step 0 of the loop (``experiments.basemodel``): the base model, its surroundings and
+its resolution, chosen from the data.
+
+The FE data come from ``experiments.phantom.tissue`` (Q2 hexahedra, another mesh and
+element than the model's), a small patch so that a step 0 takes seconds: 24 x 18 mm
+marked by 7 x 6 markers, 4 mm thick, clamped 4 mm beyond the markers, 8 loads at four
+contacts, a 2 mm disc probe whose radius the dataset does not declare. The phantom is
+the paper's own model (``experiments.phantom.simulate``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from experiments.basemodel import (
+    MARGINS_MM,
+    SUPPORTS,
+    _linearised_refit,
+    choose_base,
+    span_settings,
+    with_radius,
+)
+
+
+@pytest.fixture(scope="module")
+def patch_data():
+    pytest.importorskip("skfem")
+    from experiments.phantom.simulate import SimulationSettings
+    from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
+
+    patch = TissuePatch(
+        marked=(24.0, 18.0), extent_mm=4.0, thickness=4.0, poisson=0.45, support="clamped",
+        layers=3, spacing_mm=3.0,
+    )  # fmt: skip
+    forces, contacts = tissue_cases("corners", patch)
+    measurement = SimulationSettings(noise_mm=0.02, seed=3)
+    return tissue_dataset(patch, forces, contacts, 2.0, (7, 6), "disc", measurement=measurement)
+
+
+@pytest.fixture(scope="module")
+def patch_choice(patch_data):
+    return choose_base(patch_data)
+
+
+def test_on_fe_tissue_step_0_keeps_the_continuum_with_its_surroundings(patch_choice):
+    """The continuum wins by the information criterion (not nested: BIC, each chosen
+    setting counted as a parameter), and the finding says what the paper's model lacks."""
+    choice = patch_choice
+    assert choice.chosen is choice.continuum
+    assert choice.continuum.bic < choice.paper.bic - 100
+    assert "linear elasticity" in choice.finding()
+    # every surroundings of the family was fitted, and the chosen one fits best
+    searched = {(t.surroundings.margin_mm, t.surroundings.support) for t in choice.trials}
+    assert searched == {(m, s) for m in MARGINS_MM for s in SUPPORTS}
+    best = min(choice.trials, key=lambda t: t.chi2).surroundings
+    chosen = choice.chosen.surroundings
+    assert (chosen.margin_mm, chosen.support) == (best.margin_mm, best.support)
+    # the undeclared radius is estimated, not 0 (a point force a continuum cannot carry)
+    assert 0.5 < chosen.radius_mm < 6.0
+
+
+def test_the_resolution_is_refined_until_the_markers_do_not_move(patch_choice):
+    """Each check that the data can see is followed by one on a finer volume; the last
+    is within the 1-dof chi^2 quantile (or stopped by the budget, and says so)."""
+    checks = patch_choice.resolution
+    assert checks, "the chosen continuum was not checked"
+    for check in checks[:-1]:
+        assert check["verdict"] == "refined" and check["prediction_chi2"] > check["limit"]
+    last = checks[-1]
+    assert last["verdict"] in ("converged", "not checked")
+    if last["verdict"] == "converged":
+        assert last["prediction_chi2"] <= last["limit"]
+    assert list(patch_choice.settings.grid) == last["grid"]
+
+
+def test_the_linearised_refit_agrees_with_the_full_refit(patch_data, patch_choice):
+    """The check's refit is one Gauss-Newton step from the coarse estimate; the distance
+    it gives (how far the finer volume moves the predicted markers) is the full refit's
+    to a tenth, where the rule compares it with the 1-dof quantile."""
+    from experiments.fitting import build_model, dataset_loads, problem_on
+    from solvers.diagnosis.fit import fit
+    from solvers.diagnosis.problem import ExtendedProblem
+
+    key, sigma = patch_choice.chosen.surroundings, patch_choice.sigma
+    data = with_radius(patch_data, key.radius_mm)
+    coarse = min(patch_choice.trials, key=lambda t: t.chi2)
+    settings = span_settings(data, key.margin_mm, key.support, 2.0, 5)
+    model, uv = build_model(data, settings)
+    base = problem_on(model, uv, data, settings)
+    problem = ExtendedProblem(base, dataset_loads(data, model.volume), [])
+    predicted, _ = _linearised_refit(problem, coarse.fit.p)
+    full = fit(problem, coarse.fit.p)
+    linearised = np.sum((coarse.fit.whitened - predicted) ** 2) / sigma**2
+    refitted = np.sum((coarse.fit.whitened - full.whitened) ** 2) / sigma**2
+    assert refitted > 1.0  # the two volumes differ visibly: the comparison means something
+    assert abs(linearised - refitted) <= 0.1 * refitted
+
+
+def test_on_the_phantom_step_0_keeps_the_papers_energy():
+    """Data made by the paper's own model (as in make demo): its energy is kept."""
+    from experiments.phantom.simulate import simulate_with_effects
+
+    choice = choose_base(simulate_with_effects({}, seed=0))
+    assert choice.chosen is choice.paper
+    assert choice.settings.energy == "dnurbs" and choice.resolution == []
+    assert choice.paper.bic < choice.continuum.bic
+
+
+def test_the_record_holds_the_choice_and_a_line_names_it(patch_choice):
+    record = patch_choice.record()
+    assert record["chosen"] == "linear-elastic"
+    assert record["surroundings"]["probe_radius_estimated"] is True
+    assert record["paper"]["chi2"] > record["continuum"]["chi2"]
+    assert "base model: linear-elastic" in patch_choice.line()
+
+
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+@pytest.mark.parametrize("option", [["--grid", "9x9x2"], ["--margin", "5"], ["--degrees", "3x3x2"]])
+def test_volume_options_without_an_energy_exit_2(tmp_path, capsys, command, option):
+    """--grid, --margin and --degrees set the volume of a chosen --energy; with the
+    default (auto) step 0 chooses it: exit 2, one line naming the option."""
+    from experiments.cli import main
+    from experiments.dataset import save_dataset
+    from experiments.phantom.simulate import simulate_with_effects
+
+    path = tmp_path / "d.npz"
+    save_dataset(path, simulate_with_effects({}, seed=0))
+    assert main([command, str(path), *option, "--out", str(tmp_path / "o")]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and option[0] in error[0] and "--energy" in error[0]
+    assert not (tmp_path / "o").exists()
