@@ -105,8 +105,17 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
     def work() -> int:
         objective = "control_points" if args.method == "paper" else "markers"
         energy = args.energy
-        if energy == "auto" and (args.method == "paper" or args.objective == "control_points"):
-            energy = "dnurbs"  # the paper's method and objective are the paper's model's
+        paper = args.method == "paper" or args.objective == "control_points"
+        if args.params is not None and energy == "auto":
+            named = set(parse_names(args.params))
+            paper = paper or named <= set(ENERGY_NAMES["dnurbs"])
+            if not paper:
+                raise UsageError(
+                    f"--params {args.params} name a continuum's parameters; give --energy "
+                    "linear-elastic or neo-hookean too"
+                )
+        if energy == "auto" and paper:
+            energy = "dnurbs"  # the paper's method, objective and parameters are its model's
         if energy == "auto":
             chosen = [
                 f"--{name}"
@@ -114,7 +123,6 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
                 if value
             ]
             chosen += ["--margin"] * (check_margin(args.margin) > 0)
-            chosen += ["--params"] * (args.params is not None)
             if chosen:
                 raise UsageError(
                     f"{', '.join(chosen)} set the model of a chosen --energy; with --energy "

@@ -71,6 +71,9 @@ class FitSettings:
         Width [mm] of the band of tissue beyond the markers that the volume also
         covers (``experiments.surroundings``); 0, the default, ends the volume at the
         markers as the paper did. Only with ``objective="markers"``.
+    start : dict, optional
+        Start values of estimated parameters by name (default the paper's starts,
+        ``ParameterSpace.create``); step 0 passes its estimate.
     """
 
     names: tuple[str, ...] = DEFAULT_NAMES
@@ -81,6 +84,7 @@ class FitSettings:
     fixed: dict | None = None
     energy: str = "dnurbs"
     margin: float = 0.0
+    start: dict | None = None
 
     def __post_init__(self) -> None:
         if self.objective not in ("markers", "control_points"):
@@ -199,7 +203,7 @@ def problem_on(
         else:
             target = loaded_control_points(model, uv, observed)
             problem_cases.append(control_point_case(model, loads[k], target, label=label))
-    space = ParameterSpace.create(settings.names)
+    space = ParameterSpace.create(settings.names, settings.start)
     rest_noise = settings.objective == "markers"
     return InverseProblem(model, problem_cases, space, dataset.noise_mm, rest_noise)
 

@@ -180,7 +180,7 @@ def test_a_non_square_marker_grid_fits_and_diagnoses_with_the_defaults(markers, 
 def test_a_grid_finer_than_the_markers_refines_the_fitted_geometry(tmp_path, capsys):
     path = tmp_path / "data.npz"
     save_dataset(path, simulate(PhantomSettings(markers=(11, 8))))
-    argv = ["fit", str(path), "--grid", "9x9x2", "--out", str(tmp_path / "o")]
+    argv = ["fit", str(path), "--energy", "dnurbs", "--grid", "9x9x2", "--out", str(tmp_path / "o")]
     assert main(argv) == 0
     document = json.loads((tmp_path / "o" / "result.json").read_text())
     assert document["model"]["grid"] == [9, 9, 2] and document["verdict"]["explains_data"]

@@ -13,14 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.basemodel import (
-    MARGINS_MM,
-    SUPPORTS,
-    _linearised_refit,
-    choose_base,
-    span_settings,
-    with_radius,
-)
+from experiments.basemodel import MARGINS_MM, SUPPORTS, choose_base
+from experiments.basemodel.choice import linearised_refit
+from experiments.basemodel.family import span_settings, with_radius
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +84,7 @@ def test_the_linearised_refit_agrees_with_the_full_refit(patch_data, patch_choic
     model, uv = build_model(data, settings)
     base = problem_on(model, uv, data, settings)
     problem = ExtendedProblem(base, dataset_loads(data, model.volume), [])
-    predicted, _ = _linearised_refit(problem, coarse.fit.p)
+    predicted, _ = linearised_refit(problem, coarse.fit.p)
     full = fit(problem, coarse.fit.p)
     linearised = np.sum((coarse.fit.whitened - predicted) ** 2) / sigma**2
     refitted = np.sum((coarse.fit.whitened - full.whitened) ** 2) / sigma**2
@@ -98,13 +93,19 @@ def test_the_linearised_refit_agrees_with_the_full_refit(patch_data, patch_choic
 
 
 def test_on_the_phantom_step_0_keeps_the_papers_energy():
-    """Data made by the paper's own model (as in make demo): its energy is kept."""
+    """Data made by the paper's own model: its energy is kept. Clean, it fits at the
+    noise and the continuum is not tried; with make demo's undeclared rigid motion it
+    does not, and the continuum loses by the information criterion."""
     from experiments.phantom.simulate import simulate_with_effects
+    from symbolic.effects.library import make_effect
 
-    choice = choose_base(simulate_with_effects({}, seed=0))
-    assert choice.chosen is choice.paper
-    assert choice.settings.energy == "dnurbs" and choice.resolution == []
-    assert choice.paper.bic < choice.continuum.bic
+    clean = choose_base(simulate_with_effects({}, seed=0))
+    assert clean.chosen is clean.paper and clean.continuum is None
+    assert "not tried" in clean.finding()
+    magnitude = make_effect("rigid_motion").default_magnitude
+    moved = choose_base(simulate_with_effects({"rigid_motion": magnitude}, seed=0))
+    assert moved.chosen is moved.paper and moved.settings.energy == "dnurbs"
+    assert moved.paper.bic < moved.continuum.bic and moved.resolution == []
 
 
 def test_the_record_holds_the_choice_and_a_line_names_it(patch_choice):

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import pytest
 
+from experiments.diagnosis.defaults import ROWS as ROWS_ALL
+from experiments.diagnosis.defaults import row_dataset
 from experiments.diagnosis.diagnose import diagnose_dataset
 
 PHYSICAL = frozenset(
@@ -32,73 +34,13 @@ UNCONVERGED = (
     "the adopted one moves the markers by chi2 92 against 6.6, and layering stands in"
 )
 
-ROWS = {  # name: (TissuePatch fields, design, markers, probe, radius [mm])
-    "A": (
-        dict(marked=(40.0, 30.0), extent_mm=5.0, thickness=5.0, poisson=0.45, support="clamped"),
-        "diagnosis",
-        (11, 8),
-        "disc",
-        2.5,
-    ),
-    "D": (
-        dict(
-            marked=(40.0, 30.0),
-            extent_mm=5.0,
-            thickness=7.0,
-            poisson=0.47,
-            support="elastic",
-            curvature_radii=(60.0, 90.0),
-        ),
-        "corners",
-        (11, 8),
-        "disc",
-        3.0,
-    ),
-    "E": (
-        dict(
-            marked=(40.0, 30.0),
-            extent_mm=10.0,
-            thickness=8.0,
-            poisson=0.45,
-            support="free",
-            curvature_radii=(80.0, 80.0),
-        ),
-        "diagnosis",
-        (11, 8),
-        "disc",
-        2.0,
-    ),
-}
-"""Rows A, D and E of the baseline table (no effect injected)."""
-
-BILAYER = (
-    dict(
-        marked=(40.0, 30.0),
-        extent_mm=5.0,
-        thickness=6.0,
-        poisson=0.45,
-        support="clamped",
-        skin_mm=1.5,
-        skin_ratio=5.0,
-    ),
-    "diagnosis",
-    (11, 8),
-    "disc",
-    2.5,
-)
-"""Row G: a 1.5 mm skin 5x stiffer than the fat below."""
+ROWS = {name: ROWS_ALL[name] for name in ("A", "D", "E")}
+"""Rows A, D and E of the table (no effect injected)."""
 
 
-def _diagnosed(row, seed: int) -> dict:
+def _diagnosed(name: str) -> dict:
     pytest.importorskip("skfem")
-    from experiments.phantom.simulate import SimulationSettings
-    from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
-
-    fields, design, markers, probe, radius = row
-    patch = TissuePatch(layers=4, **fields)
-    forces, contacts = tissue_cases(design, patch)
-    measurement = SimulationSettings(noise_mm=0.02, seed=seed)
-    data = tissue_dataset(patch, forces, contacts, radius, markers, probe, measurement=measurement)
+    data = row_dataset(name)
     assert data.probe_radius is None  # the radius is not declared
     return diagnose_dataset(data).document()
 
@@ -118,7 +60,7 @@ def _diagnosed(row, seed: int) -> dict:
 )
 def test_without_an_effect_the_defaults_explain_tissue_with_physics_only(name):
     """No effect injected: explained at <= 1.1x the noise, only physical terms added."""
-    document = _diagnosed(ROWS[name], seed=sorted(ROWS).index(name))
+    document = _diagnosed(name)
     assert set(document["selected"]) <= PHYSICAL, document["selected"]
     assert document["unexplained"] is False
     assert document["rms_after_mm"] <= 1.1 * document["noise_rms_mm"]
@@ -128,7 +70,7 @@ def test_without_an_effect_the_defaults_explain_tissue_with_physics_only(name):
 def test_a_bilayer_is_named_as_layering_or_left_unexplained_without_stand_ins():
     """A bilayer is named (a layering effect) or left unexplained; never heterogeneity
     or base_compliance, and no stand-in at any step."""
-    document = _diagnosed(BILAYER, seed=6)
+    document = _diagnosed("G")
     selected = set(document["selected"])
     assert not selected & {"heterogeneity", "base_compliance"}
     assert selected <= PHYSICAL | {"layering"}, document["selected"]

@@ -328,7 +328,8 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
         "--diagnose",
         action="store_true",
         help="only the loop-speed rows: dvs diagnose at 9x9x2, and at 27x27x4 diagnose, "
-        "image, a design search and one sequential step",
+        "default dvs diagnose on two tissue patches, image, a design search and one "
+        "sequential step",
     )
     return parser
 
@@ -364,11 +365,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
         if args.diagnose:
             from experiments.design.speed import design_search_benchmark, sequential_step_benchmark
             from experiments.diagnosis.continuum import diagnosis_benchmark
+            from experiments.diagnosis.defaults import defaults_benchmark
             from experiments.diagnosis.study import diagnosis_timings
             from experiments.imaging.bench import imaging_benchmark
 
             diagnosis_timings()
             diagnosis_benchmark()
+            defaults_benchmark()
             imaging_benchmark()
             design_search_benchmark()
             sequential_step_benchmark()
