@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
         parse_names,
         plural,
         run_guarded,
+        verb,
     )
 
     args = build_parser(prog).parse_args(argv)
@@ -125,8 +126,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
             chosen += ["--margin"] * (check_margin(args.margin) > 0)
             if chosen:
                 raise UsageError(
-                    f"{', '.join(chosen)} set the model of a chosen --energy; with --energy "
-                    "auto (the default) step 0 chooses it, or give --energy too"
+                    f"{', '.join(chosen)} {verb(chosen)} the model of a chosen --energy; with "
+                    "--energy auto (the default) step 0 chooses it, or give --energy too"
                 )
         degrees = parse_degrees(args.degrees or "3x3x1")
         if check_margin(args.margin) > 0 and (args.objective or objective) != "markers":

@@ -307,3 +307,8 @@ def parse_degrees(text: str, option: str = "--degrees") -> tuple[int, int, int]:
     if len(degrees) != 3 or not all(1 <= d <= 5 for d in degrees):
         raise UsageError(f"{option} must look like 3x3x1 (three integers in 1-5), got {text!r}")
     return degrees
+
+
+def verb(options: list) -> str:
+    """'sets' after one option name, 'set' after several."""
+    return "sets" if len(options) == 1 else "set"

@@ -272,6 +272,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         parse_degrees,
         parse_grid,
         run_guarded,
+        verb,
     )
     from solvers.diagnosis.loop import DiagnosisSettings
 
@@ -293,8 +294,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
             chosen += ["--margin"] if margin > 0 else []
             if chosen:
                 raise UsageError(
-                    f"{', '.join(chosen)} set the volume of a chosen --energy; with --energy "
-                    "auto (the default) step 0 chooses the volume, or give --energy too"
+                    f"{', '.join(chosen)} {verb(chosen)} the volume of a chosen --energy; with "
+                    "--energy auto (the default) step 0 chooses the volume, or give --energy too"
                 )
             base = AUTO
         else:
