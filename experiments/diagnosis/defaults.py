@@ -139,8 +139,10 @@ def line(row: dict) -> str:
     base = row["base"]
     if base != "dnurbs":
         grid = "x".join(map(str, row["grid"]))
+        radius = s["probe_radius_mm"]
+        probe = "declared probe" if radius is None else f"r {radius:.2f} mm"
         base += (
-            f", {s['margin_mm']:g} mm {s['support']}, r {s['probe_radius_mm']:.2f} mm, {grid} "
+            f", {s['margin_mm']:g} mm {s['support']}, {probe}, {grid} "
             f"({', '.join(row['resolution'])})"
         )
     label = row["row"] if row["injected"] is None else row["injected"]
