@@ -19,7 +19,7 @@ from __future__ import annotations
 import pytest
 
 from experiments.diagnosis.defaults import ROWS as ROWS_ALL
-from experiments.diagnosis.defaults import row_dataset
+from experiments.diagnosis.defaults import injected_scenarios, row_dataset
 from experiments.diagnosis.diagnose import diagnose_dataset
 
 PHYSICAL = frozenset(
@@ -87,3 +87,42 @@ def test_out_of_library_data_get_no_stand_in_at_any_step():
     document = diagnose_dataset(simulate_slab(seed=0)).document()
     assert document["base_choice"]["chosen"] == "linear-elastic"
     assert set(document["selected"]) <= PHYSICAL | {"layering"}, document["selected"]
+
+
+NOT_NAMED = {
+    "stiffness_gradient": (
+        "issue 40: heterogeneity lowers chi2 by 648 (3281 -> 2634) but predicts the "
+        "left-out contacts worse (3040 -> 3303), and the guard rejects it"
+    ),
+    "compliant_base": (
+        "issue 40: step 0 absorbs the compliant base in nu (0.37 for 0.45); "
+        "base_compliance (score 149) predicts the left-out contacts worse (2652 -> 2690)"
+    ),
+}
+"""Injected effects the loop does not name yet, with the measured reason."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "injected",
+    [
+        pytest.param(
+            name,
+            marks=[pytest.mark.xfail(strict=True, raises=AssertionError, reason=NOT_NAMED[name])]
+            if name in NOT_NAMED
+            else [],
+        )
+        for name in sorted(injected_scenarios())
+    ],
+)
+def test_one_injected_effect_is_named_first_and_nothing_stands_in(injected):
+    """Row A's patch with one departure, 10 loads: the effect that names it is the first
+    selected and nothing but physics follows it, at <= 1.1x the noise (the surroundings
+    re-estimated once it is in, ``experiments.basemodel.revisit``)."""
+    pytest.importorskip("skfem")
+    effect = injected_scenarios()[injected][2]
+    document = diagnose_dataset(row_dataset("A", injected)).document()
+    assert document["selected"][:1] == [effect], document["selected"]
+    assert set(document["selected"][1:]) <= PHYSICAL, document["selected"]
+    assert document["unexplained"] is False
+    assert document["rms_after_mm"] <= 1.1 * document["noise_rms_mm"]

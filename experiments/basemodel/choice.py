@@ -226,16 +226,7 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
             return choice
         span, layers = starting_resolution(dataset, SEARCH_SPAN_OF_SPACING)
         family = Family(dataset, span, layers, sigma, log)
-        best = family.radius_profile(MARGINS_MM[1], SUPPORTS[0])
-        radius = best.surroundings.radius_mm
-        for margin in MARGINS_MM:
-            for support in SUPPORTS:
-                family.trial(margin, support, radius)
-        best = family.best()
-        if radius is not None:
-            best = family.radius_profile(
-                best.surroundings.margin_mm, best.surroundings.support, radius
-            )
+        best = search_surroundings(family, MARGINS_MM[1], SUPPORTS[0])
         trials = list(family.trials.values())
         continuum = best
         chosen = paper if paper.bic <= continuum.bic else continuum
@@ -250,6 +241,21 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
     choice = BaseChoice(chosen, paper, continuum, trials, resolution, sigma)
     choice.seconds = time.perf_counter() - begin
     return choice
+
+
+def search_surroundings(family: Family, margin: float, support: str, radius=None) -> Trial:
+    """The best member of the family, searched coordinate-wise from (margin, support): the
+    probe radius (a profile: the coarse ``RADII_MM``, or around ``radius``), then every
+    margin and support at that radius, then the radius again at the best of them."""
+    best = family.radius_profile(margin, support, radius)
+    radius = best.surroundings.radius_mm
+    for other_margin in MARGINS_MM:
+        for other_support in SUPPORTS:
+            family.trial(other_margin, other_support, radius)
+    best = family.best()
+    if radius is not None:
+        best = family.radius_profile(best.surroundings.margin_mm, best.surroundings.support, radius)
+    return best
 
 
 def _chi2(fitted: EffectFit, sigma: float) -> tuple[float, int]:
@@ -270,7 +276,8 @@ def _paper_trial(dataset: Dataset) -> Trial:
 
 def _checked_resolution(dataset, family, trial, sigma, level, log):
     """The chosen continuum checked on finer volumes until the data cannot see the change
-    of its predicted markers (``REFINEMENT``, at most ``MAX_REFINEMENTS`` refinements).
+    of its predicted markers (``REFINEMENT``, at most ``MAX_REFINEMENTS`` refinements):
+    the trial kept (its ``family`` at the kept resolution) and the checks' records.
 
     The refit on the finer volume is linearised: one Gauss-Newton step from the coarse
     estimate (one factorisation of the finer K; the two parameters move little, so the

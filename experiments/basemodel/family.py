@@ -91,6 +91,8 @@ class Trial:
     dof: int
     parameters: int
     seconds: float
+    family: object = None
+    """The ``Family`` it belongs to (its resolution and built models), if any."""
 
     @property
     def bic(self) -> float:
@@ -157,13 +159,32 @@ def with_radius(dataset: Dataset, radius: float | None) -> Dataset:
 class Family:
     """Fits of the continuum over surroundings, each model built once (cached)."""
 
-    def __init__(self, dataset: Dataset, span: float, layers: int, sigma: float, log):
+    def __init__(
+        self,
+        dataset: Dataset,
+        span: float,
+        layers: int,
+        sigma: float,
+        log,
+        effects: tuple = (),
+        initial: np.ndarray | None = None,
+    ):
         self.dataset, self.span, self.layers, self.log = dataset, span, layers, log
         self.sigma = sigma
+        self.effects, self.initial = list(effects), initial
         self.models: dict = {}
         self.trials: dict[Surroundings, Trial] = {}
         radius = dataset.probe_radius
         self.declared = radius is not None and bool(np.all(np.asarray(radius) > 0))
+
+    def with_effects(self, effects, initial: np.ndarray, log=None) -> Family:
+        """The same family (resolution, built models) with effects active in every member,
+        the fits starting from ``initial`` (p of a fit with those effects)."""
+        other = Family(
+            self.dataset, self.span, self.layers, self.sigma, log or self.log, effects, initial
+        )
+        other.models = self.models
+        return other
 
     def key(self, margin: float, support: str, radius: float | None) -> Surroundings:
         return Surroundings(margin, support, None if self.declared else round(radius, 2))
@@ -176,7 +197,8 @@ class Family:
         model, uv = self.models[(key.margin_mm, key.support)]
         data = with_radius(self.dataset, key.radius_mm)
         problem = problem_on(model, uv, data, settings)
-        return settings, ExtendedProblem(problem, dataset_loads(data, model.volume), [])
+        loads = dataset_loads(data, model.volume)
+        return settings, ExtendedProblem(problem, loads, self.effects, sigma=self.sigma)
 
     def trial(self, margin: float, support: str, radius: float | None, start=None) -> Trial:
         key = self.key(margin, support, radius)
@@ -191,6 +213,7 @@ class Family:
             settings, key, fitted, test.statistic, test.dof, 2 + 2 + chosen,
             time.perf_counter() - begin,
         )  # fmt: skip
+        trial.family = self
         self.trials[key] = trial
         self.log(
             f"continuum, {key.label()}: chi2 {trial.chi2:.0f}/{trial.dof}, "
@@ -202,7 +225,7 @@ class Family:
     def _start(self):
         """The best trial's estimate (fewer iterations), or the default start."""
         if not self.trials:
-            return None
+            return self.initial
         return self.best().fit.p
 
     def best(self) -> Trial:

@@ -58,8 +58,15 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
         log(choice.line())
         start = choice.chosen.fit
         problem = start.problem
-        diagnosis = diagnose(problem.base, problem.loads, settings, log, start=start)
+        revisit = None
+        if choice.chosen is choice.continuum:
+            from experiments.basemodel.revisit import Revisit
+
+            revisit = Revisit(choice, lambda line: log("step 0 revisited: " + line))
+        diagnosis = diagnose(problem.base, problem.loads, settings, log, start, revisit)
         diagnosis.base_choice = choice.record()
+        if revisit is not None:
+            diagnosis.base_choice["revisits"] = revisit.records
         return diagnosis
     problem = build_problem(dataset, base_settings(grid) if base == AUTO else base)
     loads = dataset_loads(dataset, problem.model.volume)

@@ -111,6 +111,8 @@ class Step:
     scores: list[ScoreTest] = field(default_factory=list)
     prediction: PredictionCheck | None = None
     rivals: list[dict] = field(default_factory=list)
+    surroundings: dict | None = None
+    """How the base model's surroundings changed once the effect was in (``revisit``)."""
 
     def parameters(self) -> dict:
         """Every parameter of the fit: value, standard error, unit."""
@@ -145,6 +147,7 @@ class Step:
             "effective_dof": self.fit.effective_dof(),
             "prediction": None if self.prediction is None else self.prediction.record(),
             "rivals": self.rivals,
+            "surroundings": self.surroundings,
             "score_tests": [
                 {
                     "effect": t.effect,
@@ -317,6 +320,7 @@ def diagnose(
     settings: DiagnosisSettings | None = None,
     log=None,
     start: EffectFit | None = None,
+    revisit=None,
 ) -> Diagnosis:
     """Run the loop on a base problem, with BLAS on one thread (``solvers.blas``: the
     loop's dense work is small SVDs and QRs of Jacobians, which two OpenBLAS threads
@@ -336,13 +340,19 @@ def diagnose(
     start : EffectFit, optional
         A fit of the base model already made on ``base`` and ``loads`` (step 0's): the
         base fit starts from its estimate and reuses its problem's factorisations.
+    revisit : callable, optional
+        Called with the fit after each accepted effect; returns None, or a fit with the
+        same effects on another base problem (the surroundings re-estimated,
+        ``experiments.basemodel.revisit``) and its record, which the loop goes on from.
     """
     with one_thread():
         quiet = log or (lambda *_: None)
-        return _diagnose(base, loads, settings or DiagnosisSettings(), quiet, start)
+        return _diagnose(base, loads, settings or DiagnosisSettings(), quiet, start, revisit)
 
 
-def _diagnose(base, loads: list, settings: DiagnosisSettings, log, start=None) -> Diagnosis:
+def _diagnose(
+    base, loads: list, settings: DiagnosisSettings, log, start=None, revisit=None
+) -> Diagnosis:
     """``diagnose``'s loop."""
     library = effect_library(settings.candidates, base.model.energy)
     if start is None:
@@ -417,11 +427,24 @@ def _diagnose(base, loads: list, settings: DiagnosisSettings, log, start=None) -
                 f"  {rival['effect']} explains it as well (chi2 drop {rival['chi2_drop']:.1f} "
                 f"against {rival['accepted_drop']:.1f})"
             )
+        moved = None if revisit is None else revisit(accepted.fit)
+        if moved is not None:
+            accepted = _moved(accepted, *moved)
+            guard_cache.clear()  # the previous model's predictions were on the old base
         current = accepted.fit
+        current.problem.sigma = sigma
         steps.append(accepted)
         log(_line(accepted))
     noise_rms = ExtendedProblem(base, loads, []).noise_rms(sigma)
     return Diagnosis(steps, sigma, source, noise_rms, settings.level, rejected)
+
+
+def _moved(step: Step, fitted: EffectFit, record: dict) -> Step:
+    """The accepted step refitted on the surroundings ``revisit`` found."""
+    moved = _step(step.effect, fitted, step.sigma, step.statistic, step.p_value)
+    moved.scores, moved.prediction, moved.rivals = step.scores, step.prediction, step.rivals
+    moved.surroundings = record
+    return moved
 
 
 def _line(step: Step) -> str:

@@ -1,0 +1,95 @@
+"""Step 0 revisited: the surroundings re-estimated once the loop has added an effect.
+
+Step 0 chooses how far the tissue goes on beyond the markers, how it is held there and
+the probe's radius on data that may hold an effect the base model lacks; the choice
+then absorbs what it can of that effect. On FE tissue with the contact 2 mm off the
+declared point, step 0 took a probe radius of 3.6 mm for a true 2.5 mm; once the loop
+added contact_offset, that radius was wrong, and a stand-in (layering) took up the
+rest (docs/continuum.md, "Injected effects").
+
+So after every effect the loop accepts, the search of step 0
+(``choice.search_surroundings``) runs again with the effects in every member, on the
+search's volumes, starting from the surroundings in use. When another member fits
+better, the loop's model is rebuilt with those surroundings at the loop's resolution
+and refitted (``Revisit``); the step records the change. The settings were already
+counted in step 0's BIC (k = 5), so a change costs no further parameter.
+"""
+
+from __future__ import annotations
+
+import time
+
+from experiments.basemodel.choice import BaseChoice, search_surroundings
+from experiments.basemodel.family import Surroundings
+from solvers.diagnosis.fit import EffectFit
+
+
+class Revisit:
+    """The callable the loop runs after each accepted effect (``diagnose(revisit=)``).
+
+    Parameters
+    ----------
+    choice : BaseChoice
+        Step 0's outcome, with the continuum chosen.
+    log : callable
+        Progress lines.
+    """
+
+    def __init__(self, choice: BaseChoice, log):
+        self.search = choice.trials[0].family
+        self.loop = choice.chosen.family
+        self.surroundings: Surroundings = choice.chosen.surroundings
+        self.log = log
+        self.records: list[dict] = []
+
+    def __call__(self, current: EffectFit) -> tuple[EffectFit, dict] | None:
+        """The refit on better surroundings with ``current``'s effects and its record,
+        or None when the surroundings in use stay the best."""
+        begin = time.perf_counter()
+        effects = current.problem.effects
+        names = ", ".join(e.name for e in effects)
+        key = self.surroundings
+        family = self.search.with_effects(
+            effects, current.p, lambda line: self.log(f"with {names}: {line}")
+        )
+        here = family.trial(key.margin_mm, key.support, key.radius_mm)
+        best = search_surroundings(family, key.margin_mm, key.support, key.radius_mm)
+        record = {
+            "effects": [e.name for e in effects],
+            "before": _as_dict(key),
+            "after": _as_dict(best.surroundings),
+            "search_chi2_before": here.chi2,
+            "search_chi2_after": best.chi2,
+            "trials": len(family.trials),
+        }
+        moved = None
+        if best.surroundings != key:
+            loop = self.loop.with_effects(effects, best.fit.p, lambda *_: None)
+            s = best.surroundings
+            trial = loop.trial(s.margin_mm, s.support, s.radius_mm)
+            before, after = current.cost, trial.fit.cost
+            record.update(chi2_before=before / family.sigma**2, chi2_after=after / family.sigma**2)
+            if after < before:
+                moved = trial.fit
+                self.surroundings = s
+        record["changed"] = moved is not None
+        record["seconds"] = time.perf_counter() - begin
+        self.records.append(record)
+        self.log(line(record))
+        return None if moved is None else (moved, record)
+
+
+def line(record: dict) -> str:
+    """One log line of a revision."""
+    before, after = (Surroundings(**record[k]).label() for k in ("before", "after"))
+    took = f"({record['seconds']:.0f} s, {record['trials']} trials)"
+    if record["changed"]:
+        return (
+            f"surroundings with {', '.join(record['effects'])}: {before} -> {after}, "
+            f"chi2 {record['chi2_before']:.0f} -> {record['chi2_after']:.0f} {took}"
+        )
+    return f"surroundings with {', '.join(record['effects'])}: {before} kept {took}"
+
+
+def _as_dict(s: Surroundings) -> dict:
+    return {"margin_mm": s.margin_mm, "support": s.support, "radius_mm": s.radius_mm}
