@@ -36,12 +36,16 @@ def test_image_writes_the_map_its_uncertainty_and_a_consistent_record(fe_dataset
 
     path, _ = fe_dataset
     out = tmp_path / "image"
-    argv = [str(path), "--out", str(out), "--grid", "7x7x2", "--field", "4x4", "--weight", "100"]
+    argv = [str(path), "--out", str(out), "--energy", "linear-elastic", "--grid", "7x7x2"]
+    argv += ["--field", "4x4", "--weight", "100"]
     assert main(argv) == 0, capsys.readouterr().err
     written = {p.name for p in out.iterdir()}
     assert {"image.json", "map.png", "std.png", "map.vtu"} <= written, written
     record = json.loads((out / "image.json").read_text())
     assert record["schema"] == "dvs-image/1"
+    # --energy linear-elastic: the volume of the options, no step 0
+    assert record["model"]["source"] == "options" and "base_choice" not in record
+    assert (record["model"]["grid"], record["model"]["degrees"]) == ([7, 7, 2], [3, 3, 1])
     field = record["field"]
     s = np.array(field["coefficients"])
     reference = record["model"]["E_ref_kPa"]
@@ -86,10 +90,8 @@ def test_every_key_of_image_json_is_documented(fe_dataset, tmp_path):
 
     path, _ = fe_dataset
     out = tmp_path / "keys"
-    assert (
-        main([str(path), "--out", str(out), "--grid", "7x7x2", "--field", "3x3", "--weight", "10"])
-        == 0
-    )
+    argv = [str(path), "--out", str(out), "--energy", "linear-elastic", "--grid", "7x7x2"]
+    assert main([*argv, "--field", "3x3", "--weight", "10"]) == 0
     record = json.loads((out / "image.json").read_text())
     formats = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
     section = formats.split("## image.json", 1)[1].split("\n## ", 1)[0]

@@ -1,7 +1,7 @@
 """``dvs design``: which presses to make, with the figures that say why.
 
     dvs design DATASET --budget N --target alpha|EFFECT[=MAG][,EFFECT...]
-               [--criterion d|a|power|maximin] [--energy E --grid G --degrees D
+               [--criterion d|a|power|maximin] [--energy auto|E --grid G --degrees D
                --margin MM] --out DIR
     dvs design --sequential SCENARIO [--budget N] [--grid G --degrees D --margin MM]
                --out DIR
@@ -11,6 +11,10 @@ Writes ``design.json`` (schema ``dvs-design/1``, docs/formats.md), ``design_map.
 ``report.md``. ``dvs simulate --design DIR/design.json`` makes data for the design.
 ``--sequential`` runs the loop of ``experiments.design.sequential`` against FE continuum
 data of a scenario instead: ``sequential.json``, ``path.png`` and ``report.md``.
+
+With no model option (``--energy auto``) the design is for the base model step 0 chooses
+(``experiments.basemodel``, as ``dvs fit`` and ``dvs diagnose``): its fit is the design's
+point, its probe radius the candidates'; ``--energy dnurbs`` is the paper's model.
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.design.plan import DesignSettings, plan
+from experiments.design.plan import DesignSettings, plan, require_noise
+from experiments.stepzero import AUTO
 
 GAIN_LABELS = {
     "d": "gain in log det(F)^(1/p)",
@@ -202,26 +207,30 @@ def build_parser(prog: str = "python -m experiments.design.command"):
     parser.add_argument(
         "--grid",
         default="auto",
-        help="control grid MxNxL; auto: up to 9x9x2 (15x15x3 with --sequential)",
+        help="control grid MxNxL (with an --energy, or --sequential); auto: up to 9x9x2 "
+        "(15x15x3 with --sequential)",
     )
     parser.add_argument(
         "--degrees",
         default=None,
-        help="spline degrees PxQxR (default 3x3x1; 3x3x2 with --sequential)",
+        help="spline degrees PxQxR (with an --energy, or --sequential; default 3x3x1; 3x3x2 "
+        "with --sequential)",
     )
     parser.add_argument(
         "--energy",
-        choices=("dnurbs", "linear-elastic", "neo-hookean"),
-        default=None,
-        help="base model, as dvs diagnose: dnurbs (default), linear-elastic or neo-hookean; "
-        "--sequential diagnoses with linear-elastic only",
+        choices=(AUTO, "dnurbs", "linear-elastic", "neo-hookean"),
+        default=AUTO,
+        help="base model, as dvs diagnose: auto (step 0 chooses between the paper's energy "
+        "and the linear-elastic continuum with its surroundings, docs/continuum.md), dnurbs, "
+        "linear-elastic or neo-hookean; --sequential diagnoses with linear-elastic only",
     )
     parser.add_argument(
         "--margin",
         type=float,
         default=None,
-        help="width [mm] of tissue beyond the markers the volume also covers (default 0; "
-        "10 with --sequential; e.g. 10 for the continua, docs/continuum.md)",
+        help="width [mm] of tissue beyond the markers the volume also covers (with an "
+        "--energy, or --sequential; default 0; 10 with --sequential; e.g. 10 for the "
+        "continua, docs/continuum.md)",
     )
     return parser
 
@@ -260,7 +269,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
             augment=args.augment,
         )
         if sequential:
-            if args.energy not in (None, "linear-elastic"):
+            if args.energy not in (AUTO, "linear-elastic"):
                 raise UsageError(
                     f"--energy {args.energy}: --sequential diagnoses with the linear-elastic "
                     "base only; drop --energy"
@@ -269,10 +278,15 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
             return run_sequential(args.sequential, settings, args.budget, model, args.out)
         base = base_model(args)
         out = check_output_dir(args.out)
-        dataset = load_dataset(args.dataset)
-        chosen = plan(dataset, settings, log=print, base=base)
+        dataset = require_noise(load_dataset(args.dataset))
+        fit, base_choice = None, None
+        if base == AUTO:
+            base, fit, dataset, base_choice = step0_base(dataset, settings.level)
+        chosen = plan(dataset, settings, log=print, base=base, fit=fit)
         document = chosen.document
         document["dataset"] = str(args.dataset)
+        if base_choice is not None:
+            document["base_choice"] = base_choice
         out.mkdir(parents=True, exist_ok=True)
         plot_map(out / "design_map.png", dataset, chosen, contact_gains(chosen))
         atomic_write_text(out / "report.md", report_text(document))
@@ -307,13 +321,33 @@ def model_options(args, defaults: dict) -> dict:
 
 def base_model(args):
     """The base model's ``FitSettings`` of ``dvs design DATASET``, as ``dvs diagnose``
-    builds it from ``--energy``, ``--grid``, ``--degrees`` and ``--margin``."""
+    builds it from ``--energy``, ``--grid``, ``--degrees`` and ``--margin``; ``AUTO``
+    (``--energy auto``, the default): step 0 chooses it, and the other three are refused
+    (exit 2), as by fit and diagnose."""
     from experiments.diagnosis.diagnose import base_settings
+    from experiments.stepzero import refuse_model_options
 
-    energy = args.energy or "dnurbs"
     model = model_options(args, {"grid": None, "degrees": base_settings().degrees, "margin": 0.0})
     degrees = None if args.degrees is None else model["degrees"]
-    return base_settings(model["grid"], energy, degrees, model["margin"])
+    if args.energy == AUTO:
+        refuse_model_options(model["grid"], degrees, model["margin"])
+        return AUTO
+    return base_settings(model["grid"], args.energy, degrees, model["margin"])
+
+
+def step0_base(dataset, level: float):
+    """Step 0 on the dataset (its lines printed): the chosen model's ``FitSettings``, its
+    fit, the dataset with its probe radius and the ``base_choice`` record. Step 0's
+    other trials (their built volumes) are released before the design's own work."""
+    import gc
+
+    from experiments.stepzero import run_step0
+
+    choice = run_step0(dataset, level, lambda line: print(line, flush=True))
+    found = (choice.settings, choice.chosen.fit, choice.dataset(dataset), choice.record())
+    del choice
+    gc.collect()  # trials and their families refer to each other
+    return found
 
 
 def _given(value, default):

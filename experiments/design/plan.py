@@ -204,18 +204,26 @@ def add_with_candidates(pool: InformationPool, dataset, settings, own, seen, log
     return indices[: len(own)], indices[len(own) :], contacts, radius
 
 
-def plan(dataset, settings: DesignSettings, grid=None, log=print, base=None) -> Plan:
+def require_noise(dataset):
+    """The dataset, when it declares its noise level (a design needs it); else exit 2."""
+    if not dataset.noise_mm:
+        raise ValueError("the dataset declares no noise_mm; a design needs the noise level")
+    return dataset
+
+
+def plan(dataset, settings: DesignSettings, grid=None, log=print, base=None, fit=None) -> Plan:
     """The design of ``settings`` for ``dataset`` (``Plan``); ``base`` is the base model's
-    ``FitSettings`` (default ``base_settings(grid)``, as ``dvs diagnose``)."""
+    ``FitSettings`` (default ``base_settings(grid)``, as ``dvs diagnose``) and ``fit`` its
+    fit when already made (step 0's, ``solvers.diagnosis.fit.EffectFit``)."""
     from experiments.design.calibration import base_fit
+    from experiments.stepzero import model_record
     from symbolic.effects.library import make_effect
 
     begin = time.perf_counter()
-    if not dataset.noise_mm:
-        raise ValueError("the dataset declares no noise_mm; a design needs the noise level")
-    sigma = float(dataset.noise_mm)
-    log(f"fitting the base model to {dataset.n_loads} load case(s)")
-    fit = base_fit(dataset, grid, base)
+    sigma = float(require_noise(dataset).noise_mm)
+    if fit is None:
+        log(f"fitting the base model to {dataset.n_loads} load case(s)")
+        fit = base_fit(dataset, grid, base)
     model = fit.problem.model
     rest = dataset.outer_rest.reshape(-1, 3)
     marker_uv, _ = model.volume.project_to_outer(rest)
@@ -244,6 +252,7 @@ def plan(dataset, settings: DesignSettings, grid=None, log=print, base=None) -> 
         "augment": settings.augment,
         "level": settings.level,
         "noise_mm": sigma,
+        "model": model_record(model, 0.0 if base is None else base.margin, dataset),
         "presses": [press_document(model, pool.presses[k]) for k in chosen],
         "predicted": figures.document(),
         "dataset_design": {

@@ -113,7 +113,8 @@ def timed_imaging(path: str) -> dict:
     from experiments.options import parse_degrees, parse_grid
 
     with tempfile.TemporaryDirectory() as out:
-        arguments = [path, "--grid", IMAGING_GRID, "--degrees", IMAGING_DEGREES]
+        arguments = [path, "--energy", "linear-elastic", "--grid", IMAGING_GRID]
+        arguments += ["--degrees", IMAGING_DEGREES]
         arguments += ["--margin", "10", "--field", IMAGING_FIELD, "--out", out]
         begin = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):

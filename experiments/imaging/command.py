@@ -1,7 +1,9 @@
 """``dvs image``: a dataset in, a map of Young's modulus with its uncertainty out.
 
 Writes image.json, map.png, std.png and map.vtu (ParaView) into ``--out``
-(docs/cli.md, docs/formats.md; the method in docs/imaging.md).
+(docs/cli.md, docs/formats.md; the method in docs/imaging.md). With no model option
+(``--energy auto``) the map is made on step 0's continuum (``experiments.imaging.model``);
+``--energy linear-elastic`` takes the volume of ``--grid``, ``--degrees`` and ``--margin``.
 """
 
 from __future__ import annotations
@@ -13,6 +15,9 @@ from solvers.imaging import SOLVERS
 
 MAX_FIELD_SIZE = 2000
 """Largest number of field coefficients ``dvs image`` accepts."""
+
+DEGREES = (3, 3, 1)
+"""Degrees of ``--energy linear-elastic`` without ``--degrees`` (those of ``dvs fit``)."""
 
 
 def parse_field(text: str, over: str) -> tuple[int, ...]:
@@ -79,9 +84,24 @@ def build_parser(prog: str = "python -m experiments.imaging.command"):
         "--noise", type=float, default=None, help="marker noise [mm] (default: the dataset's)"
     )
     parser.add_argument(
-        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
+        "--energy",
+        choices=("auto", "linear-elastic"),
+        default="auto",
+        help="the continuum imaged on: auto (step 0 of dvs fit and dvs diagnose chooses its "
+        "volume, the tissue beyond the markers and the probe radius, docs/continuum.md), or "
+        "linear-elastic on the volume of --grid, --degrees and --margin",
     )
-    parser.add_argument("--degrees", default="3x3x1", help="degrees PxQxR")
+    parser.add_argument(
+        "--grid",
+        default="auto",
+        help="control grid MxNxL (with --energy linear-elastic); auto: up to 9x9x2, as the "
+        "markers allow",
+    )
+    parser.add_argument(
+        "--degrees",
+        default=None,
+        help="degrees PxQxR (with --energy linear-elastic; default 3x3x1)",
+    )
     add_margin_argument(parser)
     return parser
 
@@ -102,6 +122,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
         parse_grid,
         run_guarded,
     )
+    from experiments.stepzero import model_record, refuse_model_options
 
     args = build_parser(prog).parse_args(argv)
 
@@ -113,10 +134,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
 
         shape = parse_field(args.field, args.over)
         weight = parse_weight(args.weight)
-        degrees = parse_degrees(args.degrees)
-        grid = (
-            None if args.grid == "auto" else check_grid(parse_grid(args.grid), degrees, args.grid)
-        )
+        degrees = None if args.degrees is None else parse_degrees(args.degrees)
+        grid = None
+        if args.grid != "auto":
+            grid = check_grid(parse_grid(args.grid), degrees or DEGREES, args.grid)
+        margin = check_margin(args.margin)
+        if args.energy == "auto":
+            refuse_model_options(grid, degrees, margin, "--energy linear-elastic")
         noise = None if args.noise is None else check_noise(args.noise)
         if noise == 0:
             raise UsageError("--noise must be positive: the misfit is whitened by it")
@@ -124,8 +148,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
             names=("E", "nu"),
             energy="linear-elastic",
             grid=grid,
-            degrees=degrees,
-            margin=check_margin(args.margin),
+            degrees=degrees or DEGREES,
+            margin=margin,
         )
         settings = ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit)
         check_output_dir(args.out)
@@ -138,12 +162,26 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
                 "(the misfit is whitened by it)"
             )
         print(f"imaging {args.dataset} ({dataset.n_loads} load cases)", flush=True)
-        image = image_dataset(dataset, settings, log=lambda line: print(line, flush=True))
+        log = lambda line: print(line, flush=True)  # noqa: E731
+        chosen, problem = None, None
+        if args.energy == "auto":
+            from experiments.imaging.model import imaging_model
+
+            chosen = imaging_model(dataset, log=log)
+            dataset, problem = chosen.dataset(dataset), chosen.problem()
+            settings = replace(settings, fit=chosen.settings())
+        image = image_dataset(dataset, settings, log=log, problem=problem)
+        model = model_record(image.field_problem.problem.model, settings.fit.margin, dataset)
+        if chosen is None:
+            model.update(source="options", note="", resolution=[])
+        else:
+            model.update(source=chosen.source, note=chosen.note, resolution=chosen.resolution)
+        base_choice = None if chosen is None else chosen.base_choice
+        record = document(image, str(args.dataset), dataset.outer_rest, model, base_choice)
         args.out.mkdir(parents=True, exist_ok=True)
         plot_maps(image, dataset.outer_rest, args.out / "map.png", args.out / "std.png")
         if not write_vtu(image, args.out / "map.vtu"):
             print(f"{prog}: warning: map.vtu not written: pip install meshio", file=sys.stderr)
-        record = document(image, str(args.dataset), dataset.outer_rest)
         from experiments.atomic import atomic_write_json
 
         atomic_write_json(args.out / "image.json", record)
@@ -164,8 +202,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
             print(
                 f"{prog}: warning: no field brings the residual down to the noise "
                 f"(chi2/n {residual['chi2_over_n']:.2f} at the smallest weight): the model "
-                "lacks something and the map absorbs it (docs/imaging.md; try --margin, "
-                "a finer --grid, or dvs diagnose)",
+                "lacks something and the map absorbs it (docs/imaging.md; dvs diagnose "
+                "names what)",
                 file=sys.stderr,
             )
         if not record["success"]:

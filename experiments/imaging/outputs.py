@@ -67,8 +67,18 @@ def peak(image: Image, markers: np.ndarray | None = None) -> tuple[list[float], 
     return [float(x[best]), float(y[best])], float(e[best] / np.median(e[inside]))
 
 
-def document(image: Image, dataset_path: str, markers: np.ndarray | None = None) -> dict:
-    """image.json (schema ``dvs-image/1``, docs/formats.md)."""
+def document(
+    image: Image,
+    dataset_path: str,
+    markers: np.ndarray | None = None,
+    model: dict | None = None,
+    base_choice: dict | None = None,
+) -> dict:
+    """image.json (schema ``dvs-image/1``, docs/formats.md).
+
+    ``model`` adds to the record's ``model`` (the volume imaged on and where it came
+    from, ``experiments.imaging.command``); ``base_choice`` is step 0's record.
+    """
     fp, estimate, posterior = image.field_problem, image.estimate, image.posterior
     nodes = fp.field.nodes()
     nodes_xyz = _physical(image, nodes)
@@ -76,13 +86,14 @@ def document(image: Image, dataset_path: str, markers: np.ndarray | None = None)
     departure = (s - s.mean()) / np.maximum(posterior.std, 1e-300)
     strongest = int(np.argmax(np.abs(departure)))
     peak_mm, contrast = peak(image, markers)
-    return {
+    record = {
         "schema": SCHEMA,
         "dataset": dataset_path,
         "model": {
             "E_ref_kPa": fp.reference_kpa,
             "nu": fp.poisson,
             "homogeneous_fit": image.homogeneous,
+            **(model or {}),
         },
         "field": {
             "over": fp.field.over,
@@ -126,6 +137,9 @@ def document(image: Image, dataset_path: str, markers: np.ndarray | None = None)
         "message": estimate.message,
         "seconds": image.seconds,
     }
+    if base_choice is not None:
+        record["base_choice"] = base_choice
+    return record
 
 
 def plot_maps(image: Image, markers: np.ndarray, path_map: Path, path_std: Path) -> None:

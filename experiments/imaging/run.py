@@ -92,11 +92,16 @@ class Image:
         return self.choice.estimate
 
 
-def image_dataset(dataset: Dataset, settings: ImageSettings, log=print) -> Image:
-    """Fit the homogeneous model, then the field; see the module docstring."""
+def image_dataset(dataset: Dataset, settings: ImageSettings, log=print, problem=None) -> Image:
+    """Fit the homogeneous model, then the field; see the module docstring.
+
+    ``problem`` is the homogeneous linear-elastic ``InverseProblem`` when already built
+    (step 0's, ``experiments.imaging.model``); otherwise it is built from ``settings.fit``.
+    """
     begin = time.perf_counter()
-    base = replace(settings.fit, names=("E", "nu"), energy="linear-elastic")
-    problem = build_problem(dataset, base)
+    if problem is None:
+        base = replace(settings.fit, names=("E", "nu"), energy="linear-elastic")
+        problem = build_problem(dataset, base)
     result = solve(problem, "nested")
     if not result.success:
         raise RuntimeError(f"the homogeneous fit did not converge ({result.status})")

@@ -1,0 +1,65 @@
+"""Step 0 in the commands beyond ``dvs fit`` and ``dvs diagnose``: ``dvs image`` and
+``dvs design`` (issue 40, "the same defaults everywhere").
+
+With no model option each command runs step 0 (``experiments.basemodel.choose_base``)
+on the dataset as fit and diagnose do, prints its choice in the same one line and
+records it as ``base_choice`` (docs/continuum.md, "Step 0"). ``--grid``, ``--degrees``
+and ``--margin`` set the volume of a chosen ``--energy`` and are refused without one
+(``refuse_model_options``), the rule of fit and diagnose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+AUTO = "auto"
+"""``--energy auto``: step 0 chooses the base model."""
+
+
+def refuse_model_options(grid, degrees, margin: float, energies: str = "--energy") -> None:
+    """Exit 2 (``UsageError``) when ``--grid``, ``--degrees`` or ``--margin`` was given
+    with ``--energy auto``: they set the volume of a chosen energy.
+
+    Parameters
+    ----------
+    grid, degrees : object or None
+        The options' values; None when not given.
+    margin : float
+        ``--margin`` [mm], checked; 0 counts as not given.
+    energies : str
+        How to name the ``--energy`` to give (e.g. "--energy linear-elastic").
+    """
+    from experiments.options import UsageError, verb
+
+    chosen = [f"--{n}" for n, v in (("grid", grid), ("degrees", degrees)) if v is not None]
+    chosen += ["--margin"] if margin > 0 else []
+    if chosen:
+        raise UsageError(
+            f"{', '.join(chosen)} {verb(chosen)} the volume of a chosen --energy; with "
+            f"--energy auto (the default) step 0 chooses the volume, or give {energies} too"
+        )
+
+
+def run_step0(dataset, level: float = 0.01, log=print):
+    """Step 0 on ``dataset``: its progress as ``  step 0: ...`` lines and its choice in
+    the one line of fit and diagnose (``  base model: ...``); the ``BaseChoice``."""
+    from experiments.basemodel import choose_base
+
+    choice = choose_base(dataset, lambda line: log(f"  step 0: {line}"), level)
+    log(f"  {choice.line()}")
+    return choice
+
+
+def model_record(model, margin_mm: float, dataset) -> dict:
+    """The volume a command used: {``energy``, ``grid``, ``degrees``, ``margin_mm``,
+    ``support``, ``probe_radius_mm`` (the loads' radius, 0 for point forces)}."""
+    radius = dataset.probe_radius
+    radius = 0.0 if radius is None else float(np.median(np.asarray(radius, dtype=float)))
+    return {
+        "energy": model.energy,
+        "grid": list(model.volume.shape),
+        "degrees": list(model.volume.basis.degrees),
+        "margin_mm": float(margin_mm),
+        "support": "clamped" if model.boundary.fix_lateral else "free",
+        "probe_radius_mm": radius,
+    }
