@@ -7,17 +7,20 @@ declared point, step 0 took a probe radius of 3.6 mm for a true 2.5 mm; once the
 added contact_offset, that radius was wrong, and a stand-in (layering) took up the
 rest (docs/continuum.md, "Injected effects").
 
-So after every effect the loop accepts, the search of step 0
-(``choice.search_surroundings``) runs again with the effects in every member, on the
-search's volumes, starting from the surroundings in use. When another member fits
-better, the loop's model is rebuilt with those surroundings at the loop's resolution
-and refitted (``Revisit``); the step records the change. The settings were already
-counted in step 0's BIC (k = 5), so a change costs no further parameter.
+So after every effect the loop accepts (and for a candidate its overfitting guard
+rejects), the search of step 0 (``choice.search_surroundings``) runs again with the
+effects in every member, on the search's volumes, starting from the surroundings in
+use. When another member fits better by more than the data can tell from noise, the
+loop's model is rebuilt with those surroundings at the loop's resolution and refitted
+(``Revisit``); the step records the change. The settings were already counted in
+step 0's BIC (k = 5), so a change costs no further parameter.
 """
 
 from __future__ import annotations
 
 import time
+
+from scipy import stats
 
 from experiments.basemodel.choice import BaseChoice, search_surroundings
 from experiments.basemodel.family import Surroundings
@@ -33,13 +36,18 @@ class Revisit:
         Step 0's outcome, with the continuum chosen.
     log : callable
         Progress lines.
+    level : float
+        The loop's significance level: the surroundings change only when the search's
+        chi^2 drops by more than the 1-dof quantile at it (6.6 at 0.01), a difference
+        the data can tell (as in the resolution check).
     """
 
-    def __init__(self, choice: BaseChoice, log):
+    def __init__(self, choice: BaseChoice, log, level: float = 0.01):
         self.search = choice.trials[0].family
         self.loop = choice.chosen.family
         self.surroundings: Surroundings = choice.chosen.surroundings
         self.log = log
+        self.limit = float(stats.chi2.isf(level, 1))
         self.records: list[dict] = []
 
     def __call__(self, current: EffectFit) -> tuple[EffectFit, dict] | None:
@@ -63,7 +71,7 @@ class Revisit:
             "trials": len(family.trials),
         }
         moved = None
-        if best.surroundings != key:
+        if best.surroundings != key and here.chi2 - best.chi2 > self.limit:
             loop = self.loop.with_effects(effects, best.fit.p, lambda *_: None)
             s = best.surroundings
             trial = loop.trial(s.margin_mm, s.support, s.radius_mm)

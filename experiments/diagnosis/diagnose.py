@@ -62,7 +62,7 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
         if choice.chosen is choice.continuum:
             from experiments.basemodel.revisit import Revisit
 
-            revisit = Revisit(choice, lambda line: log("step 0 revisited: " + line))
+            revisit = Revisit(choice, lambda line: log("step 0 revisited: " + line), settings.level)
         diagnosis = diagnose(problem.base, problem.loads, settings, log, start, revisit)
         diagnosis.base_choice = choice.record()
         if revisit is not None:

@@ -13,6 +13,9 @@
    candidate is significant, none is accepted, or ``max_effects``
    are in (optionally also stop as soon as the residual is consistent with
    the noise, ``stop_when_consistent``).
+   With ``revisit`` (a continuum chosen by step 0), the surroundings are searched
+   again with each accepted effect in, and with a candidate the guard rejects, which
+   is judged again on the surroundings it prefers (``experiments.basemodel.revisit``).
 5. ``unexplained`` is true when the final residual is still significant.
 6. Rivals: after an effect is accepted, the other significant candidates of the
    round whose score reaches ``RIVAL_SCREEN`` of the accepted chi^2 drop are refitted
@@ -341,9 +344,11 @@ def diagnose(
         A fit of the base model already made on ``base`` and ``loads`` (step 0's): the
         base fit starts from its estimate and reuses its problem's factorisations.
     revisit : callable, optional
-        Called with the fit after each accepted effect; returns None, or a fit with the
-        same effects on another base problem (the surroundings re-estimated,
-        ``experiments.basemodel.revisit``) and its record, which the loop goes on from.
+        Called with a fit; returns None, or a fit with the same effects on another base
+        problem (the surroundings re-estimated, ``experiments.basemodel.revisit``) and
+        its record. The loop calls it after each accepted effect and goes on from the
+        fit it returns, and on a candidate the overfitting guard rejects, which is then
+        judged again on the surroundings it prefers.
     """
     with one_thread():
         quiet = log or (lambda *_: None)
@@ -403,6 +408,13 @@ def _diagnose(
                 continue
             if not predicts_better(candidate, current):
                 reason = candidate.prediction.reason()
+                moved = None if revisit is None else revisit(refit)
+                if moved is not None:  # on the surroundings the effect prefers
+                    candidate = _moved(candidate, *moved)
+                    if predicts_better(candidate, current) and candidate.bic < steps[-1].bic:
+                        accepted = candidate
+                        break
+                    reason += "; on revisited surroundings " + candidate.prediction.reason()
                 rejected.append({"effect": test.effect, "reason": reason})
                 log(f"  {test.effect} rejected: {reason}")
                 continue
@@ -427,7 +439,7 @@ def _diagnose(
                 f"  {rival['effect']} explains it as well (chi2 drop {rival['chi2_drop']:.1f} "
                 f"against {rival['accepted_drop']:.1f})"
             )
-        moved = None if revisit is None else revisit(accepted.fit)
+        moved = None if revisit is None or accepted.surroundings else revisit(accepted.fit)
         if moved is not None:
             accepted = _moved(accepted, *moved)
             guard_cache.clear()  # the previous model's predictions were on the old base
