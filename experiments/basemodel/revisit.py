@@ -45,7 +45,10 @@ class Revisit:
     def __init__(self, choice: BaseChoice, log, level: float = 0.01):
         self.search = choice.trials[0].family
         self.loop = choice.chosen.family
-        self.surroundings: Surroundings = choice.chosen.surroundings
+        base = choice.chosen.fit.problem.base
+        self.surroundings = {id(base): (base, choice.chosen.surroundings)}
+        """id -> (base problem, its surroundings), for each base fitted (a fit's effects
+        share its base; the problem is held so that its id stays its own)."""
         self.log = log
         self.limit = float(stats.chi2.isf(level, 1))
         self.records: list[dict] = []
@@ -56,7 +59,7 @@ class Revisit:
         begin = time.perf_counter()
         effects = current.problem.effects
         names = ", ".join(e.name for e in effects)
-        key = self.surroundings
+        key = self.surroundings[id(current.problem.base)][1]
         family = self.search.with_effects(
             effects, current.p, lambda line: self.log(f"with {names}: {line}")
         )
@@ -79,7 +82,7 @@ class Revisit:
             record.update(chi2_before=before / family.sigma**2, chi2_after=after / family.sigma**2)
             if after < before:
                 moved = trial.fit
-                self.surroundings = s
+                self.surroundings[id(moved.problem.base)] = (moved.problem.base, s)
         record["changed"] = moved is not None
         record["seconds"] = time.perf_counter() - begin
         self.records.append(record)
