@@ -3,8 +3,9 @@ surroundings step 0 chose on data that hold it are searched again.
 
 FE data from the generator the model was not tuned on (``experiments.phantom.tissue``):
 a small flat patch, the tissue 3 mm beyond the markers and clamped there, the paper's
-two loads from a 2.5 mm disc probe whose contact lies 2 mm off the declared point. Without the offset in the model
-the probe's radius absorbs part of it (step 0 took 3.6 mm for 2.5 on row A's patch).
+two loads from a 2.5 mm disc probe whose contact lies 2 mm off the declared point.
+Without the offset in the model the probe's radius absorbs part of it (step 0 took
+3.6 mm for 2.5 on row A's patch).
 """
 
 from __future__ import annotations
