@@ -236,7 +236,7 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
             start = Family(dataset, span, layers, sigma, _quiet)
             key = best.surroundings
             begun = start.trial(key.margin_mm, key.support, key.radius_mm, best.fit.p)
-            chosen, resolution = _checked_resolution(dataset, start, begun, sigma, level, log)
+            chosen, resolution = checked_resolution(dataset, start, begun, sigma, level, log)
             continuum = chosen
     choice = BaseChoice(chosen, paper, continuum, trials, resolution, sigma)
     choice.seconds = time.perf_counter() - begin
@@ -274,7 +274,7 @@ def _paper_trial(dataset: Dataset) -> Trial:
     return Trial(settings, None, fitted, 0.0, 0, PAPER_PARAMETERS, time.perf_counter() - begin)
 
 
-def _checked_resolution(dataset, family, trial, sigma, level, log):
+def checked_resolution(dataset, family, trial, sigma, level, log):
     """The chosen continuum checked on finer volumes until the data cannot see the change
     of its predicted markers (``REFINEMENT``, at most ``MAX_REFINEMENTS`` refinements):
     the trial kept (its ``family`` at the kept resolution) and the checks' records.

@@ -151,12 +151,12 @@ def checked_continuum(dataset, trial, sigma: float, level: float, log=print):
     """``trial`` refitted on step 0's starting volume and checked by its resolution rule
     (``experiments.basemodel.choice``), as step 0 treats a continuum it chooses: the
     resolved trial and the checks."""
-    from experiments.basemodel.choice import _checked_resolution
+    from experiments.basemodel.choice import checked_resolution
 
     span, layers = starting_resolution(dataset)
     start = Family(dataset, span, layers, sigma, lambda *_: None)
     key = trial.surroundings
     begun = start.trial(key.margin_mm, key.support, key.radius_mm, trial.fit.p)
-    return _checked_resolution(
+    return checked_resolution(
         dataset, start, begun, sigma, level, lambda line: log(f"  continuum: {line}")
     )
