@@ -147,6 +147,6 @@ def test_the_loop_tests_the_field_by_its_own_rules(setting):
     effect = step.fit.problem.effects[0]
     c = step.fit.p[step.fit.problem.slice_of("stiffness_field")]
     nodes = effect.field.nodes()
-    # heterogeneity 0.5 along (1, -0.5, 0): alpha grows with u and falls with v
+    # heterogeneity 0.5 along (1, -0.5): alpha grows with u and falls with v
     slope = np.linalg.lstsq(np.column_stack([np.ones(len(c)), nodes[:, :2]]), c, rcond=None)[0]
     assert slope[1] > 0 > slope[2]

@@ -8,7 +8,7 @@ library, in the order the diagnosis prefers them on ties:
 name                 theta                      module
 ==================== ========================== ==================================
 nonlinear_stiffening k0 [1]                     ``stiffening`` (eq. 1)
-heterogeneity        h_u, h_v, h_uv [1]         ``stiffness`` (eq. 18)
+heterogeneity        h_u, h_v [1]               ``stiffness`` (eq. 18)
 rigid_motion         omega [rad], t [mm]/case   ``measurement`` (eq. 24)
 force_direction      tau_1, tau_2 [1]           ``load`` (eq. 20)
 contact_offset       delta_1, delta_2 [mm]      ``load`` (eq. 20)
