@@ -14,8 +14,9 @@
    are in (optionally also stop as soon as the residual is consistent with
    the noise, ``stop_when_consistent``).
    With ``revisit`` (a continuum chosen by step 0), the surroundings are searched
-   again with each accepted effect in, and with a candidate the guard rejects, which
-   is judged again on the surroundings it prefers (``experiments.basemodel.revisit``).
+   again with each accepted effect in, and (while the residual is significant) with a
+   candidate the guard rejects, which is judged again on the surroundings it prefers
+   (``experiments.basemodel.revisit``).
 5. ``unexplained`` is true when the final residual is still significant.
 6. Rivals: after an effect is accepted, the other significant candidates of the
    round whose score reaches ``RIVAL_SCREEN`` of the accepted chi^2 drop are refitted
@@ -347,8 +348,9 @@ def diagnose(
         Called with a fit; returns None, or a fit with the same effects on another base
         problem (the surroundings re-estimated, ``experiments.basemodel.revisit``) and
         its record. The loop calls it after each accepted effect and goes on from the
-        fit it returns, and on a candidate the overfitting guard rejects, which is then
-        judged again on the surroundings it prefers.
+        fit it returns, and, while the residual is still significant, on a candidate the
+        overfitting guard rejects, which is then judged again on the surroundings it
+        prefers.
     """
     with one_thread():
         quiet = log or (lambda *_: None)
@@ -408,7 +410,8 @@ def _diagnose(
                 continue
             if not predicts_better(candidate, current):
                 reason = candidate.prediction.reason()
-                moved = None if revisit is None else revisit(refit)
+                unexplained = steps[-1].residual.significant(settings.level)
+                moved = revisit(refit) if revisit is not None and unexplained else None
                 if moved is not None:  # on the surroundings the effect prefers
                     candidate = _moved(candidate, *moved)
                     if predicts_better(candidate, current) and candidate.bic < steps[-1].bic:
