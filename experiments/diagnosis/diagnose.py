@@ -156,6 +156,10 @@ def step0_text(choice: dict) -> str:
             f"{check['prediction_chi2']:.1f} (limit {check['limit']:.1f}): {check['verdict']}."
         )
     lines.append(f"- step 0 took {choice['seconds']:.0f} s.")
+    if choice.get("revisits"):
+        from experiments.basemodel.revisit import line
+
+        lines += [f"- revisited: {line(record)}." for record in choice["revisits"]]
     return "\n".join(lines)
 
 
