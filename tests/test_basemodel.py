@@ -131,3 +131,28 @@ def test_volume_options_without_an_energy_exit_2(tmp_path, capsys, command, opti
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and option[0] in error[0] and "--energy" in error[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_the_radius_profile_stops_at_the_largest_probe(patch_data, monkeypatch):
+    """Data that fit better the wider the patch (a load spread over the whole marked area)
+    take the radius to the cap, a quarter of the shorter marked side, and never past it."""
+    from types import SimpleNamespace
+
+    from experiments.basemodel.family import Family
+
+    family = Family(patch_data, span=3.0, layers=3, sigma=0.02, log=lambda *_: None)
+    assert not family.declared
+    tried = []
+
+    def trial(margin, support, radius, start=None):  # no fit: chi^2 falls with the radius
+        tried.append(radius)
+        key = family.key(margin, support, radius)
+        return family.trials.setdefault(key, SimpleNamespace(chi2=1e4 / radius))
+
+    monkeypatch.setattr(family, "trial", trial)
+    best = family.radius_profile(5.0, "clamped")
+    largest = family.max_radius()
+    assert 4.0 < largest < 4.6  # 0.25 x the 18 mm side, measured along the skin
+    assert max(tried) == pytest.approx(largest)
+    assert all(r <= largest + 1e-12 for r in tried)
+    assert best.chi2 == pytest.approx(1e4 / largest)

@@ -45,6 +45,12 @@ builds is a point force to the volume, whose predicted markers never converge un
 refinement (on fuzzed data a 0.5 mm patch moved them by chi^2 17510 from 32 x 32 x 5 to
 47 x 47 x 6)."""
 
+MAX_RADIUS_OF_MARKED = 0.25
+"""Largest probe radius tried, as a fraction of the shorter side of the marked area: a
+patch wider than that is no probe but a load over the area the markers measure (the
+default phantom, a point force, drove the profile of ``dvs image``'s search out to 10
+mm when it had no cap)."""
+
 SPAN_OF_SPACING = 0.5
 """Knot span of the starting volume along the skin, in marker spacings."""
 
@@ -231,21 +237,27 @@ class Family:
     def best(self) -> Trial:
         return min(self.trials.values(), key=lambda t: t.chi2)
 
+    def max_radius(self) -> float:
+        """``MAX_RADIUS_OF_MARKED`` of the shorter marked side [mm]."""
+        return MAX_RADIUS_OF_MARKED * float(min(marked_lengths(self.dataset.outer_rest)))
+
     def radius_profile(self, margin: float, support: str, around: float | None = None):
         """The radius minimising chi^2 at fixed surroundings: a coarse profile, one step
         past an edge minimum, then the vertex of the parabola through the best three."""
         if self.declared:
             return self.trial(margin, support, None)
-        step = RADII_MM[1] - RADII_MM[0]
+        step, largest = RADII_MM[1] - RADII_MM[0], self.max_radius()
         radii = list(RADII_MM) if around is None else [around - step / 2, around, around + step / 2]
-        radii = [r for r in radii if r >= MIN_RADIUS_MM]
+        radii = sorted({min(r, largest) for r in radii if r >= MIN_RADIUS_MM})
         for _ in range(3):
             values = [self.trial(margin, support, r).chi2 for r in radii]
             low = int(np.argmin(values))
             if 0 < low < len(radii) - 1 or (low == 0 and radii[0] <= MIN_RADIUS_MM):
                 break
             if low == len(radii) - 1:
-                radii.append(radii[-1] + step)
+                if radii[-1] >= largest:
+                    break
+                radii.append(min(radii[-1] + step, largest))
             else:
                 radii.insert(0, max(radii[0] - step, MIN_RADIUS_MM))
         values = [self.trial(margin, support, r).chi2 for r in radii]

@@ -210,7 +210,9 @@ def _check(previous, new, sigma, cache, predict, method: str) -> PredictionCheck
     held_out, before, after = [], [], []
     n_before = n_after = 0
     for held in folds(new.problem):
-        key = (method, tuple(e.name for e in previous.problem.effects), tuple(held))
+        # the base problem too: a revisit changes it under the same effect names
+        base = id(previous.problem.base)
+        key = (method, base, tuple(e.name for e in previous.problem.effects), tuple(held))
         if key not in cache:
             cache[key] = predict(previous, held, sigma)
         chi2_before, nuisance = cache[key]

@@ -445,7 +445,6 @@ def _diagnose(
         moved = None if revisit is None or accepted.surroundings else revisit(accepted.fit)
         if moved is not None:
             accepted = _moved(accepted, *moved)
-            guard_cache.clear()  # the previous model's predictions were on the old base
         current = accepted.fit
         current.problem.sigma = sigma
         steps.append(accepted)
