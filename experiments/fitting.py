@@ -158,8 +158,8 @@ def dataset_loads(dataset: Dataset, volume: VolumeSpline) -> list:
     """Point or probe loads at the dataset's contacts (projected onto the skin)."""
     loads = []
     radius = dataset.probe_radius if dataset.probe_radius is not None else np.zeros(dataset.n_loads)
-    for force, contact, r in zip(dataset.forces, dataset.contacts, radius):
-        uv = volume.project_to_outer(contact[None])[0][0]
+    contacts_uv, _ = volume.project_to_outer(dataset.contacts)  # one search for all
+    for force, uv, r in zip(dataset.forces, contacts_uv, radius):
         loads.append(ProbeForce(force, float(r), uv=uv) if r > 0 else PointForce(force, uv=uv))
     return loads
 

@@ -91,29 +91,47 @@ class ProbeForce:
         uv0 = _contact_uv(volume, self.uv, self.point)
         center = volume.evaluate(volume.outer_params(uv0[None]))[0]
         sigma = 0.5 * self.radius
-        params, area, positions = _surface_points(volume, sigma / 3.0)
+        points = surface_points(volume, sigma / 3.0)
         with np.errstate(over="ignore", under="ignore", divide="ignore"):
-            exponent = np.sum((positions - center) ** 2, axis=1) / (2.0 * sigma**2)
-            gauss = np.exp(-exponent) * area
+            exponent = np.sum((points.positions - center) ** 2, axis=1) / (2.0 * sigma**2)
+            gauss = np.exp(-exponent) * points.area
         keep = gauss > 1e-14 * gauss.max()
         if np.count_nonzero(keep) < 4:
             return PointForce(self.force, uv=uv0).generalized(volume)
         weights = gauss[keep] / gauss[keep].sum()
-        collocation = volume.collocation(params[keep])
+        collocation = points.collocation[keep]
         return np.asarray(collocation.T @ (weights[:, None] * self.force[None, :]))
+
+
+@dataclass(frozen=True)
+class SurfacePoints:
+    """``surface_quadrature`` of a volume with its points' rest positions and rows of J."""
+
+    params: np.ndarray
+    """(u, v, 1) of the points, (q, 3)."""
+    area: np.ndarray
+    """Physical area weights [mm^2], (q,)."""
+    positions: np.ndarray
+    """Rest positions [mm], (q, 3)."""
+    collocation: sp.csr_matrix
+    """J at the points, (q, n)."""
 
 
 _SURFACE_POINTS: dict = {}
 
 
-def _surface_points(volume: VolumeSpline, spacing: float):
-    """``surface_quadrature`` and the rest positions of its points, made once per volume
-    and spacing (every probe of one radius on one model shares them)."""
-    key = (id(volume), float(spacing))
+def surface_points(volume: VolumeSpline, spacing: float) -> SurfacePoints:
+    """``SurfacePoints`` at about ``spacing`` [mm], made once per volume and spacing:
+    every probe of one radius on one model shares them, and so do the exact patches of
+    ``symbolic.effects.load`` (the spacing is rounded to 1e-9 mm, so that sigma / 3 and
+    sqrt(sigma^2) / 3 meet)."""
+    key = (id(volume), round(float(spacing), 9))
     entry = _SURFACE_POINTS.get(key)
     if entry is None or entry[0] is not volume:
         params, area = surface_quadrature(volume, spacing)
-        entry = (volume, (params, area, volume.evaluate(params)))
+        collocation = sp.csr_matrix(volume.collocation(params))
+        points = SurfacePoints(params, area, collocation @ volume.control_points, collocation)
+        entry = (volume, points)
         if len(_SURFACE_POINTS) > 16:
             _SURFACE_POINTS.clear()
         _SURFACE_POINTS[key] = entry

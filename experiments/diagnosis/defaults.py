@@ -73,7 +73,7 @@ def injected_scenarios() -> dict:
 
 
 def row_dataset(name: str, injected: str | None = None):
-    """The dataset of a row (``ROWS``), or of row A's patch with one departure."""
+    """The dataset of a row (``ROWS``), or of its patch and design with one departure."""
     from experiments.phantom.fe import Departure
     from experiments.phantom.simulate import SimulationSettings
     from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
@@ -147,7 +147,7 @@ def line(row: dict) -> str:
             f", {s['margin_mm']:g} mm {s['support']}, {probe}, {grid} "
             f"({', '.join(row['resolution'])})"
         )
-    label = row["row"] if row["injected"] is None else row["injected"]
+    label = row["row"] if row["injected"] is None else f"{row['row']}: {row['injected']}"
     selected = ", ".join(row["selected"]) or "-"
     if row["rivals"]:
         selected += (
@@ -188,12 +188,13 @@ def defaults_benchmark(rows=("A", "G"), log=print) -> list[dict]:
     return out
 
 
-def print_table(names=(), injected: bool = False) -> list[dict]:
-    """Print the table for the rows named (default all), or row A with each departure
-    (``injected``), one line as each row finishes; returns the rows."""
+def print_table(names=(), injected: bool = False, row: str = "A") -> list[dict]:
+    """Print the table for the rows named (default all), or ``row``'s patch and design
+    with each departure (``injected``; A: 10 loads, D: 8, C: the paper's 2), one line as
+    each row finishes; returns the rows."""
     print(HEADER, flush=True)
     if injected:
-        jobs = [("A", n) for n in names or injected_scenarios()]
+        jobs = [(row, n) for n in names or injected_scenarios()]
     else:
         jobs = [(n, None) for n in names or ROWS]
     rows = []

@@ -44,7 +44,7 @@ import numpy as np
 
 from symbolic.basis import BSplineBasis
 from symbolic.effects.base import CaseData, Effect, LoadState, per_model, surface_frame
-from symbolic.loads import surface_quadrature
+from symbolic.loads import surface_points
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -133,10 +133,10 @@ def _patch_function(model: TissueModel, case: CaseData, frame) -> ca.Function:
 
 def _build_patch(model: TissueModel, case: CaseData, frame) -> ca.Function:
     volume = model.volume
-    params, area = surface_quadrature(volume, spacing=np.sqrt(case.probe_variance) / 3.0)
-    keep = area > 0
-    points = volume.evaluate(params[keep])
-    rows = to_casadi_sparse(volume.collocation(params[keep])[:, model.free].T)
+    surface = surface_points(volume, spacing=np.sqrt(case.probe_variance) / 3.0)
+    keep = surface.area > 0
+    area, points = surface.area, surface.positions[keep]
+    rows = to_casadi_sparse(surface.collocation[keep][:, model.free].T)
     centre = volume.evaluate(volume.outer_params(np.asarray(case.contact_uv, float)[None]))[0]
     shift, added = ca.MX.sym("shift", 2), ca.MX.sym("variance")
     moved = ca.DM(centre) + ca.DM(frame[0]) * shift[0] + ca.DM(frame[1]) * shift[1]
