@@ -49,6 +49,9 @@ class Dataset:
     """Standard deviation of the marker measurement [mm], if known."""
     probe_radius: np.ndarray | None = None
     """(K,) probe radius of each load case [mm]; 0 = point force."""
+    probe_shape: str | None = None
+    """The probe patch's shape the model assumes (``symbolic.loads.PROBE_SHAPES``); None:
+    Gaussian. Not stored in the ``.npz``: step 0 of the loop estimates it."""
     times: np.ndarray | None = None
     """(T,) sample times of the transient, strictly increasing [s]."""
     outer_series: np.ndarray | None = None

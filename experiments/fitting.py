@@ -155,12 +155,17 @@ def rest_geometry(dataset: Dataset, settings: FitSettings) -> tuple[VolumeSpline
 
 
 def dataset_loads(dataset: Dataset, volume: VolumeSpline) -> list:
-    """Point or probe loads at the dataset's contacts (projected onto the skin)."""
+    """Point or probe loads (of ``dataset.probe_shape``) at the dataset's contacts
+    (projected onto the skin)."""
     loads = []
     radius = dataset.probe_radius if dataset.probe_radius is not None else np.zeros(dataset.n_loads)
+    shape = dataset.probe_shape or "gauss"
     contacts_uv, _ = volume.project_to_outer(dataset.contacts)  # one search for all
     for force, uv, r in zip(dataset.forces, contacts_uv, radius):
-        loads.append(ProbeForce(force, float(r), uv=uv) if r > 0 else PointForce(force, uv=uv))
+        probe = r > 0
+        loads.append(
+            ProbeForce(force, float(r), uv=uv, shape=shape) if probe else PointForce(force, uv=uv)
+        )
     return loads
 
 

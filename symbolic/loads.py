@@ -1,9 +1,14 @@
 """Generalised forces F_B (MODEL.md eq. 20) and prescribed displacements.
 
 - A point force f at the material point p: F_B = J(p)^T f, an (n, 3) array.
-- A probe of radius r: a surface traction f g(x) / integral g dA with a
-  Gaussian g of standard deviation r / 2 around the contact point
-  (**choice**: about 86 % of the force lies within the radius).
+- A probe of radius r: a surface traction f g(x) / integral g dA around the contact
+  point, of one of two shapes (``PROBE_SHAPES``; **choice**, the data decide between
+  them in step 0 of the loop, docs/continuum.md):
+  - "gauss": a Gaussian g of standard deviation r / 2 (about 86 % of the force lies
+    within the radius);
+  - "disc": a uniform pressure within r, its edge a logistic of scale r / 20
+    (``DISC_EDGE_OF_RADIUS``), so that F_B is smooth in r and in the contact.
+  Both have the per-axis variance r^2 / 4 of the patch.
 - Prescribed displacements of outer-surface material points p_i:
   J(p_i) (B - B0) = d_i, imposed with Lagrange multipliers by the model.
 """
@@ -67,19 +72,52 @@ class PointForce:
         return np.asarray(row.T @ self.force[None, :])
 
 
+PROBE_SHAPES = ("gauss", "disc")
+"""The probe's pressure over its patch: Gaussian, or uniform within the radius."""
+
+DISC_EDGE_OF_RADIUS = 0.05
+"""Logistic scale of the disc's edge, in radii (10-90 % over 0.22 r)."""
+
+
+def quadrature_spacing(radius: float, shape: str) -> float:
+    """Spacing [mm] of the surface quadrature of a probe: sigma / 3 = r / 6 for the
+    Gaussian, r / 10 for the disc (its edge is 4.4 r / 20 wide: two spacings)."""
+    return radius / (6.0 if shape == "gauss" else 10.0)
+
+
+def log_probe_weight(squared, radius2, shape: str, lib=np):
+    """ln g of a probe patch at squared distances d^2 [mm^2] from its centre.
+
+    gauss: -d^2 / (2 (r/2)^2); disc: ln of 1 / (1 + exp(y)), y = (d^2 - r^2) / (2 r e)
+    with e = ``DISC_EDGE_OF_RADIUS`` r, which is the logistic of scale e in d - r near
+    the edge. ``radius2`` is r^2 [mm^2], a number or (``lib`` casadi) an expression; the
+    softplus is the stable one (finite derivatives far from the patch).
+    """
+    if shape == "gauss":
+        return -2.0 * squared / radius2
+    if shape != "disc":
+        raise ValueError(f"probe shape must be one of {PROBE_SHAPES}, got {shape!r}")
+    y = (squared - radius2) / (2.0 * DISC_EDGE_OF_RADIUS * radius2)
+    return -(lib.fmax(y, 0.0) + lib.log1p(lib.exp(-lib.fabs(y))))
+
+
 @dataclass(frozen=True)
 class ProbeForce:
-    """A force [N] spread by a probe of radius r [mm] as a normalised Gaussian patch."""
+    """A force [N] spread by a probe of radius r [mm] as a normalised patch of a shape
+    (``PROBE_SHAPES``: "gauss", the default, or "disc")."""
 
     force: np.ndarray
     radius: float
     uv: np.ndarray | None = None
     point: np.ndarray | None = None
+    shape: str = "gauss"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "force", _as_vector(self.force, "force"))
         if not np.isfinite(self.radius) or self.radius <= 0:
             raise ValueError(f"probe radius must be > 0 mm, got {self.radius!r}")
+        if self.shape not in PROBE_SHAPES:
+            raise ValueError(f"probe shape must be one of {PROBE_SHAPES}, got {self.shape!r}")
 
     def generalized(self, volume: VolumeSpline) -> np.ndarray:
         """F_B = sum_q J(p_q)^T f g_q A_q / sum_q g_q A_q, shape (n, 3) [N].
@@ -90,15 +128,16 @@ class ProbeForce:
         """
         uv0 = _contact_uv(volume, self.uv, self.point)
         center = volume.evaluate(volume.outer_params(uv0[None]))[0]
-        sigma = 0.5 * self.radius
-        points = surface_points(volume, sigma / 3.0)
-        with np.errstate(over="ignore", under="ignore", divide="ignore"):
-            exponent = np.sum((points.positions - center) ** 2, axis=1) / (2.0 * sigma**2)
-            gauss = np.exp(-exponent) * points.area
-        keep = gauss > 1e-14 * gauss.max()
+        r = self.radius
+        points = surface_points(volume, quadrature_spacing(r, self.shape))
+        squared = np.sum((points.positions - center) ** 2, axis=1)
+        log_g = log_probe_weight(squared, r**2, self.shape)
+        with np.errstate(under="ignore"):
+            g = np.exp(log_g - log_g.max()) * points.area
+        keep = g > 1e-14 * g.max()
         if np.count_nonzero(keep) < 4:
             return PointForce(self.force, uv=uv0).generalized(volume)
-        weights = gauss[keep] / gauss[keep].sum()
+        weights = g[keep] / g[keep].sum()
         collocation = points.collocation[keep]
         return np.asarray(collocation.T @ (weights[:, None] * self.force[None, :]))
 

@@ -144,9 +144,9 @@ def test_the_radius_profile_stops_at_the_largest_probe(patch_data, monkeypatch):
     assert not family.declared
     tried = []
 
-    def trial(margin, support, radius, start=None):  # no fit: chi^2 falls with the radius
+    def trial(margin, support, radius, start=None, shape="gauss"):  # chi^2 falls with r
         tried.append(radius)
-        key = family.key(margin, support, radius)
+        key = family.key(margin, support, radius, shape)
         return family.trials.setdefault(key, SimpleNamespace(chi2=1e4 / radius))
 
     monkeypatch.setattr(family, "trial", trial)

@@ -130,14 +130,14 @@ def test_load_effects_keep_the_total_force(setting):
     np.testing.assert_allclose(-g.sum(axis=0), expected, atol=1e-12)
 
 
-def _probed(setting, name: str, radius: float = 4.0):
-    """The setting's loads as probes of ``radius`` [mm] with effect ``name``: the problem,
-    the radius, the probes, case 0's declared F_B and theta -> F_B(theta) - F_B of case 0
-    (at the zero state, so F_B is minus the equilibrium residual)."""
+def _probed(setting, name: str, radius: float = 4.0, shape: str = "gauss"):
+    """The setting's loads as probes of ``radius`` [mm] and ``shape`` with effect ``name``:
+    the problem, the radius, the probes, case 0's declared F_B and theta -> F_B(theta) -
+    F_B of case 0 (at the zero state, so F_B is minus the equilibrium residual)."""
     from symbolic.loads import ProbeForce
 
     problem, _, library = setting
-    loads = [ProbeForce(load.force, radius, uv=load.uv) for load in problem.loads]
+    loads = [ProbeForce(load.force, radius, uv=load.uv, shape=shape) for load in problem.loads]
     probed = ExtendedProblem(problem.base, loads, [])
     extended = probed.with_effects([library[name]])
     model = problem.model
@@ -152,17 +152,19 @@ def _probed(setting, name: str, radius: float = 4.0):
     return problem, radius, loads, declared, change_at
 
 
-def test_contact_patch_on_a_declared_probe_is_the_wider_gaussian(setting):
+@pytest.mark.parametrize("shape", ["gauss", "disc"])
+def test_contact_patch_on_a_declared_probe_is_the_wider_patch(setting, shape):
     """On a probe of radius r0 the patch is exact at any width: F_B(theta) is the probe
-    of variance r0^2 / 4 + theta (``ProbeForce`` of that radius), and F_B(0) is the
-    declared load to the last bit."""
+    of the same shape and variance r0^2 / 4 + theta (``ProbeForce`` of that radius), and
+    F_B(0) is the declared load to the last bit."""
     from symbolic.loads import ProbeForce
 
-    problem, radius, loads, declared, change_at = _probed(setting, "contact_patch")
+    problem, radius, loads, declared, change_at = _probed(setting, "contact_patch", shape=shape)
     model = problem.model
     for theta in (0.0, 3.0, 12.0):
         change = change_at([theta])
-        wider = ProbeForce(loads[0].force, 2.0 * np.sqrt(radius**2 / 4 + theta), uv=loads[0].uv)
+        wider_radius = 2.0 * np.sqrt(radius**2 / 4 + theta)
+        wider = ProbeForce(loads[0].force, wider_radius, uv=loads[0].uv, shape=shape)
         expected = wider.generalized(model.volume)[model.free] - declared
         if theta == 0.0:
             assert np.max(np.abs(change)) == 0.0
@@ -170,16 +172,19 @@ def test_contact_patch_on_a_declared_probe_is_the_wider_gaussian(setting):
             assert np.max(np.abs(change)) > 1e-3 * np.max(np.abs(declared))
             error = np.max(np.abs(change - expected)) / np.abs(declared).max()
             print(f"theta {theta}: error {error:.1e} of the largest entry")
-            assert error < 1e-6
+            # ProbeForce integrates the wider probe on a coarser quadrature (spacing r / 10),
+            # which resolves a disc's edge to a few 1e-5 (the Gaussian to 1e-8)
+            assert error < (1e-6 if shape == "gauss" else 1e-4)
 
 
-def test_contact_offset_moves_a_declared_probe_whole(setting):
+@pytest.mark.parametrize("shape", ["gauss", "disc"])
+def test_contact_offset_moves_a_declared_probe_whole(setting, shape):
     """On a probe, F_B(delta) is the probe at the moved contact (``ProbeForce`` there), to
     second order in delta (the patch's centre moves in the tangent plane, the probe's on
     the curved skin), and F_B(0) is the declared load exactly."""
     from symbolic.loads import ProbeForce
 
-    problem, radius, loads, declared, change_at = _probed(setting, "contact_offset")
+    problem, radius, loads, declared, change_at = _probed(setting, "contact_offset", shape=shape)
     model = problem.model
     contact = np.asarray(loads[0].uv, dtype=float)
     du, dv, e1, e2, _ = surface_frame(model, contact)
@@ -192,7 +197,8 @@ def test_contact_offset_moves_a_declared_probe_whole(setting):
             assert np.max(np.abs(change)) == 0.0
             continue
         uv = contact + tangent @ (delta[0] * e1 + delta[1] * e2)
-        there = ProbeForce(loads[0].force, radius, uv=uv).generalized(model.volume)[model.free]
+        there = ProbeForce(loads[0].force, radius, uv=uv, shape=shape)
+        there = there.generalized(model.volume)[model.free]
         expected = there - declared
         assert np.max(np.abs(change - expected)) < 0.01 * np.max(np.abs(expected))
         errors.append(np.max(np.abs(change - expected)) / np.max(np.abs(declared)))

@@ -15,12 +15,14 @@ base model (docs/continuum.md, "Step 0"):
    ``RADII_MM``, refined by a parabola through the best three). Each member of this
    family has the same two estimated parameters, so the family's chi^2 values compare
    directly (a profile likelihood); the search is coordinate-wise: the radius at a
-   5 mm free band, the eight surroundings at that radius, the radius again.
+   5 mm free band, the eight surroundings at that radius, the radius again, and then
+   the probe's shape (``symbolic.loads.PROBE_SHAPES``: a Gaussian or a uniform disc,
+   its radius profiled too), which no dataset declares.
 3. **The choice** between the two. When the paper's energy already fits at the noise
    level (its residual test not significant at the loop's level) nothing is replaced
    and the continuum is not tried. Otherwise: the models are not nested (neither
    contains the other), so the Bayesian information criterion decides, BIC = chi^2 + k ln m with
-   k = 3 for the paper's alphas and k = 2 + 3 for E, nu and the three settings the
+   k = 3 for the paper's alphas and k = 2 + 4 for E, nu and the four settings the
    continuum chose (counted as parameters: the continuum pays for its search).
 4. **The resolution check** of the chosen continuum: refit on a volume with spans
    ``REFINEMENT`` times smaller and one more layer; when the refit's predicted markers
@@ -58,6 +60,7 @@ from solvers.blas import one_thread
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import residual_test, robust_sigma
+from symbolic.loads import PROBE_SHAPES
 
 REFINEMENT = 1.5
 """Factor by which the resolution check divides the knot span along the skin."""
@@ -121,8 +124,8 @@ class BaseChoice:
 
     def dataset(self, dataset: Dataset) -> Dataset:
         """The dataset the loop runs on: with the estimated probe radius, if any."""
-        surroundings = self.chosen.surroundings
-        return with_radius(dataset, None if surroundings is None else surroundings.radius_mm)
+        s = self.chosen.surroundings
+        return dataset if s is None else with_radius(dataset, s.radius_mm, s.shape)
 
     def finding(self) -> str:
         """The first thing the paper's model lacks (or that it lacks nothing), in words."""
@@ -154,16 +157,17 @@ class BaseChoice:
         parts = []
         s = best.surroundings
         others = [t for t in self.trials if t is not best]
-        for name, same in (
-            ("margin", lambda t: t.surroundings.margin_mm != s.margin_mm),
-            ("support", lambda t: t.surroundings.support != s.support),
+        for name, field_name in (
+            ("margin", "margin_mm"),
+            ("support", "support"),
+            ("probe shape", "shape"),
         ):
-            rivals = [t for t in others if same(t)]
+            rivals = [
+                t for t in others if getattr(t.surroundings, field_name) != getattr(s, field_name)
+            ]
             if rivals:
                 rival = min(rivals, key=lambda t: t.chi2)
-                label = (
-                    rival.surroundings.margin_mm if name == "margin" else rival.surroundings.support
-                )
+                label = getattr(rival.surroundings, field_name)
                 parts.append(f"{name}: next best {label} by chi2 +{rival.chi2 - best.chi2:.0f}")
         return "; ".join(parts)
 
@@ -184,6 +188,7 @@ class BaseChoice:
                 "support": surroundings.support,
                 "probe_radius_mm": surroundings.radius_mm,
                 "probe_radius_estimated": surroundings.radius_mm is not None,
+                "probe_shape": surroundings.shape,
             },
             "trials": [t.record() for t in self.trials],
             "resolution": self.resolution,
@@ -234,8 +239,7 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
         if chosen is continuum:
             span, layers = starting_resolution(dataset)
             start = Family(dataset, span, layers, sigma, _quiet)
-            key = best.surroundings
-            begun = start.trial(key.margin_mm, key.support, key.radius_mm, best.fit.p)
+            begun = start.trial_at(best.surroundings, best.fit.p)
             chosen, resolution = checked_resolution(dataset, start, begun, sigma, level, log)
             continuum = chosen
     choice = BaseChoice(chosen, paper, continuum, trials, resolution, sigma)
@@ -243,19 +247,28 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
     return choice
 
 
-def search_surroundings(family: Family, margin: float, support: str, radius=None) -> Trial:
-    """The best member of the family, searched coordinate-wise from (margin, support): the
-    probe radius (a profile: the coarse ``RADII_MM``, or around ``radius``), then every
-    margin and support at that radius, then the radius again at the best of them."""
-    best = family.radius_profile(margin, support, radius)
+def search_surroundings(
+    family: Family, margin: float, support: str, radius=None, shape: str = "gauss"
+) -> Trial:
+    """The best member of the family, searched coordinate-wise from (margin, support) with
+    a probe of ``shape``: the probe radius (a profile: the coarse ``RADII_MM``, or around
+    ``radius``), then every margin and support at that radius, then the radius again at
+    the best of them, then each other shape (``PROBE_SHAPES``) there, its radius
+    profiled around the best."""
+    best = family.radius_profile(margin, support, radius, shape)
     radius = best.surroundings.radius_mm
     for other_margin in MARGINS_MM:
         for other_support in SUPPORTS:
-            family.trial(other_margin, other_support, radius)
+            family.trial(other_margin, other_support, radius, shape=shape)
     best = family.best()
+    s = best.surroundings
     if radius is not None:
-        best = family.radius_profile(best.surroundings.margin_mm, best.surroundings.support, radius)
-    return best
+        best = family.radius_profile(s.margin_mm, s.support, radius, shape)
+    s = best.surroundings
+    for other in PROBE_SHAPES:
+        if other != shape:
+            family.radius_profile(s.margin_mm, s.support, s.radius_mm, other)
+    return family.best()
 
 
 def _chi2(fitted: EffectFit, sigma: float) -> tuple[float, int]:
@@ -329,7 +342,7 @@ def checked_resolution(dataset, family, trial, sigma, level, log):
         )
         if converged:
             break
-        trial, family = finer.trial(key.margin_mm, key.support, key.radius_mm, estimate), finer
+        trial, family = finer.trial_at(key, estimate), finer
         records[-1]["refined_chi2"] = trial.chi2
     return trial, records
 

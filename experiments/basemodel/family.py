@@ -75,15 +75,18 @@ class Surroundings:
         How the band's outer faces are held.
     radius_mm : float or None
         Probe radius [mm] (None: the dataset's own, declared).
+    shape : str
+        The probe patch's shape (``symbolic.loads.PROBE_SHAPES``).
     """
 
     margin_mm: float
     support: str
     radius_mm: float | None
+    shape: str = "gauss"
 
     def label(self) -> str:
-        radius = "declared probe" if self.radius_mm is None else f"probe r {self.radius_mm:.2f} mm"
-        return f"{self.margin_mm:g} mm {self.support} band, {radius}"
+        radius = "declared" if self.radius_mm is None else f"r {self.radius_mm:.2f} mm"
+        return f"{self.margin_mm:g} mm {self.support} band, {self.shape} probe {radius}"
 
 
 @dataclass
@@ -115,6 +118,7 @@ class Trial:
             "margin_mm": self.settings.margin,
             "support": "clamped" if self.settings.fix_lateral else "free",
             "probe_radius_mm": None if self.surroundings is None else self.surroundings.radius_mm,
+            "probe_shape": None if self.surroundings is None else self.surroundings.shape,
             "parameters": dict(zip(names, map(float, self.fit.p))),
             "chi2": self.chi2,
             "dof": self.dof,
@@ -155,8 +159,11 @@ def span_settings(dataset: Dataset, margin: float, support: str, span: float, la
     )
 
 
-def with_radius(dataset: Dataset, radius: float | None) -> Dataset:
-    """The dataset with every load's probe radius set (None keeps the declared one)."""
+def with_radius(dataset: Dataset, radius: float | None, shape: str | None = None) -> Dataset:
+    """The dataset with every load's probe radius set (None keeps the declared one) and
+    the probe's shape (None keeps the dataset's)."""
+    if shape is not None:
+        dataset = replace(dataset, probe_shape=shape)
     if radius is None:
         return dataset
     return replace(dataset, probe_radius=np.full(dataset.n_loads, float(radius)))
@@ -192,8 +199,9 @@ class Family:
         other.models = self.models
         return other
 
-    def key(self, margin: float, support: str, radius: float | None) -> Surroundings:
-        return Surroundings(margin, support, None if self.declared else round(radius, 2))
+    def key(self, margin: float, support: str, radius: float | None, shape="gauss"):
+        radius = None if self.declared else round(radius, 2)
+        return Surroundings(margin, support, radius, shape)
 
     def problem(self, key: Surroundings) -> tuple[FitSettings, ExtendedProblem]:
         """The settings and base problem of a member of the family (model built once)."""
@@ -201,22 +209,23 @@ class Family:
         if (key.margin_mm, key.support) not in self.models:
             self.models[(key.margin_mm, key.support)] = build_model(self.dataset, settings)
         model, uv = self.models[(key.margin_mm, key.support)]
-        data = with_radius(self.dataset, key.radius_mm)
+        data = with_radius(self.dataset, key.radius_mm, key.shape)
         problem = problem_on(model, uv, data, settings)
         loads = dataset_loads(data, model.volume)
         return settings, ExtendedProblem(problem, loads, self.effects, sigma=self.sigma)
 
-    def trial(self, margin: float, support: str, radius: float | None, start=None) -> Trial:
-        key = self.key(margin, support, radius)
+    def trial(self, margin, support, radius, start=None, shape="gauss") -> Trial:
+        """The member at these surroundings, fitted once (``Surroundings``' fields)."""
+        key = self.key(margin, support, radius, shape)
         if key in self.trials:
             return self.trials[key]
         begin = time.perf_counter()
         settings, extended = self.problem(key)
         fitted = fit(extended, self._start() if start is None else start, tolerance=TOLERANCE)
         test = residual_test(fitted, self.sigma)
-        chosen = 0 if self.declared else 1
+        chosen = 2 if self.declared else 3  # margin, support (, radius)
         trial = Trial(
-            settings, key, fitted, test.statistic, test.dof, 2 + 2 + chosen,
+            settings, key, fitted, test.statistic, test.dof, 2 + chosen + 1,  # + shape
             time.perf_counter() - begin,
         )  # fmt: skip
         trial.family = self
@@ -241,16 +250,25 @@ class Family:
         """``MAX_RADIUS_OF_MARKED`` of the shorter marked side [mm]."""
         return MAX_RADIUS_OF_MARKED * float(min(marked_lengths(self.dataset.outer_rest)))
 
-    def radius_profile(self, margin: float, support: str, around: float | None = None):
-        """The radius minimising chi^2 at fixed surroundings: a coarse profile, one step
-        past an edge minimum, then the vertex of the parabola through the best three."""
+    def trial_at(self, key: Surroundings, start=None) -> Trial:
+        """``trial`` at a ``Surroundings``."""
+        return self.trial(key.margin_mm, key.support, key.radius_mm, start, key.shape)
+
+    def radius_profile(self, margin, support, around=None, shape="gauss") -> Trial:
+        """The radius minimising chi^2 at fixed surroundings and probe shape: a coarse
+        profile, one step past an edge minimum, then the vertex of the parabola through
+        the best three."""
+
+        def trial(radius):
+            return self.trial(margin, support, radius, shape=shape)
+
         if self.declared:
-            return self.trial(margin, support, None)
+            return trial(None)
         step, largest = RADII_MM[1] - RADII_MM[0], self.max_radius()
         radii = list(RADII_MM) if around is None else [around - step / 2, around, around + step / 2]
         radii = sorted({min(r, largest) for r in radii if r >= MIN_RADIUS_MM})
         for _ in range(3):
-            values = [self.trial(margin, support, r).chi2 for r in radii]
+            values = [trial(r).chi2 for r in radii]
             low = int(np.argmin(values))
             if 0 < low < len(radii) - 1 or (low == 0 and radii[0] <= MIN_RADIUS_MM):
                 break
@@ -260,7 +278,7 @@ class Family:
                 radii.append(min(radii[-1] + step, largest))
             else:
                 radii.insert(0, max(radii[0] - step, MIN_RADIUS_MM))
-        values = [self.trial(margin, support, r).chi2 for r in radii]
+        values = [trial(r).chi2 for r in radii]
         order = np.argsort(radii)
         radii, values = np.asarray(radii)[order], np.asarray(values)[order]
         low = int(np.argmin(values))
@@ -269,8 +287,10 @@ class Family:
             a, b, _ = np.polyfit(x, y, 2)
             if a > 0:
                 vertex = float(np.clip(-b / (2 * a), x[0], x[-1]))
-                self.trial(margin, support, vertex)
+                trial(vertex)
         candidates = [
-            t for s, t in self.trials.items() if (s.margin_mm, s.support) == (margin, support)
+            t
+            for s, t in self.trials.items()
+            if (s.margin_mm, s.support, s.shape) == (margin, support, shape)
         ]
         return min(candidates, key=lambda t: t.chi2)

@@ -63,8 +63,8 @@ class Revisit:
         family = self.search.with_effects(
             effects, current.p, lambda line: self.log(f"with {names}: {line}")
         )
-        here = family.trial(key.margin_mm, key.support, key.radius_mm)
-        best = search_surroundings(family, key.margin_mm, key.support, key.radius_mm)
+        here = family.trial_at(key)
+        best = search_surroundings(family, key.margin_mm, key.support, key.radius_mm, key.shape)
         record = {
             "effects": [e.name for e in effects],
             "before": _as_dict(key),
@@ -77,7 +77,7 @@ class Revisit:
         if best.surroundings != key and here.chi2 - best.chi2 > self.limit:
             loop = self.loop.with_effects(effects, best.fit.p, lambda *_: None)
             s = best.surroundings
-            trial = loop.trial(s.margin_mm, s.support, s.radius_mm)
+            trial = loop.trial_at(s)
             before, after = current.cost, trial.fit.cost
             record.update(chi2_before=before / family.sigma**2, chi2_after=after / family.sigma**2)
             if after < before:
@@ -103,4 +103,9 @@ def line(record: dict) -> str:
 
 
 def _as_dict(s: Surroundings) -> dict:
-    return {"margin_mm": s.margin_mm, "support": s.support, "radius_mm": s.radius_mm}
+    return {
+        "margin_mm": s.margin_mm,
+        "support": s.support,
+        "radius_mm": s.radius_mm,
+        "shape": s.shape,
+    }

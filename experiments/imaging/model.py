@@ -71,7 +71,8 @@ class ImagingModel:
 
     def dataset(self, dataset):
         """The dataset with the continuum's probe radius (step 0's estimate, if any)."""
-        return with_radius(dataset, self.trial.surroundings.radius_mm)
+        s = self.trial.surroundings
+        return with_radius(dataset, s.radius_mm, s.shape)
 
     def settings(self):
         """The continuum's ``FitSettings``, started at its estimate."""
@@ -156,7 +157,7 @@ def checked_continuum(dataset, trial, sigma: float, level: float, log=print):
     span, layers = starting_resolution(dataset)
     start = Family(dataset, span, layers, sigma, lambda *_: None)
     key = trial.surroundings
-    begun = start.trial(key.margin_mm, key.support, key.radius_mm, trial.fit.p)
+    begun = start.trial_at(key, trial.fit.p)
     return checked_resolution(
         dataset, start, begun, sigma, level, lambda line: log(f"  continuum: {line}")
     )

@@ -112,6 +112,7 @@ def case_data(problem: InverseProblem, loads: list, index: int, position: int) -
         offset=case.offset,
         weights=case.weights,
         probe_variance=0.25 * float(getattr(load, "radius", 0.0)) ** 2,
+        probe_shape=getattr(load, "shape", "gauss"),
     )
 
 

@@ -60,6 +60,8 @@ class CaseData:
     probe_variance : float
         sigma_0^2 = (r / 2)^2 of the declared probe of radius r [mm^2]; 0 for a point
         force.
+    probe_shape : str
+        The declared probe's shape (``symbolic.loads.PROBE_SHAPES``).
     """
 
     index: int
@@ -72,6 +74,7 @@ class CaseData:
     offset: np.ndarray
     weights: np.ndarray
     probe_variance: float = 0.0
+    probe_shape: str = "gauss"
 
     @property
     def centroid(self) -> np.ndarray:

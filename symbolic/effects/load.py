@@ -30,7 +30,9 @@ normalised Gaussian patch of variance sigma^2 [mm^2] to that order.
     a(theta) = sum_q N(p_q) g_q A_q / sum_q g_q A_q,
     g_q = exp(-|x_q - c(theta)|^2 / (2 (sigma_0^2 + theta))),
 
-  so that the patch stays a normalised Gaussian at any width. (The expansion, a
+  so that the patch stays a normalised Gaussian at any width. A declared disc probe
+  (``symbolic.loads.PROBE_SHAPES``) grows the same way, as the disc of radius
+  sqrt(r_0^2 + 4 theta), whose per-axis variance is sigma_0^2 + theta. (The expansion, a
   second-order Taylor series of N, is only good for sigma^2 well below a knot span
   squared: on 2.5 mm spans it turned a 4 -> 16 mm^2 patch into a load that needed E
   twice as large, and its score test pointed to theta < 0 on data with a probe twice
@@ -44,7 +46,11 @@ import numpy as np
 
 from symbolic.basis import BSplineBasis
 from symbolic.effects.base import CaseData, Effect, LoadState, per_model, surface_frame
-from symbolic.loads import surface_points
+from symbolic.loads import (
+    log_probe_weight,
+    quadrature_spacing,
+    surface_points,
+)
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -114,7 +120,7 @@ def patch_rows(model: TissueModel, case: CaseData, uv_shift, variance, frame):
     """a(0) and a(theta) of the exact Gaussian patch on the free points, (n_free, 1) each.
 
     The centre moves with the contact to first order, c = c_0 + V_u du + V_v dv; the
-    quadrature is the declared probe's (``ProbeForce``, spacing sigma_0 / 3). a(0) is
+    quadrature is the declared probe's (``ProbeForce``, ``quadrature_spacing``). a(0) is
     the same Function at (0, 0), so a(theta) - a(0) vanishes exactly at theta = 0.
     """
     patch = _patch_function(model, case, frame)
@@ -127,13 +133,14 @@ _PATCHES: dict = {}
 
 def _patch_function(model: TissueModel, case: CaseData, frame) -> ca.Function:
     """(uv shift, added variance) -> a on the free points, (n_free, 1) (built once per case)."""
-    key = (tuple(np.asarray(case.contact_uv, float)), case.probe_variance)
+    key = (tuple(np.asarray(case.contact_uv, float)), case.probe_variance, case.probe_shape)
     return per_model(_PATCHES, model, key, lambda: _build_patch(model, case, frame))
 
 
 def _build_patch(model: TissueModel, case: CaseData, frame) -> ca.Function:
     volume = model.volume
-    surface = surface_points(volume, spacing=np.sqrt(case.probe_variance) / 3.0)
+    radius = 2.0 * np.sqrt(case.probe_variance)  # r = 2 sigma_0
+    surface = surface_points(volume, quadrature_spacing(radius, case.probe_shape))
     keep = surface.area > 0
     area, points = surface.area, surface.positions[keep]
     rows = to_casadi_sparse(surface.collocation[keep][:, model.free].T)
@@ -141,9 +148,10 @@ def _build_patch(model: TissueModel, case: CaseData, frame) -> ca.Function:
     shift, added = ca.MX.sym("shift", 2), ca.MX.sym("variance")
     moved = ca.DM(centre) + ca.DM(frame[0]) * shift[0] + ca.DM(frame[1]) * shift[1]
     squared = ca.sum2((ca.DM(points) - ca.repmat(moved.T, points.shape[0], 1)) ** 2)
-    exponent = squared / (2 * (case.probe_variance + added))
-    # exp(-min) scales numerator and denominator alike: finite weights at any width
-    weights = ca.exp(ca.mmin(exponent) - exponent) * ca.DM(area[keep])
+    radius2 = 4 * (case.probe_variance + added)  # the patch's variance r^2 / 4 grows
+    log_g = log_probe_weight(squared, radius2, case.probe_shape, lib=ca)
+    # exp(-max) scales numerator and denominator alike: finite weights at any width
+    weights = ca.exp(log_g - ca.mmax(log_g)) * ca.DM(area[keep])
     row = ca.mtimes(rows, weights) / ca.sum1(weights)
     return ca.Function("patch", [shift, added], [row])
 
