@@ -6,7 +6,7 @@
   them in step 0 of the loop, docs/continuum.md):
   - "gauss": a Gaussian g of standard deviation r / 2 (about 86 % of the force lies
     within the radius);
-  - "disc": a uniform pressure within r, its edge a logistic of scale r / 20
+  - "disc": a uniform pressure within r, its edge a logistic of scale r / 10
     (``DISC_EDGE_OF_RADIUS``), so that F_B is smooth in r and in the contact.
   Both have the per-axis variance r^2 / 4 of the patch.
 - Prescribed displacements of outer-surface material points p_i:
@@ -75,13 +75,15 @@ class PointForce:
 PROBE_SHAPES = ("gauss", "disc")
 """The probe's pressure over its patch: Gaussian, or uniform within the radius."""
 
-DISC_EDGE_OF_RADIUS = 0.05
-"""Logistic scale of the disc's edge, in radii (10-90 % over 0.22 r)."""
+DISC_EDGE_OF_RADIUS = 0.1
+"""Logistic scale of the disc's edge, in radii (10-90 % over 0.44 r). The data cannot see
+the edge's profile between markers; a sharper edge (r / 20) needed a finer volume
+(the resolution check refined 36x29x6 -> 53x42x7, 9 GB, on the larger-patch row)."""
 
 
 def quadrature_spacing(radius: float, shape: str) -> float:
     """Spacing [mm] of the surface quadrature of a probe: sigma / 3 = r / 6 for the
-    Gaussian, r / 10 for the disc (its edge is 4.4 r / 20 wide: two spacings)."""
+    Gaussian, r / 10 for the disc (its edge is 0.44 r wide: four spacings)."""
     return radius / (6.0 if shape == "gauss" else 10.0)
 
 

@@ -51,7 +51,7 @@ def test_with_the_offset_in_the_search_finds_the_true_radius_and_the_fit_improve
         span, layers = starting_resolution(offset_data, SEARCH_SPAN_OF_SPACING)
         family = Family(offset_data, span, layers, sigma, lambda *_: None)
         wrong = family.trial(3.0, "clamped", WRONG_RADIUS_MM)
-        choice = BaseChoice(wrong, wrong, wrong, [wrong], [], sigma)
+        choice = BaseChoice(wrong, wrong, wrong, [wrong], [], sigma=sigma)
         current = wrong.fit
         current.problem.sigma = sigma
         effect = make_effect("contact_offset")

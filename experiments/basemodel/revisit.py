@@ -12,7 +12,8 @@ rejects), the search of step 0 (``choice.search_surroundings``) runs again with 
 effects in every member, on the search's volumes, starting from the surroundings in
 use. When another member fits better by more than the data can tell from noise, the
 loop's model is rebuilt with those surroundings at the loop's resolution and refitted
-(``Revisit``); the step records the change. The settings were already counted in
+(``Revisit``); then the probe's shape is compared on the loop's volume
+(``choice.checked_shape``); the step records the change. The settings were already counted in
 step 0's BIC (k = 5), so a change costs no further parameter.
 """
 
@@ -22,7 +23,7 @@ import time
 
 from scipy import stats
 
-from experiments.basemodel.choice import BaseChoice, search_surroundings
+from experiments.basemodel.choice import BaseChoice, checked_shape, search_surroundings
 from experiments.basemodel.family import Surroundings
 from solvers.diagnosis.fit import EffectFit
 
@@ -50,7 +51,7 @@ class Revisit:
         """id -> (base problem, its surroundings), for each base fitted (a fit's effects
         share its base; the problem is held so that its id stays its own)."""
         self.log = log
-        self.limit = float(stats.chi2.isf(level, 1))
+        self.level, self.limit = level, float(stats.chi2.isf(level, 1))
         self.records: list[dict] = []
 
     def __call__(self, current: EffectFit) -> tuple[EffectFit, dict] | None:
@@ -73,16 +74,26 @@ class Revisit:
             "search_chi2_after": best.chi2,
             "trials": len(family.trials),
         }
-        moved = None
+        moved, s = None, key
         if best.surroundings != key and here.chi2 - best.chi2 > self.limit:
             loop = self.loop.with_effects(effects, best.fit.p, lambda *_: None)
-            s = best.surroundings
-            trial = loop.trial_at(s)
+            trial = loop.trial_at(best.surroundings)
             before, after = current.cost, trial.fit.cost
             record.update(chi2_before=before / family.sigma**2, chi2_after=after / family.sigma**2)
             if after < before:
-                moved = trial.fit
-                self.surroundings[id(moved.problem.base)] = (moved.problem.base, s)
+                moved, s = trial.fit, best.surroundings
+        # the probe's shape, on the loop's volume (``checked_shape``)
+        fitted = moved or current
+        loop = self.loop.with_effects(effects, fitted.p, lambda *_: None)
+        kept = loop.trial_at(s, fitted.p)
+        shaped, record["shapes"] = checked_shape(kept, self.level, self.log)
+        if shaped is not kept and shaped.fit.cost < fitted.cost:
+            record.setdefault("chi2_before", current.cost / family.sigma**2)
+            record["chi2_after"] = shaped.chi2
+            record["after"] = _as_dict(shaped.surroundings)
+            moved, s = shaped.fit, shaped.surroundings
+        if moved is not None:
+            self.surroundings[id(moved.problem.base)] = (moved.problem.base, s)
         record["changed"] = moved is not None
         record["seconds"] = time.perf_counter() - begin
         self.records.append(record)

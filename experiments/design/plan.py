@@ -138,13 +138,15 @@ class Plan:
 
 
 def press_document(model, press: Press) -> dict:
-    """``{"contact_mm", "force_N", "uv", "tilt_deg", "probe_radius_mm"}`` of one press."""
+    """``{"contact_mm", "force_N", "uv", "tilt_deg", "probe_radius_mm", "probe_shape"}`` of
+    one press."""
     return {
         "contact_mm": [float(v) for v in contact_point(model, press.uv)],
         "force_N": [float(v) for v in press.force],
         "uv": [float(v) for v in press.uv],
         "tilt_deg": float(press.tilt_deg),
         "probe_radius_mm": float(press.probe_radius),
+        "probe_shape": press.probe_shape,
     }
 
 
@@ -156,7 +158,11 @@ def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
     loads = dataset_loads(dataset, model.volume)
     presses = [
         Press(
-            np.asarray(ld.uv, float), np.asarray(ld.force, float), 0.0, getattr(ld, "radius", 0.0)
+            np.asarray(ld.uv, float),
+            np.asarray(ld.force, float),
+            0.0,
+            getattr(ld, "radius", 0.0),
+            getattr(ld, "shape", "gauss"),
         )
         for ld in loads
     ]
@@ -176,11 +182,12 @@ def candidate_set(pool: InformationPool, dataset, settings, own, seen):
     rest = dataset.outer_rest.reshape(-1, 3)
     radius = occlusion_radius(rest, dataset.contacts, np.array(seen))
     probe = float(np.median([p.probe_radius for p in own]))  # the candidates use the dataset's
+    shape = own[0].probe_shape if own else "gauss"
     contacts = contact_grid(pool.marker_uv, settings.contacts)
     presses, visible = [], []
     for uv in contacts:
         batch = candidate_presses(
-            model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths, probe
+            model, uv[None], settings.forces(), settings.tilt_deg, settings.azimuths, probe, shape
         )
         presses += batch
         visible += [~hidden_markers(rest, contact_point(model, uv), radius)] * len(batch)

@@ -150,14 +150,16 @@ def continuum_search(dataset, sigma: float, log=print):
 
 def checked_continuum(dataset, trial, sigma: float, level: float, log=print):
     """``trial`` refitted on step 0's starting volume and checked by its resolution rule
-    (``experiments.basemodel.choice``), as step 0 treats a continuum it chooses: the
-    resolved trial and the checks."""
-    from experiments.basemodel.choice import checked_resolution
+    and its probe's shape (``experiments.basemodel.choice``), as step 0 treats a
+    continuum it chooses: the resolved trial and the resolution checks."""
+    from experiments.basemodel.choice import checked_resolution, checked_shape
 
     span, layers = starting_resolution(dataset)
     start = Family(dataset, span, layers, sigma, lambda *_: None)
-    key = trial.surroundings
-    begun = start.trial_at(key, trial.fit.p)
-    return checked_resolution(
-        dataset, start, begun, sigma, level, lambda line: log(f"  continuum: {line}")
-    )
+    begun = start.trial_at(trial.surroundings, trial.fit.p)
+
+    def prefixed(line):
+        log(f"  continuum: {line}")
+
+    resolved, checks = checked_resolution(dataset, start, begun, sigma, level, prefixed)
+    return checked_shape(resolved, level, prefixed)[0], checks

@@ -47,20 +47,23 @@ class Press:
     tilt_deg : float
         Angle between the force and the inward normal [deg].
     probe_radius : float
-        Radius of the probe's Gaussian patch [mm]; 0 for a point force (as a dataset
-        declares it, ``experiments.fitting.dataset_loads``).
+        Radius of the probe's patch [mm]; 0 for a point force (as a dataset declares it,
+        ``experiments.fitting.dataset_loads``).
+    probe_shape : str
+        The patch's shape (``symbolic.loads.PROBE_SHAPES``).
     """
 
     uv: np.ndarray
     force: np.ndarray
     tilt_deg: float = 0.0
     probe_radius: float = 0.0
+    probe_shape: str = "gauss"
 
     def load(self) -> PointForce | ProbeForce:
         """The press as the model's load."""
         force, uv = np.asarray(self.force, dtype=float), np.asarray(self.uv, dtype=float)
         if self.probe_radius > 0:
-            return ProbeForce(force, float(self.probe_radius), uv=uv)
+            return ProbeForce(force, float(self.probe_radius), uv=uv, shape=self.probe_shape)
         return PointForce(force, uv=uv)
 
     @property
@@ -96,6 +99,7 @@ def candidate_presses(
     tilt_deg: float = 20.0,
     azimuths: int = 4,
     probe_radius: float = 0.0,
+    probe_shape: str = "gauss",
 ) -> list[Press]:
     """Every press of eq. (D4): each contact x (normal + tilted) x each force magnitude.
 
@@ -113,6 +117,8 @@ def candidate_presses(
         Number of tilt directions in the tangent plane.
     probe_radius : float
         The probe's radius [mm] (0: point forces).
+    probe_shape : str
+        The probe patch's shape (``symbolic.loads.PROBE_SHAPES``).
     """
     if not 0.0 <= tilt_deg <= 60.0:
         raise ValueError(f"tilt must lie in 0-60 degrees, got {tilt_deg:g}")
@@ -129,7 +135,8 @@ def candidate_presses(
                 directions.append((-np.cos(angle) * normal + np.sin(angle) * lean, tilt_deg))
         for direction, tilt in directions:
             for magnitude in forces:
-                presses.append(Press(uv.copy(), magnitude * direction, tilt, probe_radius))
+                force = magnitude * direction
+                presses.append(Press(uv.copy(), force, tilt, probe_radius, probe_shape))
     return presses
 
 

@@ -49,11 +49,13 @@ class KnownLoad:
         return np.outer(self.patch, self.force)
 
 
-def contact_patch(volume, uv: np.ndarray, radius: float) -> np.ndarray:
-    """b of eq. (D8) for a contact (u, v) and a probe radius [mm] (0: a point force)."""
+def contact_patch(volume, uv: np.ndarray, radius: float, shape: str = "gauss") -> np.ndarray:
+    """b of eq. (D8) for a contact (u, v) and a probe radius [mm] (0: a point force) of a
+    shape (``symbolic.loads.PROBE_SHAPES``)."""
     unit = np.array([0.0, 0.0, 1.0])
     uv = np.asarray(uv, dtype=float)
-    load = ProbeForce(unit, float(radius), uv=uv) if radius > 0 else PointForce(unit, uv=uv)
+    probe = radius > 0
+    load = ProbeForce(unit, float(radius), uv=uv, shape=shape) if probe else PointForce(unit, uv=uv)
     return np.asarray(load.generalized(volume))[:, 2].copy()
 
 
@@ -64,9 +66,9 @@ def press_loads(presses, volume) -> list[KnownLoad]:
     loads = []
     for press in presses:
         uv = np.asarray(press.uv, dtype=float)
-        radius = float(press.probe_radius)
-        key = (uv.tobytes(), radius)
+        radius, shape = float(press.probe_radius), press.probe_shape
+        key = (uv.tobytes(), radius, shape)
         if key not in patches:
-            patches[key] = contact_patch(volume, uv, radius)
+            patches[key] = contact_patch(volume, uv, radius, shape)
         loads.append(KnownLoad(np.asarray(press.force, dtype=float), uv, radius, patches[key]))
     return loads
