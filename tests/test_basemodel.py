@@ -156,3 +156,41 @@ def test_the_radius_profile_stops_at_the_largest_probe(patch_data, monkeypatch):
     assert max(tried) == pytest.approx(largest)
     assert all(r <= largest + 1e-12 for r in tried)
     assert best.chi2 == pytest.approx(1e4 / largest)
+
+
+def test_the_probe_shape_is_compared_on_the_checked_volume(patch_choice):
+    """Both shapes are fitted on the volume the resolution check kept, each with its
+    radius profiled; no other shape beats the kept one by more than the 1-dof quantile
+    (6.6), and the preference says by how much it was kept."""
+    from symbolic.loads import PROBE_SHAPES
+
+    choice = patch_choice
+    shapes = choice.shapes
+    assert sorted(r["shape"] for r in shapes) == sorted(PROBE_SHAPES)
+    assert all(r["grid"] == list(choice.chosen.settings.grid) for r in shapes)
+    kept = next(r for r in shapes if r["shape"] == choice.chosen.surroundings.shape)
+    assert kept["chi2"] == pytest.approx(choice.chosen.chi2)
+    assert all(r["chi2"] > kept["chi2"] - 6.7 for r in shapes)
+    assert "probe shape: next best" in choice.preference()
+
+
+@pytest.mark.parametrize("probe", ["gauss", "disc"])
+def test_the_probe_shape_of_the_data_is_recovered(probe):
+    """FE data pressed through a Gaussian patch or a uniform disc (4 mm radius, 3 mm
+    marker spacing, undeclared): step 0 keeps the shape the data were made with. The
+    Gaussian is the incumbent: on Gaussian data the disc fitted within the quantile
+    (chi^2 878 against 883), on disc data it won by 57 (915 against 972)."""
+    pytest.importorskip("skfem")
+    from experiments.phantom.simulate import SimulationSettings
+    from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
+
+    patch = TissuePatch(
+        marked=(24.0, 18.0), extent_mm=4.0, thickness=4.0, poisson=0.45, support="clamped",
+        layers=3, spacing_mm=3.0,
+    )  # fmt: skip
+    forces, contacts = tissue_cases("corners", patch)
+    measurement = SimulationSettings(noise_mm=0.02, seed=5)
+    data = tissue_dataset(patch, forces, contacts, 4.0, (7, 6), probe, measurement=measurement)
+    choice = choose_base(data)
+    print(choice.shapes)
+    assert choice.chosen.surroundings.shape == probe
