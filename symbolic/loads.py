@@ -6,8 +6,8 @@
   them in step 0 of the loop, docs/continuum.md):
   - "gauss": a Gaussian g of standard deviation r / 2 (about 86 % of the force lies
     within the radius);
-  - "disc": a uniform pressure within r, its edge a logistic of scale r / 10
-    (``DISC_EDGE_OF_RADIUS``), so that F_B is smooth in r and in the contact.
+  - "disc": a uniform pressure within r, its edge a logistic of scale 0.25 mm
+    (``DISC_EDGE_MM``), so that F_B is smooth in r and in the contact.
   Both have the per-axis variance r^2 / 4 of the patch.
 - Prescribed displacements of outer-surface material points p_i:
   J(p_i) (B - B0) = d_i, imposed with Lagrange multipliers by the model.
@@ -75,15 +75,19 @@ class PointForce:
 PROBE_SHAPES = ("gauss", "disc")
 """The probe's pressure over its patch: Gaussian, or uniform within the radius."""
 
-DISC_EDGE_OF_RADIUS = 0.1
-"""Logistic scale of the disc's edge, in radii (10-90 % over 0.44 r). The data cannot see
-the edge's profile between markers; a sharper edge (r / 20) needed a finer volume
-(the resolution check refined 36x29x6 -> 53x42x7, 9 GB, on the larger-patch row)."""
+DISC_EDGE_MM = 0.25
+"""Logistic scale of the disc's edge [mm] (10-90 % over 1.1 mm, about one knot span of
+the volumes step 0 checks): the smoothing is there for the volume to resolve the load,
+so it is set by the volume's scale, not the probe's. Measured on FE data with a 5 mm
+disc: an edge of r / 10 (0.5 mm) left chi^2 2630 where a sharp disc fits at 2575, and
+the loop added layering for the difference; an edge of r / 20 on a 2.5 mm probe made
+the resolution check refine to 53x42x7 (9 GB)."""
 
 
 def quadrature_spacing(radius: float, shape: str) -> float:
     """Spacing [mm] of the surface quadrature of a probe: sigma / 3 = r / 6 for the
-    Gaussian, r / 10 for the disc (its edge is 0.44 r wide: four spacings)."""
+    Gaussian, r / 10 for the disc (at most a fifth of its edge's 1.1 mm, for r <= 2.2
+    mm)."""
     return radius / (6.0 if shape == "gauss" else 10.0)
 
 
@@ -91,15 +95,15 @@ def log_probe_weight(squared, radius2, shape: str, lib=np):
     """ln g of a probe patch at squared distances d^2 [mm^2] from its centre.
 
     gauss: -d^2 / (2 (r/2)^2); disc: ln of 1 / (1 + exp(y)), y = (d^2 - r^2) / (2 r e)
-    with e = ``DISC_EDGE_OF_RADIUS`` r, which is the logistic of scale e in d - r near
-    the edge. ``radius2`` is r^2 [mm^2], a number or (``lib`` casadi) an expression; the
-    softplus is the stable one (finite derivatives far from the patch).
+    with e = ``DISC_EDGE_MM``, which is the logistic of scale e in d - r near the edge.
+    ``radius2`` is r^2 [mm^2], a number or (``lib`` casadi) an expression; the softplus
+    is the stable one (finite derivatives far from the patch).
     """
     if shape == "gauss":
         return -2.0 * squared / radius2
     if shape != "disc":
         raise ValueError(f"probe shape must be one of {PROBE_SHAPES}, got {shape!r}")
-    y = (squared - radius2) / (2.0 * DISC_EDGE_OF_RADIUS * radius2)
+    y = (squared - radius2) / (2.0 * DISC_EDGE_MM * lib.sqrt(radius2))
     return -(lib.fmax(y, 0.0) + lib.log1p(lib.exp(-lib.fabs(y))))
 
 
