@@ -281,7 +281,7 @@ def checked_shape(trial: Trial, level: float, log) -> tuple[Trial, list[dict]]:
 
     Not on the search's coarser volumes: there a disc's edge is not resolved (on FE
     data with a 2.5 mm disc and a tilted force, the search preferred the Gaussian by
-    chi^2 12, the loop's 40x33x6 volume the disc by 95).
+    chi^2 12, the loop's 40x33x6 volume the disc by 99).
     """
     family, s = trial.family, trial.surroundings
     limit = float(stats.chi2.isf(level, 1))
