@@ -112,6 +112,12 @@ def timed_default_diagnosis(path: str) -> dict:
         "peak_mb": peak_mb(),
         "base": choice["chosen"],
         "surroundings": choice["surroundings"],
+        "revisits": [
+            f"{r['after']['margin_mm']:g} mm {r['after']['support']} {r['after']['shape']} "
+            f"r {r['after']['radius_mm'] or 0:.2f}"
+            for r in choice.get("revisits", [])
+            if r["changed"]
+        ],
         "grid": (choice["continuum"] or {}).get("grid") if choice["chosen"] != "dnurbs" else None,
         "resolution": [check["verdict"] for check in choice["resolution"]],
         "selected": list(document["selected"]),
@@ -141,13 +147,15 @@ def line(row: dict) -> str:
     base = row["base"]
     if base != "dnurbs":
         grid = "x".join(map(str, row["grid"]))
-        radius = s["probe_radius_mm"]
-        probe = "declared probe" if radius is None else f"r {radius:.2f} mm"
+        radius, shape = s["probe_radius_mm"], s.get("probe_shape", "gauss")
+        probe = f"{shape} declared" if radius is None else f"{shape} r {radius:.2f} mm"
         base += (
             f", {s['margin_mm']:g} mm {s['support']}, {probe}, {grid} "
             f"({', '.join(row['resolution'])})"
         )
     label = row["row"] if row["injected"] is None else f"{row['row']}: {row['injected']}"
+    if row.get("revisits"):
+        base += "; revisited -> " + ", ".join(row["revisits"])
     selected = ", ".join(row["selected"]) or "-"
     if row["rivals"]:
         selected += (
