@@ -15,9 +15,8 @@ base model (docs/continuum.md, "Step 0"):
    ``RADII_MM``, refined by a parabola through the best three). Each member of this
    family has the same two estimated parameters, so the family's chi^2 values compare
    directly (a profile likelihood); the search is coordinate-wise: the radius at a
-   5 mm free band, the eight surroundings at that radius, the radius again, and then
-   the probe's shape (``symbolic.loads.PROBE_SHAPES``: a Gaussian or a uniform disc,
-   its radius profiled too), which no dataset declares.
+   5 mm free band, the eight surroundings at that radius, the radius again (with the
+   model's default Gaussian probe; its shape is decided in 5).
 3. **The choice** between the two. When the paper's energy already fits at the noise
    level (its residual test not significant at the loop's level) nothing is replaced
    and the continuum is not tried. Otherwise: the models are not nested (neither
@@ -29,6 +28,9 @@ base model (docs/continuum.md, "Step 0"):
    differ by a chi^2 distance |W (x_fine - x)|^2 / sigma^2 above the 1-dof quantile
    at the loop's level, the data can see the discretisation: adopt the refined
    volume and check again (at most ``MAX_REFINEMENTS`` times).
+5. **The probe's shape** on the checked volume (``checked_shape``): the other shape
+   (``symbolic.loads.PROBE_SHAPES``: a Gaussian or a uniform disc), its radius
+   profiled, replaces the Gaussian when it fits better by more than the 1-dof quantile.
 
 On the phantom (data made by the paper's own model, ``make demo``) the paper's energy
 is kept; on FE tissue the continuum is. Large strain (real skin in the extensometer)
@@ -259,8 +261,7 @@ def search_surroundings(
     """The best member of the family, searched coordinate-wise from (margin, support) with
     a probe of ``shape``: the probe radius (a profile: the coarse ``RADII_MM``, or around
     ``radius``), then every margin and support at that radius, then the radius again at
-    the best of them, then each other shape (``PROBE_SHAPES``) there, its radius
-    profiled around the best."""
+    the best of them (the shape is compared on finer volumes, ``checked_shape``)."""
     best = family.radius_profile(margin, support, radius, shape)
     radius = best.surroundings.radius_mm
     for other_margin in MARGINS_MM:
