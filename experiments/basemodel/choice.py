@@ -52,6 +52,7 @@ from experiments.basemodel.family import (
     SUPPORTS,
     Family,
     Trial,
+    profile,
     span_settings,
     starting_resolution,
     with_radius,
@@ -276,34 +277,58 @@ def search_surroundings(
 
 def checked_shape(trial: Trial, level: float, log) -> tuple[Trial, list[dict]]:
     """The probe's shape decided on the trial's own volume (its ``family``): each other
-    shape (``PROBE_SHAPES``) with its radius profiled around the trial's, at the same
-    margin and support; it replaces the trial when its chi^2 is lower by more than the
-    1-dof quantile at ``level``. Returns the trial kept and each shape's best.
+    shape (``PROBE_SHAPES``) with its radius profiled around the trial's (``profile``),
+    at the same margin and support; it replaces the trial when its chi^2 is lower by
+    more than the 1-dof quantile at ``level``. Returns the trial kept and each shape's
+    best, the kept one's first.
+
+    The profile is linearised: at the trial's estimate p the stiffness K(p) does not
+    depend on the load, so one factorisation serves every shape and radius, and one
+    Gauss-Newton step from p gives each refit (as the resolution check's). Only a shape
+    that wins so is fitted in full, and must win again.
 
     Not on the search's coarser volumes: there a disc's edge is not resolved (on FE
     data with a 2.5 mm disc and a tilted force, the search preferred the Gaussian by
     chi^2 12, the loop's 40x33x6 volume the disc by 99).
     """
-    family, s = trial.family, trial.surroundings
+    family, s, p = trial.family, trial.surroundings, trial.fit.p
+    factor = trial.fit.problem.stiffness_factor(p)
     limit = float(stats.chi2.isf(level, 1))
-    best, compared = trial, [trial]
+    best, records = trial, [_shape_record(trial, "fit")]
     for other in PROBE_SHAPES:
-        if other != s.shape:
-            compared.append(family.radius_profile(s.margin_mm, s.support, s.radius_mm, other))
-            if compared[-1].chi2 < best.chi2 - limit:
-                best = compared[-1]
-    grid = "x".join(map(str, trial.settings.grid))
-    records = [
-        {"shape": t.surroundings.shape, "probe_radius_mm": t.surroundings.radius_mm,
-         "chi2": t.chi2, "grid": list(t.settings.grid)}
-        for t in compared
-    ]  # fmt: skip
+        if other == s.shape:
+            continue
+        estimates: dict = {}
+
+        def chi2_at(radius, other=other, estimates=estimates):
+            _, problem = family.problem(family.key(s.margin_mm, s.support, radius, other))
+            problem.cache["last_state_jacobian"] = factor  # K(p) is the trial's
+            predicted, estimates[radius] = linearised_refit(problem, p)
+            return float(predicted @ predicted) / family.sigma**2
+
+        if family.declared:
+            radius, chi2 = None, chi2_at(None)
+        else:
+            radius, chi2 = profile(chi2_at, s.radius_mm, family.max_radius())
+        records.append({**_shape_record(trial, "linearised"), "shape": other, "chi2": chi2,
+                        "probe_radius_mm": radius})  # fmt: skip
+        if chi2 < best.chi2 - limit:
+            full = family.trial(s.margin_mm, s.support, radius, estimates[radius], other)
+            records[-1] = _shape_record(full, "fit")
+            best = full if full.chi2 < best.chi2 - limit else best
     log(
-        f"probe shape on {grid}: "
-        + ", ".join(f"{t.surroundings.label().split(', ')[-1]} chi2 {t.chi2:.0f}" for t in compared)
+        f"probe shape on {'x'.join(map(str, trial.settings.grid))}: "
+        + ", ".join(f"{r['shape']} r {r['probe_radius_mm'] or 0:.2f} mm chi2 {r['chi2']:.0f} "
+                    f"({r['method']})" for r in records)
         + f": {best.surroundings.shape} kept"
-    )
+    )  # fmt: skip
     return best, records
+
+
+def _shape_record(trial: Trial, method: str) -> dict:
+    s = trial.surroundings
+    return {"shape": s.shape, "probe_radius_mm": s.radius_mm, "chi2": trial.chi2,
+            "grid": list(trial.settings.grid), "method": method}  # fmt: skip
 
 
 def _chi2(fitted: EffectFit, sigma: float) -> tuple[float, int]:

@@ -255,42 +255,59 @@ class Family:
         return self.trial(key.margin_mm, key.support, key.radius_mm, start, key.shape)
 
     def radius_profile(self, margin, support, around=None, shape="gauss") -> Trial:
-        """The radius minimising chi^2 at fixed surroundings and probe shape: a coarse
-        profile, one step past an edge minimum, then the vertex of the parabola through
-        the best three."""
+        """The member minimising chi^2 over the probe radius at fixed surroundings and
+        probe shape (``profile``; the declared radius when the dataset has one)."""
 
         def trial(radius):
             return self.trial(margin, support, radius, shape=shape)
 
         if self.declared:
             return trial(None)
-        step, largest = RADII_MM[1] - RADII_MM[0], self.max_radius()
-        radii = list(RADII_MM) if around is None else [around - step / 2, around, around + step / 2]
-        radii = sorted({min(r, largest) for r in radii if r >= MIN_RADIUS_MM})
-        for _ in range(3):
-            values = [trial(r).chi2 for r in radii]
-            low = int(np.argmin(values))
-            if 0 < low < len(radii) - 1 or (low == 0 and radii[0] <= MIN_RADIUS_MM):
-                break
-            if low == len(radii) - 1:
-                if radii[-1] >= largest:
-                    break
-                radii.append(min(radii[-1] + step, largest))
-            else:
-                radii.insert(0, max(radii[0] - step, MIN_RADIUS_MM))
-        values = [trial(r).chi2 for r in radii]
-        order = np.argsort(radii)
-        radii, values = np.asarray(radii)[order], np.asarray(values)[order]
-        low = int(np.argmin(values))
-        if 0 < low < len(radii) - 1:
-            x, y = radii[low - 1 : low + 2], values[low - 1 : low + 2]
-            a, b, _ = np.polyfit(x, y, 2)
-            if a > 0:
-                vertex = float(np.clip(-b / (2 * a), x[0], x[-1]))
-                trial(vertex)
+        profile(lambda r: trial(r).chi2, around, self.max_radius())
         candidates = [
             t
             for s, t in self.trials.items()
             if (s.margin_mm, s.support, s.shape) == (margin, support, shape)
         ]
         return min(candidates, key=lambda t: t.chi2)
+
+
+def profile(chi2_at, around: float | None = None, largest: float = math.inf):
+    """The probe radius [mm] minimising ``chi2_at(radius)``: a coarse profile (``RADII_MM``,
+    or half a step either side of ``around``), one step past an edge minimum (within
+    ``MIN_RADIUS_MM`` and ``largest``), then the vertex of the parabola through the best
+    three. Radii are rounded to 0.01 mm, each evaluated once; returns the best radius and
+    its chi^2."""
+    tried: dict[float, float] = {}
+
+    def value(radius: float) -> float:
+        radius = round(float(radius), 2)
+        if radius not in tried:
+            tried[radius] = chi2_at(radius)
+        return tried[radius]
+
+    step = RADII_MM[1] - RADII_MM[0]
+    radii = list(RADII_MM) if around is None else [around - step / 2, around, around + step / 2]
+    radii = sorted({min(r, largest) for r in radii if r >= MIN_RADIUS_MM})
+    for _ in range(3):
+        values = [value(r) for r in radii]
+        low = int(np.argmin(values))
+        if 0 < low < len(radii) - 1 or (low == 0 and radii[0] <= MIN_RADIUS_MM):
+            break
+        if low == len(radii) - 1:
+            if radii[-1] >= largest:
+                break
+            radii.append(min(radii[-1] + step, largest))
+        else:
+            radii.insert(0, max(radii[0] - step, MIN_RADIUS_MM))
+    values = [value(r) for r in radii]
+    order = np.argsort(radii)
+    radii, values = np.asarray(radii)[order], np.asarray(values)[order]
+    low = int(np.argmin(values))
+    if 0 < low < len(radii) - 1:
+        x, y = radii[low - 1 : low + 2], values[low - 1 : low + 2]
+        a, b, _ = np.polyfit(x, y, 2)
+        if a > 0:
+            value(float(np.clip(-b / (2 * a), x[0], x[-1])))
+    radius = min(tried, key=tried.get)
+    return radius, tried[radius]
