@@ -97,6 +97,7 @@ def timed_default_diagnosis(path: str) -> dict:
     """``dvs diagnose PATH`` with the defaults, timed whole (step 0, loop, figure and
     outputs), with the process's CPU time (what other jobs on a shared machine change
     least) and peak memory. Meant for a fresh process."""
+    from experiments.basemodel.family import Surroundings
     from experiments.diagnosis.diagnose import run
     from experiments.isolation import peak_mb
 
@@ -113,10 +114,7 @@ def timed_default_diagnosis(path: str) -> dict:
         "base": choice["chosen"],
         "surroundings": choice["surroundings"],
         "revisits": [
-            f"{r['after']['margin_mm']:g} mm {r['after']['support']} {r['after']['shape']} "
-            f"r {r['after']['radius_mm'] or 0:.2f}"
-            for r in choice.get("revisits", [])
-            if r["changed"]
+            Surroundings(**r["after"]).label() for r in choice.get("revisits", []) if r["changed"]
         ],
         "grid": (choice["continuum"] or {}).get("grid") if choice["chosen"] != "dnurbs" else None,
         "resolution": [check["verdict"] for check in choice["resolution"]],
