@@ -9,9 +9,9 @@ table in docs/continuum.md ("Tissue the model was not tuned on").
 They are the strong form the issue asks for: the named effect (or only physics the data
 have), never a stand-in at any step, and explained at <= 1.1x the noise level. Written
 before the fix as strict expected failures; step 0 (``experiments.basemodel``) and the
-layering effect made rows A, D, G and the slab pass. Row E (curved, 8 mm, 10 mm free)
-still fails: the resolution check stops at its budget before the predicted markers
-converge, and the loop then adds layering for the discretisation's share.
+layering effect made rows A, D, G and the slab pass, and the probe's shape (step 0's
+``checked_shape``) row E: with the model's Gaussian patch the loop added layering
+there for what was the FE probe's disc.
 """
 
 from __future__ import annotations
@@ -29,11 +29,6 @@ PHYSICAL = frozenset(
 continuum's volume and shear coupling. Anything else added without an injected effect
 is a stand-in (rigid motion, a per-capture scale, a stiffening, a pre-tension, ...)."""
 
-UNCONVERGED = (
-    "issue 40: on row E the resolution check's next volume (70x59x8) is over its budget, "
-    "the adopted one moves the markers by chi2 92 against 6.6, and layering stands in"
-)
-
 ROWS = {name: ROWS_ALL[name] for name in ("A", "D", "E")}
 """Rows A, D and E of the table (no effect injected)."""
 
@@ -46,18 +41,7 @@ def _diagnosed(name: str) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(
-            name,
-            marks=[pytest.mark.xfail(strict=True, raises=AssertionError, reason=UNCONVERGED)]
-            if name == "E"
-            else [],
-        )
-        for name in sorted(ROWS)
-    ],
-)
+@pytest.mark.parametrize("name", sorted(ROWS))
 def test_without_an_effect_the_defaults_explain_tissue_with_physics_only(name):
     """No effect injected: explained at <= 1.1x the noise, only physical terms added."""
     document = _diagnosed(name)
