@@ -18,8 +18,8 @@ from experiments.basemodel.choice import linearised_refit
 from experiments.basemodel.family import span_settings, with_radius
 
 
-@pytest.fixture(scope="module")
-def patch_data():
+def _patch_dataset(radius: float, probe: str, seed: int):
+    """The module's FE patch (docstring) pressed by a probe of ``radius`` [mm] and shape."""
     pytest.importorskip("skfem")
     from experiments.phantom.simulate import SimulationSettings
     from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
@@ -29,8 +29,13 @@ def patch_data():
         layers=3, spacing_mm=3.0,
     )  # fmt: skip
     forces, contacts = tissue_cases("corners", patch)
-    measurement = SimulationSettings(noise_mm=0.02, seed=3)
-    return tissue_dataset(patch, forces, contacts, 2.0, (7, 6), "disc", measurement=measurement)
+    measurement = SimulationSettings(noise_mm=0.02, seed=seed)
+    return tissue_dataset(patch, forces, contacts, radius, (7, 6), probe, measurement=measurement)
+
+
+@pytest.fixture(scope="module")
+def patch_data():
+    return _patch_dataset(2.0, "disc", seed=3)
 
 
 @pytest.fixture(scope="module")
@@ -180,17 +185,6 @@ def test_the_probe_shape_of_the_data_is_recovered(probe):
     marker spacing, undeclared): step 0 keeps the shape the data were made with. The
     Gaussian is the incumbent: on Gaussian data the disc fitted within the quantile
     (chi^2 881 against 883), on disc data it won by 58 (914 against 972)."""
-    pytest.importorskip("skfem")
-    from experiments.phantom.simulate import SimulationSettings
-    from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
-
-    patch = TissuePatch(
-        marked=(24.0, 18.0), extent_mm=4.0, thickness=4.0, poisson=0.45, support="clamped",
-        layers=3, spacing_mm=3.0,
-    )  # fmt: skip
-    forces, contacts = tissue_cases("corners", patch)
-    measurement = SimulationSettings(noise_mm=0.02, seed=5)
-    data = tissue_dataset(patch, forces, contacts, 4.0, (7, 6), probe, measurement=measurement)
-    choice = choose_base(data)
+    choice = choose_base(_patch_dataset(4.0, probe, seed=5))
     print(choice.shapes)
     assert choice.chosen.surroundings.shape == probe
