@@ -171,8 +171,8 @@ class BaseChoice:
                 rival = min(rivals, key=lambda t: t.chi2)
                 label = getattr(rival.surroundings, field_name)
                 parts.append(f"{name}: next best {label} by chi2 +{rival.chi2 - best.chi2:.0f}")
-        if len(self.shapes) > 1:  # on the loop's volume (``checked_shape``)
-            kept = next(r for r in self.shapes if r["shape"] == self.chosen.surroundings.shape)
+        if len(self.shapes) > 1:  # the continuum's, on its checked volume (``checked_shape``)
+            kept = next(r for r in self.shapes if r["shape"] == self.continuum.surroundings.shape)
             other = min((r for r in self.shapes if r is not kept), key=lambda r: r["chi2"])
             difference = other["chi2"] - kept["chi2"]
             parts.append(f"probe shape: next best {other['shape']} by chi2 {difference:+.0f}")
