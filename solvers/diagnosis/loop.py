@@ -27,6 +27,10 @@
    design a probe patch twice the declared radius and pre-tension lower chi^2 by 18.4
    and 16.9). Score statistics are local; a candidate far more nonlinear than its
    score shows can be missed by the screen.
+7. Blind spots: the last round's score tests also give the power against each
+   candidate at its realistic size; the ones below 0.8 are named as not ruled out
+   (``solvers.diagnosis.blind``), so a residual at the noise on a weak design does not
+   read as proof that nothing else is there.
 
 ``Diagnosis.document()`` is ``diagnosis.json`` (schema ``dvs-diagnosis/1``).
 """
@@ -38,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.blas import one_thread
+from solvers.diagnosis.blind import blind_spots
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.guard import PredictionCheck, prediction_check
 from solvers.diagnosis.problem import ExtendedProblem
@@ -189,6 +194,12 @@ class Diagnosis:
         """Selected effect -> the candidates the data cannot tell from it."""
         return {s.effect: [r["effect"] for r in s.rivals] for s in self.steps if s.rivals}
 
+    def blind_spots(self) -> list[dict]:
+        """Effects the final round's score tests would miss at realistic sizes
+        (``solvers.diagnosis.blind``); empty when that round was not run."""
+        last = self.steps[-1]
+        return blind_spots(last.scores, len(last.fit.problem.cases), self.level)
+
     @property
     def unexplained(self) -> bool:
         """True when the final residual is significantly above the noise."""
@@ -210,6 +221,7 @@ class Diagnosis:
             "level": self.level,
             "rejected": self.rejected,
             "rivals": self.rivals,
+            "blind_spots": self.blind_spots(),
             **({} if self.base_choice is None else {"base_choice": self.base_choice}),
         }
 

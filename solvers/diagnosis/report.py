@@ -7,6 +7,8 @@ links to is drawn by ``experiments.diagnosis.diagnose.plot_residuals``.
 
 from __future__ import annotations
 
+from solvers.diagnosis.blind import sentence
+
 
 def _parameter_lines(record: dict, names) -> list[str]:
     lines = ["| parameter | value | std | unit |", "|---|---|---|---|"]
@@ -19,11 +21,20 @@ def _parameter_lines(record: dict, names) -> list[str]:
 
 
 def verdict(document: dict) -> str:
-    """One sentence on what the diagnosis concludes, worded so that no stand-in reads as a cause.
+    """What the diagnosis concludes, worded so that no stand-in reads as a cause.
 
     When the residual stays significant the added effects are reported as the library's
-    closest approximations, not as the cause of the discrepancy.
+    closest approximations, not as the cause of the discrepancy. When it is consistent
+    with noise, the effects the design would likely have missed follow as not ruled out
+    (``blind_spots``).
     """
+    text = _verdict(document)
+    if not document["unexplained"] and document.get("blind_spots"):
+        text += "; " + sentence(document["blind_spots"])
+    return text
+
+
+def _verdict(document: dict) -> str:
     rivals = document.get("rivals", {})
     selected = ", ".join(
         " or ".join([name, *rivals[name]]) if name in rivals else name
@@ -122,6 +133,24 @@ def report(diagnosis, document: dict) -> str:
                 f"(chi^2 drop {r['chi2_drop']:.1f})"
                 for r in step.get("rivals", [])
             ]
+        lines.append("")
+    if document.get("blind_spots"):
+        lines += [
+            "## What this design would likely miss",
+            "",
+            "Power of the last round's score test against each effect at a realistic size "
+            "(linearised, at that round's Bonferroni level); below 0.8 the effect is not "
+            "ruled out by a residual at the noise.",
+            "",
+            "| effect | realistic size | power there | detected with power 0.8 above |",
+            "|---|---|---|---|",
+        ]
+        for spot in document["blind_spots"]:
+            above = "-" if spot["detectable"] is None else f"{spot['detectable']:.3g}"
+            lines.append(
+                f"| {spot['effect']} | {spot['realistic']:g} {spot['unit']} | "
+                f"{spot['power']:.2f} | {above} |"
+            )
         lines.append("")
     if document["rejected"]:
         lines += ["## Candidates tried and rejected", ""]

@@ -75,6 +75,10 @@ class ScoreTest:
         Wall time of the test (build + one linearisation).
     note : str
         Why the test could not see the effect, if so.
+    information : numpy.ndarray or None
+        A^T A / sigma^2 on the test's ``dof`` directions, in theta's natural units: the
+        profiled Fisher information, so that theta_1^T I theta_1 is the non-centrality
+        of the test against theta_1 (eq. D2, linearised; ``solvers.diagnosis.blind``).
     """
 
     effect: str
@@ -86,6 +90,7 @@ class ScoreTest:
     distinct: float
     seconds: float
     note: str = ""
+    information: np.ndarray | None = None
 
 
 def residual_test(fit: EffectFit, sigma: float) -> ResidualTest:
@@ -212,6 +217,7 @@ def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
             else:
                 log_p += np.log(0.5)
     distinct = float(singular[-1] / size) if size > 0 and singular.size else 0.0
+    kept = vt[:rank].T * singular[:rank] / scale[:, None]  # A^T A = kept kept^T
     return ScoreTest(
         effect=candidate.name,
         statistic=float(statistic),
@@ -222,4 +228,5 @@ def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
         distinct=distinct,
         seconds=time.perf_counter() - begin,
         note=note,
+        information=kept @ kept.T / sigma**2,
     )
