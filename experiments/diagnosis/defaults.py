@@ -121,6 +121,7 @@ def timed_default_diagnosis(path: str) -> dict:
         "selected": list(document["selected"]),
         "rivals": document["rivals"],
         "unexplained": bool(document["unexplained"]),
+        "blind_spots": [spot["effect"] for spot in document["blind_spots"]],
         "rms_before_um": 1e3 * document["rms_before_mm"],
         "rms_after_um": 1e3 * document["rms_after_mm"],
         "noise_um": 1e3 * document["noise_rms_mm"],
@@ -160,6 +161,8 @@ def line(row: dict) -> str:
             " (or " + "; ".join(f"{k}: {', '.join(v)}" for k, v in row["rivals"].items()) + ")"
         )
     verdict = "unexplained" if row["unexplained"] else "explained"
+    if not row["unexplained"] and row.get("blind_spots"):
+        verdict += "; not ruled out: " + ", ".join(row["blind_spots"])
     return (
         f"| {label} | {base} | {row['rms_before_um']:.1f} -> {row['rms_after_um']:.1f} "
         f"| {selected} | {verdict} | {row['wall_s']:.0f} ({row['step0_s']:.0f}) "
