@@ -65,15 +65,21 @@ def _point(problem: ExtendedProblem, base_p: np.ndarray) -> np.ndarray:
 
 
 def _count_factorisations(monkeypatch) -> list:
-    """A list that grows by one at every sparse LU of the linear and Newton paths."""
+    """A list that grows by one at every sparse factorisation of the linear path (CHOLMOD
+    or SuperLU, ``solvers.cholmod.factorised``) and every LU of the Newton path."""
     calls = []
-    original = spla.splu
+    original, choose = spla.splu, linear.factorised
 
     def counted(*args, **kwargs):
         calls.append(1)
         return original(*args, **kwargs)
 
+    def counted_choice(matrix, fallback):
+        calls.append(1)
+        return choose(matrix, lambda m: original(m, **linear.FACTOR_OPTIONS))
+
     monkeypatch.setattr(linear.spla, "splu", counted)
+    monkeypatch.setattr(linear, "factorised", counted_choice)
     return calls
 
 

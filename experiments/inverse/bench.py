@@ -368,7 +368,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
             from experiments.diagnosis.defaults import defaults_benchmark
             from experiments.diagnosis.study import diagnosis_timings
             from experiments.imaging.bench import imaging_benchmark
+            from experiments.inverse.factorisation import factorisation_benchmark
 
+            factorisation_benchmark()
             diagnosis_timings()
             diagnosis_benchmark()
             defaults_benchmark()

@@ -32,6 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from solvers.blas import one_thread
+from solvers.cholmod import factorised
 from solvers.componentwise import ORDERING
 from symbolic.sparse import term_matrix
 
@@ -61,8 +62,8 @@ class StateJacobian:
 
     def solve(self, right: np.ndarray) -> np.ndarray:
         """(dg/ds)^-1 right, for one right-hand side or the columns of a matrix."""
-        if self._lu is None:
-            self._lu = spla.splu(self.matrix, **FACTOR_OPTIONS)
+        if self._lu is None:  # CHOLMOD for an SPD K(p), else SuperLU (solvers.cholmod)
+            self._lu = factorised(self.matrix, lambda matrix: spla.splu(matrix, **FACTOR_OPTIONS))
         with one_thread():  # thin BLAS blocks: threads only wait on each other
             return self._lu.solve(np.asarray(right, dtype=float))
 

@@ -1,0 +1,57 @@
+"""CHOLMOD through ctypes (solvers/cholmod.py): the same solutions as SuperLU, the
+fallbacks, and the switch. Skipped where the system has no libcholmod.so.3."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from solvers import cholmod
+
+pytestmark = pytest.mark.skipif(not cholmod.available(), reason="no CHOLMOD 3 on this system")
+
+
+def _elasticity(shape=(6, 5, 3)):
+    from experiments.inverse.factorisation import clamped_elasticity
+
+    return clamped_elasticity(shape, (30.0, 25.0, 5.0))
+
+
+def test_the_solution_is_superlus_for_one_and_many_right_hand_sides():
+    matrix = _elasticity()
+    right = np.random.default_rng(0).standard_normal((matrix.shape[0], 4))
+    factor = cholmod.Cholesky(matrix)
+    reference = spla.splu(matrix).solve(right)
+    scale = np.abs(reference).max()
+    assert np.abs(factor.solve(right) - reference).max() <= 1e-10 * scale
+    assert np.abs(factor.solve(right[:, 1]) - reference[:, 1]).max() <= 1e-10 * scale
+    assert factor.solve(right[:, 1]).shape == (matrix.shape[0],)
+
+
+def test_factorised_falls_back_for_indefinite_and_unsymmetric_matrices():
+    matrix = _elasticity()
+    assert cholmod.symmetric(matrix)
+    assert isinstance(cholmod.factorised(matrix, spla.splu), cholmod.Cholesky)
+    shifted = (matrix - 2.0 * abs(matrix).max() * sp.eye(matrix.shape[0])).tocsc()
+    with pytest.raises(cholmod.NotPositiveDefinite):
+        cholmod.Cholesky(shifted)
+    assert not isinstance(cholmod.factorised(shifted, spla.splu), cholmod.Cholesky)
+    skew = matrix.tolil()
+    skew[0, 1] += 1e-3 * abs(matrix).max()
+    skew = skew.tocsc()
+    assert not cholmod.symmetric(skew)
+    solved = cholmod.factorised(skew, spla.splu)
+    assert not isinstance(solved, cholmod.Cholesky)
+    right = np.ones(matrix.shape[0])
+    assert np.allclose(skew @ solved.solve(right), right)
+
+
+def test_the_environment_switches_it_off():
+    code = "from solvers import cholmod; print(cholmod.backend())"
+    env = {"DVS_FACTORISATION": "superlu", "PATH": ""}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.stdout.strip() == "SuperLU", out.stderr
+    assert cholmod.backend().startswith("CHOLMOD")
