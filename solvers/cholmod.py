@@ -201,6 +201,18 @@ def symmetric(matrix: sp.spmatrix, tolerance: float = 1e-10) -> bool:
     return bool(abs(float(u @ av) - float(v @ au)) <= tolerance * scale)
 
 
+def symmetric_lu(matrix: sp.spmatrix):
+    """SuperLU for a symmetric positive definite matrix: a symmetric ordering, no pivoting."""
+    import scipy.sparse.linalg as spla
+
+    return spla.splu(
+        sp.csc_matrix(matrix),
+        permc_spec="MMD_AT_PLUS_A",
+        diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )
+
+
 def factorised(matrix: sp.spmatrix, fallback):
     """``Cholesky(matrix)`` when CHOLMOD is there and the matrix is symmetric positive
     definite, else ``fallback(matrix)`` (an object with ``solve``, SuperLU's say)."""

@@ -25,12 +25,12 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-import scipy.sparse.linalg as spla
 from scipy.spatial.transform import Rotation
 
 from experiments.dataset import Dataset
 from experiments.phantom.fe import Departure, design_cases, require_skfem, rigid_departure
 from experiments.phantom.simulate import SimulationSettings, measured_dataset
+from solvers.cholmod import factorised, symmetric_lu
 from symbolic.continuum import lame
 
 SUPPORTS = ("free", "clamped", "elastic")
@@ -258,14 +258,10 @@ class TissueSolution:
             fixed = np.union1d(fixed, lateral)
         self.free = self.basis.complement_dofs(self.basis.get_dofs(facets=fixed))
         stiffness = self.matrix[self.free][:, self.free].tocsc()
-        # symmetric positive definite: no pivoting (partial pivoting at nu = 0.49 fills in
-        # without bound on a 37k-dof mesh), a symmetric ordering
-        self.factor = spla.splu(
-            stiffness,
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        )
+        # symmetric positive definite: CHOLMOD (solvers/cholmod.py), else SuperLU without
+        # pivoting (partial pivoting at nu = 0.49 fills in without bound on a 37k-dof
+        # mesh) and a symmetric ordering
+        self.factor = factorised(stiffness, symmetric_lu)
         top = on(lambda x: np.isclose(x[2], lz))
         self.top = skfem.FacetBasis(mesh, element, facets=top, intorder=8)
 
