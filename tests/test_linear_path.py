@@ -199,3 +199,24 @@ def test_guard_falls_back_to_refits_near_zero(paper, monkeypatch):
     assert check.linearised_improvement is not None
     monkeypatch.setattr(guard, "CLEAR_MARGIN", 0.0)
     assert guard.prediction_check(base_fit, new, 0.02).method == "linearised"
+
+
+@pytest.mark.parametrize("name", ("paper", "continuum"))
+def test_base_compliance_rows_divided_by_c_make_k_symmetric(name, request):
+    """diag(d) K with d = 1/c on the foundation's rows is symmetric positive definite, so
+    CHOLMOD factorises it (``BaseCompliance.extra_row_scale``), and the solve is K's own."""
+    from solvers import cholmod
+
+    if not cholmod.available():
+        pytest.skip("no CHOLMOD on this system")
+    problem, base_fit, library = request.getfixturevalue(name)
+    extended = problem.with_effects([library["base_compliance"]])
+    p = _point(extended, base_fit.p)
+    assert p[extended.slice_of("base_compliance")][0] > 0.0
+    factor = extended.stiffness_factor(p)
+    assert not cholmod.symmetric(factor.matrix)
+    right = np.random.default_rng(0).standard_normal(factor.matrix.shape[0])
+    solution = factor.solve(right)
+    assert isinstance(factor._lu, cholmod.Cholesky)
+    reference = spla.spsolve(factor.matrix.tocsc(), right)
+    assert np.abs(solution - reference).max() <= 1e-9 * np.abs(reference).max()

@@ -48,24 +48,36 @@ REFINE = 1e-12
 
 
 class StateJacobian:
-    """dg/ds (sparse) with its LU factors, computed on first use.
+    """dg/ds (sparse) with its factors, computed on first use.
 
     Parameters
     ----------
     matrix : scipy.sparse matrix
         dg/ds, square.
+    rows : numpy.ndarray, optional
+        A positive row scaling d for which diag(d) dg/ds is symmetric positive definite
+        (base_compliance's inner rows carry its compliance c: divided by c they make
+        K symmetric); then diag(d) dg/ds is factorised and the right-hand sides scaled
+        alike, so CHOLMOD serves where SuperLU would have to.
     """
 
-    def __init__(self, matrix: sp.spmatrix):
+    def __init__(self, matrix: sp.spmatrix, rows: np.ndarray | None = None):
         self.matrix = sp.csc_matrix(matrix)
+        self.rows = None if rows is None else np.asarray(rows, dtype=float)
         self._lu = None
 
     def solve(self, right: np.ndarray) -> np.ndarray:
         """(dg/ds)^-1 right, for one right-hand side or the columns of a matrix."""
+        right = np.asarray(right, dtype=float)
         if self._lu is None:  # CHOLMOD for an SPD K(p), else SuperLU (solvers.cholmod)
-            self._lu = factorised(self.matrix, lambda matrix: spla.splu(matrix, **FACTOR_OPTIONS))
+            scaled = self.matrix if self.rows is None else sp.diags(self.rows) @ self.matrix
+            self._lu = factorised(
+                sp.csc_matrix(scaled), lambda matrix: spla.splu(matrix, **FACTOR_OPTIONS)
+            )
+        if self.rows is not None:
+            right = right * (self.rows if right.ndim == 1 else self.rows[:, None])
         with one_thread():  # thin BLAS blocks: threads only wait on each other
-            return self._lu.solve(np.asarray(right, dtype=float))
+            return self._lu.solve(right)
 
     def same_as(self, matrix: sp.csc_matrix) -> bool:
         """True when ``matrix`` has this one's pattern and values, entry by entry."""

@@ -237,6 +237,11 @@ class Effect:
         """Number of extra state points (3 unknowns each)."""
         return 0
 
+    def extra_row_scale(self, theta: np.ndarray) -> float | None:
+        """A factor for this effect's extra rows of dg/ds that makes the whole matrix
+        symmetric (None: none needed, or none exists at this theta)."""
+        return None
+
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
         """Term added to K(B; x)(B - B0) on the free points, (n_free, 3) [N].
 

@@ -72,6 +72,12 @@ class BaseCompliance(Effect):
     def extra_points(self, model: TissueModel) -> int:
         return int(self.inner(model).size)
 
+    def extra_row_scale(self, theta: np.ndarray) -> float | None:
+        """1/c: the inner rows c (K Delta)_I + M_I Delta_I divided by c are K's own rows
+        plus k_b M_I, so dg/ds becomes symmetric positive definite (none at c = 0)."""
+        compliance = float(theta[0])
+        return 1.0 / compliance if compliance > 0.0 else None
+
     def foundation_matrix(self, model: TissueModel) -> sp.csr_matrix:
         """M_I = integral_{w=0} J^T J dA on the inner points [mm^2]."""
 
