@@ -45,6 +45,7 @@ RESEARCH = {
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),
     "realskin-strain": ("experiments.realskin.strain", "model-free axial strain from the DIC"),
     "realskin-continuum": ("experiments.realskin.continuum", "real skin: E and nu of the continua"),
+    "realskin-authors": ("experiments.realskin.reproduce", "the authors' 2D fit, reproduced"),
     "realskin-data": ("experiments.realskin.data", "summary of the real skin measurements"),
     "realcheck": ("experiments.stereo.realcheck", "the stereo pipeline on real images"),
     "boardbench": ("experiments.stereo.boardbench", "checkerboard detection: time and accuracy"),

@@ -39,6 +39,7 @@ DIRECTORY_OUTPUT = {
     "realcheck": ["--data", "{tmp}"],
     "continuum-loop": [],
     "realskin-continuum": [],
+    "realskin-authors": [],
     "image": ["{data}"],
     "imagebench": [],
     "design": ["{data}"],
@@ -66,6 +67,7 @@ EXPENSIVE = (
     "bench",
     "continuum-loop",
     "realskin-continuum",
+    "realskin-authors",
     "imagebench",
     "designbench",
 )
@@ -190,6 +192,7 @@ OUT_OF_RANGE = [
     (["realskin-strain", "--frames", "x"], "--frames"),
     (["realskin-continuum", "--cases", "nope", "--out", "o"], "--cases"),
     (["realskin-continuum", "--thickness", "0", "--out", "o"], "--thickness"),
+    (["realskin-authors", "--mesh-size", "0", "--out", "o"], "--mesh-size"),
     (["realskin-data", "--case", "nope"], "--case"),
     (["imageweights", "--draws", "0"], "--draws"),
     (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),

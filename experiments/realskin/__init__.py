@@ -6,4 +6,7 @@ Model: ``slab`` (volume, pads, region indicator), ``model`` (``SkinSlabModel``),
 score tests), ``scan`` (a region the data locate). The study: ``setup``, ``loop`` and
 ``study`` (``dvs realskin``), with ``figures``, ``plots`` and ``report``. Checks: ``strain``
 (model-free strain), ``twin`` (a synthetic twin) and ``checks`` (of the keloid's region).
+The authors' own model: ``authors`` (their set-up), ``mesh2d`` (a triangle mesh of the
+.geo), ``planar`` (plane-strain equilibrium and sensitivities) and ``reproduce``
+(``dvs realskin-authors``).
 """

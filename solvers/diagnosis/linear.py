@@ -116,6 +116,19 @@ def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
     return sp.csc_matrix(total)
 
 
+def symmetric_rows(problem, p: np.ndarray) -> np.ndarray | None:
+    """The row scaling that makes K(p) symmetric, from the one effect with extra state
+    (on the linear path its rows follow the free points'), or None."""
+    n_free = 3 * problem.extended.model.n_free
+    for effect in problem.effects:
+        scale = effect.extra_row_scale(p[problem.slice_of(effect.name)])
+        if scale is not None:
+            rows = np.ones(problem.extended.n_state)
+            rows[n_free:] = scale
+            return rows
+    return None
+
+
 def _case(problem, k: int, name: str):
     """The numeric load or observation Function of case k (``ExtendedModel.case_parts``)."""
     return problem.numeric_of(getattr(problem.extended.case_parts(k), name))

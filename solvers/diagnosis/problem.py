@@ -292,22 +292,10 @@ class ExtendedProblem:
         if last is not None and last.same_as(matrix):
             factor = last
         else:
-            factor = StateJacobian(matrix, self._symmetric_rows(p))
+            factor = StateJacobian(matrix, linear.symmetric_rows(self, p))
         self.cache["last_state_jacobian"] = factor
         self.cache[key] = (p.copy(), factor)
         return factor
-
-    def _symmetric_rows(self, p: np.ndarray) -> np.ndarray | None:
-        """The row scaling that makes K(p) symmetric, from the one effect with extra state
-        (on the linear path its rows follow the free points'), or None."""
-        n_free = 3 * self.extended.model.n_free
-        for effect in self.effects:
-            scale = effect.extra_row_scale(p[self.slice_of(effect.name)])
-            if scale is not None:
-                rows = np.ones(self.extended.n_state)
-                rows[n_free:] = scale
-                return rows
-        return None
 
     def linearise_all(
         self, p: np.ndarray, states: list, factor: StateJacobian | None = None, columns=None
