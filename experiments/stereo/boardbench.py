@@ -165,11 +165,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.stere
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
+        if not 1 <= args.full_size_images <= 26:  # the options first, then the data
+            raise UsageError("--full-size-images must lie in 1-26")
         data = (args.data or shared_data_dir()) / "opencv-stereo"
         if not data.is_dir():
             raise UsageError(f"OpenCV's stereo sample not found at {data}; give --data DIR")
-        if not 1 <= args.full_size_images <= 26:
-            raise UsageError("--full-size-images must lie in 1-26")
         sample = opencv_sample(data, args.full_size_images)
         rendered = rendered_boards()
         for line in report(sample, rendered):
