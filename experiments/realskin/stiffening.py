@@ -30,7 +30,6 @@ stiffening_study('/tmp/out')"``; it writes ``stiffening.json``, ``stiffening.md`
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +40,7 @@ from experiments.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin import authors
 from experiments.realskin.data import dic_noise_mm
 from experiments.realskin.planar import Assumptions, EquilibriumFailed, Extensometer, Solution
-from experiments.realskin.reproduce import NU_BOUNDS, measured, mesh_for
+from experiments.realskin.reproduce import NU_BOUNDS, Fit, measured, mesh_for
 from symbolic.planar_stiffening import NAMES, PlanarStiffening
 
 FULL_TRAVEL_MM = 10.0
@@ -154,18 +153,6 @@ class WhitenedExtensometer(Extensometer):
         }
 
 
-@dataclass
-class Fit:
-    """A fit's parameters (E, nu[, k1, k2]), measures and solution."""
-
-    x: np.ndarray
-    measures: dict
-    solution: Solution
-    evaluations: int
-    seconds: float
-    message: str
-
-
 def to_z(p) -> np.ndarray:
     """z = (ln E, nu[, ln k1, ln k2])."""
     p = np.asarray(p, dtype=float)
@@ -225,7 +212,7 @@ def fit(problem: WhitenedExtensometer, start, max_evaluations: int = 100) -> Fit
     solution = solve(result.x)
     return Fit(
         to_p(result.x), problem.measures(solution), solution, int(result.nfev),
-        time.perf_counter() - began, str(result.message),
+        time.perf_counter() - began, bool(result.status > 0), str(result.message),
     )  # fmt: skip
 
 
@@ -252,6 +239,7 @@ def row(case: str, energy: str, result: Fit, problem: WhitenedExtensometer) -> d
         "evaluations": result.evaluations,
         "seconds": result.seconds,
         "message": result.message,
+        "success": result.success,
         "sigma_u_mm": problem.sigma_u,
         "sigma_f_n": problem.sigma_f,
         "frames": len(problem.frames.indices),
