@@ -162,6 +162,8 @@ def _load():
     ]  # fmt: skip
     lib.cholmod_free_dense.argtypes = [ctypes.POINTER(ctypes.POINTER(_Dense)), ctypes.c_void_p]
     lib.cholmod_free_factor.argtypes = [ctypes.POINTER(ctypes.c_void_p), ctypes.c_void_p]
+    lib.cholmod_copy_factor.restype = ctypes.c_void_p
+    lib.cholmod_copy_factor.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     _library = (lib, common, handle)
     return _library
 
@@ -224,6 +226,35 @@ def factorised(matrix: sp.spmatrix, fallback):
     return fallback(matrix)
 
 
+ANALYSES_KEPT = 2
+"""Symbolic analyses kept for reuse (most recent first), one per sparsity pattern."""
+
+_analyses: list = []  # [(indptr, indices, symbolic factor pointer)]
+
+
+def _analysis(pattern, structure: _Sparse) -> ctypes.c_void_p:
+    """The symbolic factor (ordering, elimination tree, supernodes) of ``pattern``.
+
+    The fill-reducing ordering and the supernodes depend on the sparsity pattern alone,
+    and a fit refactorises K(p) of one pattern many times: on the 40 x 33 x 6 K of the
+    module docstring the analysis takes 0.9 s of the factorisation's 3.6 s. The last
+    ``ANALYSES_KEPT`` patterns keep theirs; ``Cholesky`` factorises a copy.
+    """
+    lib, _, common = _load()
+    indptr, indices = pattern
+    for k, (kept_ptr, kept_indices, factor) in enumerate(_analyses):
+        if np.array_equal(kept_ptr, indptr) and np.array_equal(kept_indices, indices):
+            _analyses.insert(0, _analyses.pop(k))
+            return factor
+    factor = ctypes.c_void_p(lib.cholmod_analyze(structure, common))
+    if not factor.value:
+        raise RuntimeError("cholmod_analyze failed (out of memory?)")
+    _analyses.insert(0, (indptr.copy(), indices.copy(), factor))
+    while len(_analyses) > ANALYSES_KEPT:
+        lib.cholmod_free_factor(ctypes.byref(_analyses.pop()[2]), common)
+    return factor
+
+
 class Cholesky:
     """L L^T of a sparse symmetric positive definite matrix (CHOLMOD).
 
@@ -254,9 +285,11 @@ class Cholesky:
             np.ascontiguousarray(csc.data, dtype=float),
         )
         structure = _sparse(self.n, *self._arrays)
-        self._factor = ctypes.c_void_p(self._lib.cholmod_analyze(structure, self._common))
+        self._factor = ctypes.c_void_p(
+            self._lib.cholmod_copy_factor(_analysis(self._arrays[:2], structure), self._common)
+        )
         if not self._factor.value:
-            raise RuntimeError("cholmod_analyze failed (out of memory?)")
+            raise RuntimeError("cholmod_copy_factor failed (out of memory?)")
         self._lib.cholmod_factorize(structure, self._factor, self._common)
         minor = _FactorHead.from_address(self._factor.value).minor
         if minor < self.n:

@@ -55,3 +55,23 @@ def test_the_environment_switches_it_off():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.stdout.strip() == "SuperLU", out.stderr
     assert cholmod.backend().startswith("CHOLMOD")
+
+
+def test_one_analysis_serves_every_matrix_of_a_pattern_and_each_factor_stays_its_own():
+    """The symbolic analysis is kept per pattern (``ANALYSES_KEPT``): a second matrix
+    of the same pattern reuses it, and both factors, alive together, solve their own."""
+    matrix = _elasticity((5, 4, 3))
+    shift = sp.diags(np.linspace(0.1, 1.0, matrix.shape[0]) * abs(matrix).max())
+    other = (2.0 * matrix + shift).tocsc()  # the diagonal is in the pattern: the same one
+    assert np.array_equal(other.indices, matrix.indices)
+    right = np.random.default_rng(2).standard_normal(matrix.shape[0])
+    cholmod._analyses.clear()
+    first, second = cholmod.Cholesky(matrix), cholmod.Cholesky(other)
+    assert len(cholmod._analyses) == 1  # one pattern, one analysis
+    for factor, reference in ((first, matrix), (second, other)):
+        solved = factor.solve(right)
+        assert np.abs(reference @ solved - right).max() <= 1e-10 * np.abs(right).max()
+    shapes = [(6, 4, 3), (4, 6, 3), (5, 5, 3)]
+    for shape in shapes:
+        cholmod.Cholesky(_elasticity(shape))
+    assert len(cholmod._analyses) == cholmod.ANALYSES_KEPT
