@@ -220,3 +220,66 @@ def test_base_compliance_rows_divided_by_c_make_k_symmetric(name, request):
     assert isinstance(factor._lu, cholmod.Cholesky)
     reference = spla.spsolve(factor.matrix.tocsc(), right)
     assert np.abs(solution - reference).max() <= 1e-9 * np.abs(reference).max()
+
+
+@pytest.mark.parametrize("name", ("paper", "continuum"))
+def test_base_compliance_at_zero_is_block_triangular_and_solved_so(name, request):
+    """At c = 0 the foundation's rows are M_I Delta_I alone: dg/ds is block upper
+    triangular, solved by back substitution over its two SPD diagonal blocks (CHOLMOD
+    each, where available), to SuperLU's solution of the whole."""
+    from solvers import cholmod
+
+    problem, base_fit, library = request.getfixturevalue(name)
+    extended = problem.with_effects([library["base_compliance"]])
+    p = np.concatenate([base_fit.p, [0.0]])
+    factor = extended.stiffness_factor(p)
+    n = 3 * extended.extended.model.n_free
+    assert factor.matrix.shape[0] > n and factor.matrix[n:, :n].count_nonzero() == 0
+    right = np.random.default_rng(0).standard_normal((factor.matrix.shape[0], 3))
+    solution = factor.solve(right)
+    assert isinstance(factor._lu, linear._BlockTriangular)
+    if cholmod.available():
+        assert isinstance(factor._lu.first, cholmod.Cholesky)
+    reference = spla.splu(factor.matrix.tocsc()).solve(right)
+    assert np.abs(solution - reference).max() <= 1e-9 * np.abs(reference).max()
+    coupled = extended.stiffness_factor(_point(extended, base_fit.p))  # c > 0: not split
+    coupled.solve(right[:, 0])
+    assert not isinstance(coupled._lu, linear._BlockTriangular)
+
+
+def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuum, monkeypatch):
+    """1 + sum of the fields' ``least_modulus`` bounds the relative modulus from below
+    (exactly, for the gradient, at a corner of the volume); beyond it K(p) is indefinite,
+    and a fit started there is brought back and never evaluates such a p."""
+    from solvers import cholmod
+    from solvers.diagnosis.problem import STIFFNESS_FLOOR
+
+    problem, base_fit, library = continuum
+    extended = problem.with_effects([library["heterogeneity"], library["layering"]])
+    model = extended.model
+    grid = np.linspace(0.0, 1.0, 5)
+    points = np.array(np.meshgrid(grid, grid, grid, indexing="ij")).reshape(3, -1).T
+    fields = [f(points) for e in extended.effects for f in e.shapes(model)]
+    for theta in ([0.5, -0.3, 0.0, 0.0], [0.6, 0.2, -0.3, 0.4], [-0.2, 0.1, 2.0, -0.5]):
+        p = np.concatenate([base_fit.p, theta])
+        modulus = 1.0 + sum(t * f for t, f in zip(theta, fields))
+        assert extended.least_modulus(p) <= modulus.min() + 1e-12
+    gradient = problem.with_effects([library["heterogeneity"]])
+    corner = np.concatenate([base_fit.p, [-0.9, -0.9]])
+    assert gradient.least_modulus(corner) == pytest.approx(-0.8)
+    assert not gradient.admissible(corner)
+    if cholmod.available():  # the box bounds alone let the material go unstable
+        with pytest.raises(cholmod.NotPositiveDefinite):
+            cholmod.Cholesky(linear.stiffness_matrix(gradient, corner))
+        cholmod.Cholesky(linear.stiffness_matrix(gradient, gradient.into_admissible(corner)))
+    seen = []
+    evaluate = gradient.evaluate
+
+    def recorded(p, *args, **kwargs):
+        seen.append(gradient.least_modulus(p))
+        return evaluate(p, *args, **kwargs)
+
+    monkeypatch.setattr(gradient, "evaluate", recorded)
+    fitted = fit(gradient, corner, max_evaluations=8)
+    assert seen and min(seen) > STIFFNESS_FLOOR
+    assert gradient.admissible(fitted.p)

@@ -143,7 +143,8 @@ def fit(
     problem : ExtendedProblem
         The problem.
     start : numpy.ndarray, optional
-        Start p in natural units (default ``problem.start()``); clipped to the bounds.
+        Start p in natural units (default ``problem.start()``); clipped to the bounds
+        and brought into the admissible set (``ExtendedProblem.into_admissible``).
     free : numpy.ndarray of bool, optional
         Entries to estimate (default all).
     states : list, optional
@@ -151,7 +152,7 @@ def fit(
     """
     begin = time.perf_counter()
     p0 = problem.start() if start is None else np.array(start, dtype=float)
-    p0 = np.clip(p0, problem.lower, problem.upper)
+    p0 = problem.into_admissible(np.clip(p0, problem.lower, problem.upper))
     free = np.ones(p0.size, dtype=bool) if free is None else np.asarray(free, dtype=bool)
     z_full = problem.to_internal(p0)
     lower, upper = (problem.to_internal(b)[free] for b in (problem.lower, problem.upper))
@@ -164,6 +165,8 @@ def fit(
         z = z_full.copy()
         z[free] = z_free
         p = problem.to_natural(z)
+        if not problem.admissible(p):  # no equilibrium: trf shrinks its step and retries
+            return np.full_like(cache["rho"], np.nan), None
         r, jac, new_states = problem.evaluate(p, cache["states"])
         cache.update(z=np.array(z_free), states=new_states, r=r)
         cache["rho"] = problem.whiten(r)

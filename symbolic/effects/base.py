@@ -237,6 +237,16 @@ class Effect:
         """Number of extra state points (3 unknowns each)."""
         return 0
 
+    def least_modulus(self, theta: np.ndarray) -> float:
+        """A lower bound on what this effect adds to the relative modulus anywhere in the
+        volume (the stiffness fields scale the base's moduli by 1 + their sum; 0 for an
+        effect that does not scale them).
+
+        The fields add up, so the material is stable only while 1 + the sum of these
+        bounds stays positive: ``solvers.diagnosis.problem.ExtendedProblem.admissible``.
+        """
+        return 0.0
+
     def extra_row_scale(self, theta: np.ndarray) -> float | None:
         """A factor for this effect's extra rows of dg/ds that makes the whole matrix
         symmetric (None: none needed, or none exists at this theta)."""

@@ -83,6 +83,10 @@ class StiffnessFieldEffect(FieldStiffness, Effect):
         spot = np.argmin(np.linalg.norm(nodes - [1.0 / 3.0, 2.0 / 3.0], axis=1))
         return tuple(float(k == spot) for k in range(self.field.size))
 
+    def least_modulus(self, theta: np.ndarray) -> float:
+        """min(0, min_k c_k): the phi_k are non-negative and sum to one."""
+        return min(0.0, float(np.min(theta)))
+
     def shapes(self, model: TissueModel):
         """The field's basis functions phi_k as callables of parameter points."""
         return [

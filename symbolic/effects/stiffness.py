@@ -184,6 +184,14 @@ class Heterogeneity(FieldStiffness, Effect):
     def shapes(self, model: TissueModel):
         return _gradient_fields()
 
+    def least_modulus(self, theta: np.ndarray) -> float:
+        """-|h_u| - |h_v|, at a corner of the volume. The box bounds alone allow a
+        modulus of 1 - 1.8 there: on FE tissue with a gradient, left-out refits went to
+        h = (-0.89, -0.65), where K(p) is indefinite (22 of 247 factorisations of one
+        diagnosis, each a failed Cholesky and a SuperLU solve of a model with no
+        equilibrium)."""
+        return -float(np.sum(np.abs(theta)))
+
 
 SKIN_BANDS_MM = ((0.0, 1.0), (1.0, 2.0))
 """Depth bands [mm] below the skin surface of the ``layering`` effect's two fields."""
@@ -238,6 +246,12 @@ class Layering(FieldStiffness, Effect):
 
     def shapes(self, model: TissueModel):
         return self.cached(model, "bands", lambda: _depth_bands(model))
+
+    def least_modulus(self, theta: np.ndarray) -> float:
+        """min(0, s_1, s_2): the bands do not overlap. With a gradient beside it the sum
+        can reach zero (h = (0.71, -0.17) and s_1 = -0.18 on FE tissue: 1 - 0.88 - 0.18
+        at a corner of the top band)."""
+        return min(0.0, float(np.min(theta)))
 
 
 class Bending(OneTermStiffness, Effect):
