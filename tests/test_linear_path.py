@@ -252,7 +252,12 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
     (exactly, for the gradient, at a corner of the volume); beyond it K(p) is indefinite,
     and a fit started there is brought back and never evaluates such a p."""
     from solvers import cholmod
-    from solvers.diagnosis.problem import STIFFNESS_FLOOR
+    from solvers.diagnosis.stability import (
+        STIFFNESS_FLOOR,
+        admissible,
+        into_admissible,
+        least_modulus,
+    )
 
     problem, base_fit, library = continuum
     extended = problem.with_effects([library["heterogeneity"], library["layering"]])
@@ -263,23 +268,23 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
     for theta in ([0.5, -0.3, 0.0, 0.0], [0.6, 0.2, -0.3, 0.4], [-0.2, 0.1, 2.0, -0.5]):
         p = np.concatenate([base_fit.p, theta])
         modulus = 1.0 + sum(t * f for t, f in zip(theta, fields))
-        assert extended.least_modulus(p) <= modulus.min() + 1e-12
+        assert least_modulus(extended, p) <= modulus.min() + 1e-12
     gradient = problem.with_effects([library["heterogeneity"]])
     corner = np.concatenate([base_fit.p, [-0.9, -0.9]])
-    assert gradient.least_modulus(corner) == pytest.approx(-0.8)
-    assert not gradient.admissible(corner)
+    assert least_modulus(gradient, corner) == pytest.approx(-0.8)
+    assert not admissible(gradient, corner)
     if cholmod.available():  # the box bounds alone let the material go unstable
         with pytest.raises(cholmod.NotPositiveDefinite):
             cholmod.Cholesky(linear.stiffness_matrix(gradient, corner))
-        cholmod.Cholesky(linear.stiffness_matrix(gradient, gradient.into_admissible(corner)))
+        cholmod.Cholesky(linear.stiffness_matrix(gradient, into_admissible(gradient, corner)))
     seen = []
     evaluate = gradient.evaluate
 
     def recorded(p, *args, **kwargs):
-        seen.append(gradient.least_modulus(p))
+        seen.append(least_modulus(gradient, p))
         return evaluate(p, *args, **kwargs)
 
     monkeypatch.setattr(gradient, "evaluate", recorded)
     fitted = fit(gradient, corner, max_evaluations=8)
     assert seen and min(seen) > STIFFNESS_FLOOR
-    assert gradient.admissible(fitted.p)
+    assert admissible(gradient, fitted.p)

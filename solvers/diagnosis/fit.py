@@ -17,6 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.stability import admissible, into_admissible
 from solvers.equilibrium import EquilibriumError
 
 
@@ -144,7 +145,7 @@ def fit(
         The problem.
     start : numpy.ndarray, optional
         Start p in natural units (default ``problem.start()``); clipped to the bounds
-        and brought into the admissible set (``ExtendedProblem.into_admissible``).
+        and brought into the admissible set (``solvers.diagnosis.stability``).
     free : numpy.ndarray of bool, optional
         Entries to estimate (default all).
     states : list, optional
@@ -152,7 +153,7 @@ def fit(
     """
     begin = time.perf_counter()
     p0 = problem.start() if start is None else np.array(start, dtype=float)
-    p0 = problem.into_admissible(np.clip(p0, problem.lower, problem.upper))
+    p0 = into_admissible(problem, np.clip(p0, problem.lower, problem.upper))
     free = np.ones(p0.size, dtype=bool) if free is None else np.asarray(free, dtype=bool)
     z_full = problem.to_internal(p0)
     lower, upper = (problem.to_internal(b)[free] for b in (problem.lower, problem.upper))
@@ -165,7 +166,7 @@ def fit(
         z = z_full.copy()
         z[free] = z_free
         p = problem.to_natural(z)
-        if not problem.admissible(p):  # no equilibrium: trf shrinks its step and retries
+        if not admissible(problem, p):  # no equilibrium: trf shrinks its step and retries
             return np.full_like(cache["rho"], np.nan), None
         r, jac, new_states = problem.evaluate(p, cache["states"])
         cache.update(z=np.array(z_free), states=new_states, r=r)

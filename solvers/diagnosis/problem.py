@@ -116,11 +116,6 @@ def case_data(problem: InverseProblem, loads: list, index: int, position: int) -
     )
 
 
-STIFFNESS_FLOOR = 0.02
-"""The least relative modulus the effects may leave anywhere in the volume
-(``ExtendedProblem.admissible``)."""
-
-
 class ExtendedProblem:
     """Base inverse problem + active effects over a choice of its load cases.
 
@@ -251,31 +246,6 @@ class ExtendedProblem:
     def slice_of(self, name: str) -> slice:
         """Where an effect's parameters sit in p."""
         return self.extended.slices[name]
-
-    def least_modulus(self, p: np.ndarray) -> float:
-        """A lower bound on the relative modulus anywhere in the volume: 1 + the sum of
-        the effects' ``least_modulus`` (the stiffness fields add up)."""
-        p = np.asarray(p, dtype=float)
-        return 1.0 + sum(e.least_modulus(p[self.slice_of(e.name)]) for e in self.effects)
-
-    def admissible(self, p: np.ndarray) -> bool:
-        """True when the modulus stays above ``STIFFNESS_FLOOR`` everywhere: K(p) is then
-        positive definite and the equilibrium exists."""
-        return self.least_modulus(p) > STIFFNESS_FLOOR
-
-    def into_admissible(self, p: np.ndarray) -> np.ndarray:
-        """p with the parameters of the effects that soften the material somewhere halved
-        together until admissible (zero, those effects switched off, always is): a start
-        for a fit."""
-        p = np.array(p, dtype=float)
-        blocks = [self.slice_of(e.name) for e in self.effects]
-        softening = [b for e, b in zip(self.effects, blocks) if e.least_modulus(p[b]) < 0.0]
-        for _ in range(60):
-            if self.admissible(p):
-                break
-            for block in softening:
-                p[block] *= 0.5
-        return p
 
     def start(self) -> np.ndarray:
         """Default p: the base space's start for x, zero for theta."""

@@ -243,7 +243,7 @@ class Effect:
         effect that does not scale them).
 
         The fields add up, so the material is stable only while 1 + the sum of these
-        bounds stays positive: ``solvers.diagnosis.problem.ExtendedProblem.admissible``.
+        bounds stays positive: ``solvers.diagnosis.stability``.
         """
         return 0.0
 
