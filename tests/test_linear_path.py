@@ -288,3 +288,28 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
     fitted = fit(gradient, corner, max_evaluations=8)
     assert seen and min(seen) > STIFFNESS_FLOOR
     assert admissible(gradient, fitted.p)
+
+
+def test_k_summed_on_a_shared_pattern_is_the_sum_of_its_terms(continuum):
+    """The continuum's unit terms and the gradient's share one pattern, so K(p) is summed
+    on their stored values (``linear.stiffness_matrix``); a depth band may cover only part
+    of it and then takes the general sum. Both equal the scipy sum of c_t K_t."""
+    from symbolic.sparse import term_matrix
+
+    problem, base_fit, library = continuum
+    settings = (
+        (("heterogeneity",), [0.3, -0.2], True),
+        (("heterogeneity", "layering"), [0.3, -0.2, 1.5, 0.4], None),  # bands: either way
+    )
+    for names, theta, shared in settings:
+        extended = problem.with_effects([library[name] for name in names])
+        p = np.concatenate([base_fit.p, theta])
+        terms = extended.extended.stiffness_terms()
+        matrices = [term_matrix(t) for t in terms.matrices]
+        filled = [m for m in matrices if m.nnz]
+        if shared is not None:
+            assert all(linear._same_pattern(filled[0], m) for m in filled[1:]) == shared
+        c = np.ravel(np.asarray(extended.numeric_of(terms.coefficients)(p)[0]))
+        reference = sum(v * m for v, m in zip(c, matrices))
+        difference = abs(linear.stiffness_matrix(extended, p) - reference).max()
+        assert difference <= 1e-12 * abs(reference).max()

@@ -140,15 +140,38 @@ def solve_states(factor: StateJacobian, right: np.ndarray) -> np.ndarray:
 
 
 def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
-    """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``)."""
+    """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``).
+
+    A term whose coefficient is zero (an effect at theta = 0) is never assembled. Terms
+    that share one sparsity pattern (the continuum's K_mu, K_lambda and the gradient's
+    versions of them; a depth band of layering may cover only part of it) are
+    summed on their stored values; a sum of scipy matrices built the
+    union pattern anew each time: 1.2 s against 0.6 s for six terms of the 40 x 33 x 6
+    K (13.5 M nonzeros), a quarter of one diagnosis's CPU on row D.
+    """
     terms = problem.extended.stiffness_terms()
     c = np.ravel(_dense(problem.numeric_of(terms.coefficients)(p)[0]))
-    total = sum(
-        value * term_matrix(term) for value, term in zip(c, terms.matrices) if value != 0.0
-    )  # a term whose coefficient is zero (an effect at theta = 0) is never assembled
-    if np.isscalar(total):  # every coefficient zero
-        total = sp.csr_matrix(terms.matrices[0].shape)
-    return sp.csc_matrix(total)
+    chosen = [(value, term_matrix(term)) for value, term in zip(c, terms.matrices) if value != 0.0]
+    chosen = [(value, matrix) for value, matrix in chosen if matrix.nnz]
+    if not chosen:  # every coefficient zero
+        return sp.csc_matrix(terms.matrices[0].shape)
+    first = chosen[0][1]
+    if all(_same_pattern(first, matrix) for _, matrix in chosen[1:]):
+        data = chosen[0][0] * first.data
+        for value, matrix in chosen[1:]:
+            data += value * matrix.data
+        return sp.csc_matrix(type(first)((data, first.indices, first.indptr), shape=first.shape))
+    return sp.csc_matrix(sum(value * matrix for value, matrix in chosen))
+
+
+def _same_pattern(a, b) -> bool:
+    """True when two compressed matrices store their entries at the same positions."""
+    return (
+        a.format == b.format in ("csr", "csc")
+        and a.shape == b.shape
+        and np.array_equal(a.indptr, b.indptr)
+        and np.array_equal(a.indices, b.indices)
+    )
 
 
 def symmetric_rows(problem, p: np.ndarray) -> np.ndarray | None:
