@@ -23,7 +23,7 @@ CORE = {
     "transient": ("experiments.dynamics.transient", "transient from rest against equilibrium"),
     "reconstruct": ("experiments.stereo.reconstruct", "images of the marked skin -> dataset"),
 }
-"""The commands of DESIGN.md's table: name -> (module, one-line help)."""
+"""The commands of docs/cli.md's "Core commands" table: name -> (module, one-line help)."""
 
 RESEARCH = {
     "paper": ("experiments.inverse.paper", "the paper's Table 1 on data with known truth"),

@@ -283,7 +283,7 @@ def result_document(
     settings: FitSettings,
     warnings=(),
 ) -> dict:
-    """The ``result.json`` document (schema dvs-result/1, DESIGN.md).
+    """The ``result.json`` document (schema dvs-result/1, docs/formats.md).
 
     ``warnings`` are the dataset's plausibility warnings; the verdict's own (a residual
     far above the noise) are added to them.

@@ -1,4 +1,4 @@
-"""The linear model's equilibrium on one scalar factorisation (MODEL.md eq. 18, 22).
+"""The linear model's equilibrium on one scalar factorisation (docs/model.md, eq. 18, 22).
 
 For k0 = 0 the elastic force is K(x)(B - B0) with K(x) = I3 (x) A(x) on the free
 control points: the same scalar matrix

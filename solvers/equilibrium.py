@@ -1,4 +1,4 @@
-"""Static forward solve of K(B; x)(B - B0) = F_B by Newton's method (MODEL.md eq. 22).
+"""Static forward solve of K(B; x)(B - B0) = F_B by Newton's method (docs/model.md, eq. 22).
 
 The residual and its sparse Jacobian come from CasADi; each Newton step is one
 sparse LU solve (SuperLU through scipy, symmetric minimum-degree ordering). A

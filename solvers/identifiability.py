@@ -1,4 +1,4 @@
-"""What the data can and cannot tell (MODEL.md section 4).
+"""What the data can and cannot tell (docs/inverse.md, "What the data can tell").
 
 At an estimate x*, with the exact sensitivity matrix S = dr/dx (observations by
 parameters, from the implicit function theorem):

@@ -1,4 +1,4 @@
-"""Nested (reduced-space) inverse: x is the only unknown (MODEL.md section 3).
+"""Nested (reduced-space) inverse: x is the only unknown (docs/inverse.md, "Nested").
 
 Every residual evaluation solves the equilibrium of every load case. The
 Jacobian is exact, by the implicit function theorem,

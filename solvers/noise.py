@@ -1,4 +1,4 @@
-"""The noise model of a dataset's marker residual, and its whitening (MODEL.md eq. 24).
+"""The noise model of a dataset's marker residual, and its whitening (docs/inverse.md, eq. 24).
 
 Every marker coordinate, rest and loaded, is measured with standard deviation sigma.
 The rest markers define the geometry and are shared by all load cases, so the

@@ -1,4 +1,4 @@
-"""The inverse problem, stated once: model, observations, parameters (MODEL.md eq. 24).
+"""The inverse problem, stated once: model, observations, parameters (docs/inverse.md, eq. 24).
 
     f(x) = 1/2 sum_k | W_k (S_k B^k(x) - Y_k) |^2,    K(B^k; x)(B^k - B0) = F_B^k,
 

@@ -1,4 +1,4 @@
-"""Simultaneous (full-space) inverse: one IPOPT NLP (MODEL.md section 3, the design card).
+"""Simultaneous (full-space) inverse: one IPOPT NLP (docs/inverse.md, "Simultaneous").
 
     min_{z, s_k}  1/2 sum_k |J_k s_k + r_k|^2 / scale_f
     s.t.          g(s_k, x(z), F_k, d_k) / |F_k| = 0         for every load case k

@@ -1,4 +1,4 @@
-"""B-spline bases as numeric sparse matrices (MODEL.md eq. 2-3).
+"""B-spline bases as numeric sparse matrices (docs/model.md, eq. 2-3).
 
 A basis evaluates to a matrix: row ``i`` holds every basis function (or one of
 its derivatives) at the parameter value ``t[i]``. Geometry is then

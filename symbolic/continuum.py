@@ -1,6 +1,6 @@
 """Isotropic linear elasticity in the volume spline, isogeometric (docs/continuum.md).
 
-The paper's stiffness (MODEL.md eq. 18) is a component-wise vector Laplacian in the
+The paper's stiffness (docs/model.md, eq. 18) is a component-wise vector Laplacian in the
 parameter cube. A continuum stores the strain energy
 
     W(u) = mu_L eps:eps + lambda/2 (tr eps)^2,     eps = (grad u + grad u^T) / 2,   (C1)

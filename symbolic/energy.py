@@ -1,4 +1,4 @@
-"""Mass, damping and stiffness matrices by Gauss quadrature (MODEL.md eq. 11-18).
+"""Mass, damping and stiffness matrices by Gauss quadrature (docs/model.md, eq. 11-18).
 
 All integrals are over the parameter cube [0, 1]^3:
 

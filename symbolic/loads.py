@@ -1,4 +1,4 @@
-"""Generalised forces F_B (MODEL.md eq. 20) and prescribed displacements.
+"""Generalised forces F_B (docs/model.md, eq. 20) and prescribed displacements.
 
 - A point force f at the material point p: F_B = J(p)^T f, an (n, 3) array.
 - A probe of radius r: a surface traction f g(x) / integral g dA around the contact

@@ -4,7 +4,7 @@ The steady state of eq. (22) is the residual
 
     R(B_free, x) = K(B; x) (B - B0) - F_B = 0          on the free control points,
 
-with B0 the fitted, stress-free rest shape (**choice**, MODEL.md section 2).
+with B0 the fitted, stress-free rest shape (**choice**, docs/model.md, "Dynamics").
 Prescribed displacements of material points add Lagrange multipliers lam:
 
     R = K(B; x)(B - B0) + A^T lam - F_B,      C = A (B - B0) - d.

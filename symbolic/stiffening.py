@@ -1,4 +1,4 @@
-"""Nonlinear stiffness K(B) updated from control-point distances (MODEL.md eq. 1).
+"""Nonlinear stiffness K(B) updated from control-point distances (docs/model.md, eq. 1).
 
 For every pair a != b with K0_ab != 0:
 
@@ -37,7 +37,7 @@ StiffeningFunction = Callable[[ca.MX, ca.MX], ca.MX]
 
 
 def quadratic_stiffening(strain, k0):
-    """Default s(eps) = 1 + k0 eps^2 (**choice**, MODEL.md section 2)."""
+    """Default s(eps) = 1 + k0 eps^2 (**choice**, docs/model.md, eq. 1)."""
     return 1 + k0 * strain**2
 
 

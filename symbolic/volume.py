@@ -1,4 +1,4 @@
-"""VolumeSpline: control grid, evaluation and least-squares fit (MODEL.md eq. 2-9).
+"""VolumeSpline: control grid, evaluation and least-squares fit (docs/model.md, eq. 2-9).
 
 The tissue layer is V(u, v, w) = J(u, v, w) B with w = 0 the inner surface
 (above fascia and muscle) and w = 1 the outer surface (the skin).

@@ -1,4 +1,4 @@
-"""Dynamic inverse (MODEL.md 22-24, section 4): scheme, recovery, bias, coverage, contrast."""
+"""Dynamic inverse (docs/dynamic.md): scheme, recovery, bias, coverage, contrast."""
 
 import numpy as np
 import pytest

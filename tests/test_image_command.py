@@ -64,7 +64,8 @@ def test_image_writes_the_map_its_uncertainty_and_a_consistent_record(fe_dataset
     # the nodal values of a degree-1 field are the map's values at the nodes
     assert np.nanmin(mesh.point_data["E_kPa"]) >= min(field["E_kPa"]) * (1 - 1e-9)
     assert "strongest departure" in capsys.readouterr().out
-    # DESIGN.md keys: the peak lies over the markers and is the map's largest E there
+    # image.json keys (docs/formats.md): the peak lies over the markers and is the map's
+    # largest E there
     from experiments.dataset import load_dataset
 
     markers = load_dataset(path).outer_rest.reshape(-1, 3)

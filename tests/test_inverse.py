@@ -1,4 +1,4 @@
-"""Inverse solution (MODEL.md section 3): agreement, recovery, coverage, robustness."""
+"""Inverse solution (docs/inverse.md): agreement, recovery, coverage, robustness."""
 
 import casadi as ca
 import numpy as np

@@ -1,4 +1,4 @@
-"""The dynamic inverse on the phantom: mu and gamma from marker trajectories (MODEL.md 4).
+"""The dynamic inverse on the phantom: mu and gamma from marker trajectories (docs/dynamic.md).
 
 A probe steps onto the phantom's skin at t = 0 and a 1 kHz camera rig records the
 markers for 40 ms. Static data (rest and steady state) cannot determine mu or gamma;

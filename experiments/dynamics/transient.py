@@ -3,7 +3,7 @@
 Run ``python -m experiments.dynamics.transient --out DIR`` (``--bench`` adds the timing table).
 By default the phantom is the *nonlinear* one (k0 = 50) under the 0.25 N probe, so the
 Newton path of the time stepper is exercised; mu = 5e-4 t and gamma = 15 N s/mm are the
-phantom's values (MODEL.md eq. 13, 16, 22). It
+phantom's values (docs/transient.md, eq. 13, 16, 22). It
 
 1. solves the static equilibrium (EquilibriumSolver) and times one solve;
 2. integrates eq. (22) from rest to steady state with the paper's gamma = 15 and

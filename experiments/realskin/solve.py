@@ -3,8 +3,9 @@
     f(x) = 1/2 sum_k ( |S_k^xy Delta^k(x) + c_k^xy|^2 + w_f^2 (R_x lam^k - F_k)^2 ),
 
 subject to the equilibrium g(s^k, x) = 0 of every frame k with its pad displacement
-prescribed (MODEL.md eq. 22, 24). The DIC measures x and y only, so a marker gives two
-residuals (``PlanarProblem``); frames without DIC give only the force residual.
+prescribed (docs/model.md eq. 22, docs/inverse.md eq. 24). The DIC measures x and y only, so
+a marker gives two residuals (``PlanarProblem``); frames without DIC give only the force
+residual.
 
 - ``ForwardSolver``: Newton with the model's closed-form Jacobian, a first-order
   predictor between parameter values and an LU reused while it converges fast;

@@ -1,6 +1,6 @@
 """The generalised forces of many presses, from one surface patch per contact.
 
-A probe's F_B (``symbolic.loads.ProbeForce``, MODEL.md eq. 20) is linear in its force,
+A probe's F_B (``symbolic.loads.ProbeForce``, docs/model.md, eq. 20) is linear in its force,
 
     F_B(f) = sum_q J(p_q)^T f g_q A_q / sum_q g_q A_q = b f^T,
     b = sum_q J(p_q)^T g_q A_q / sum_q g_q A_q,                                    (D8)

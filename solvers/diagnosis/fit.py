@@ -1,4 +1,4 @@
-"""A nested least-squares fit of an extended problem (MODEL.md eq. 24-34).
+"""A nested least-squares fit of an extended problem (docs/inverse.md).
 
 ``fit`` minimises |W r(p)|^2 over any subset of p = [x; theta] with scipy's
 trust-region reflective method, in the internal coordinates of

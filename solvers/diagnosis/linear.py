@@ -3,7 +3,7 @@
 For a model linear in the state whose every contribution to the model part h is a
 unit term (``symbolic.effects.library.ExtendedModel.stiffness_terms``: the linear-elastic
 base or the paper's base at k0 = 0, with any effect of the library but
-nonlinear_stiffening) the extended equilibrium (MODEL.md eq. 22) of load case k is
+nonlinear_stiffening) the extended equilibrium (docs/model.md, eq. 22) of load case k is
 
     g_k(s, p) = K(p) s - F_k(p),      K(p) = sum_t c_t(p) K_t,
 

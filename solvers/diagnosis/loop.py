@@ -1,4 +1,4 @@
-"""The discrepancy loop: residual -> candidate effect -> refit (DESIGN.md, issue 6).
+"""The discrepancy loop: residual -> candidate effect -> refit (issue 6; docs/diagnosis.md).
 
 1. Fit the base model (nested, whitened least squares; ``solvers.diagnosis.fit``).
 2. Test the residual against the noise: chi^2 of |W r|^2 / sigma^2, where
@@ -206,7 +206,7 @@ class Diagnosis:
         return self.steps[-1].residual.significant(self.level)
 
     def document(self) -> dict:
-        """diagnosis.json (schema dvs-diagnosis/1, DESIGN.md)."""
+        """diagnosis.json (schema dvs-diagnosis/1, docs/formats.md)."""
         return {
             "schema": SCHEMA,
             "success": all(bool(s.fit.success) for s in self.steps),

@@ -1,4 +1,4 @@
-"""An inverse problem extended by effects (MODEL.md eq. 22, 24).
+"""An inverse problem extended by effects (docs/model.md eq. 22, docs/inverse.md eq. 24).
 
 ``ExtendedProblem`` wraps a base ``InverseProblem`` and a list of active effects.
 Its unknowns are p = [x; theta] (natural units), and for every load case k it

@@ -1,4 +1,4 @@
-"""The dynamic inverse: mu, gamma and alpha from marker trajectories (MODEL.md 22-24).
+"""The dynamic inverse: mu, gamma and alpha from marker trajectories (docs/dynamic.md).
 
 - ``problem``: the problem stated once (trajectories, time grid, scheme);
 - ``scheme``: the trapezoidal scheme and its exact forward sensitivities;

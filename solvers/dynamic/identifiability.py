@@ -1,4 +1,4 @@
-"""What marker trajectories can tell, against static data (MODEL.md section 4).
+"""What marker trajectories can tell, against static data (docs/dynamic.md, "What the data tell").
 
 The same report as ``solvers.identifiability.analyse``, with the sensitivity matrix of
 the dynamic residual, S = dr/dx, from the exact forward sensitivities of the

@@ -1,4 +1,4 @@
-"""The dynamic inverse problem, stated once: trajectories, time grid and scheme (MODEL.md 22-24).
+"""The dynamic inverse problem, stated once: trajectories, time grid and scheme (docs/dynamic.md).
 
 Marker trajectories Y_k(t_j), sampled at the frames t_1 < ... < t_T of a transient
 that starts at rest at t = 0, are fitted by the discretised equation of motion

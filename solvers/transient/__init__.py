@@ -1,4 +1,5 @@
-"""Transients of the forward model: M B'' + D B' + K(B)(B - B0) = F_B(t) (MODEL.md eq. 22).
+"""Transients of the forward model: M B'' + D B' + K(B)(B - B0) = F_B(t)
+(docs/transient.md, eq. 22).
 
 - ``stepping``: the integrator (``TransientSolver``, ``transient_solver``, ``StepSettings``);
 - ``schemes``: Newmark, generalised-alpha and backward Euler;

@@ -1,4 +1,4 @@
-"""Loads in time, F_B(t) = profile(t) F (MODEL.md eq. 20, 22): step, ramp, any callable."""
+"""Loads in time, F_B(t) = profile(t) F (docs/transient.md, "Loads"): step, ramp, any callable."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Modal analysis of the linear model and the damping that settles fastest (MODEL.md eq. 22).
+"""Modal analysis of the linear model and the damping that settles fastest
+(docs/transient.md, eq. 22).
 
 On the free control points the linear equation of motion (22) is, per component,
 
@@ -255,7 +256,7 @@ def optimal_damping(
     bounds: tuple[float, float] = (0.05, 20.0),
     samples: int = 61,
 ) -> DampingStudy:
-    """Minimise the probe's 1 % settling time over gamma (MODEL.md eq. 16, 22).
+    """Minimise the probe's 1 % settling time over gamma (docs/transient.md, eq. 16, 22).
 
     Parameters
     ----------

@@ -16,7 +16,7 @@ from solvers.transient.modal import SETTLING_BAND
 
 @dataclass
 class TransientResult:
-    """A transient run (MODEL.md eq. 22), from rest unless a start was given.
+    """A transient run (docs/transient.md, eq. 22), from rest unless a start was given.
 
     Attributes
     ----------

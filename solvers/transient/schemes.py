@@ -1,4 +1,4 @@
-"""One-step schemes of the transient, a_{n+1} = c_a du + a_hat (MODEL.md eq. 23).
+"""One-step schemes of the transient, a_{n+1} = c_a du + a_hat (docs/transient.md, eq. 23).
 
 - ``newmark``: average acceleration (beta = 1/4, gamma_N = 1/2), 2nd order, no
   numerical damping;

@@ -3,7 +3,7 @@
 The design card's check: integrate eq. (22) from rest with ``solvers.transient``
 until velocity and residual vanish (the paper's forward solution), and compare the
 end state with the equilibrium K(B)(B - B0) = F_B that ``solvers.equilibrium``
-solves directly (MODEL.md eq. 22).
+solves directly (docs/model.md, eq. 22).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Transient solution of M B'' + D B' + K(B)(B - B0) = F_B(t) (MODEL.md eq. 22, 23).
+"""Transient solution of M B'' + D B' + K(B)(B - B0) = F_B(t) (docs/transient.md, eq. 22, 23).
 
 On the free control points, with u = vec(B_free - B0_free) (x components, then y, z),
 

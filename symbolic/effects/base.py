@@ -1,7 +1,7 @@
 """What every candidate effect is: a named extension of the model with parameters theta.
 
 An effect adds CasADi expressions to one or more of four places of a load case
-(MODEL.md eq. 20, 22, 24):
+(docs/model.md eq. 20, 22, docs/inverse.md eq. 24):
 
 - ``internal_force``: a term added to the elastic force K(B; x)(B - B0) on the
   free control points (a stiffness effect, e.g. bending, eq. 18); an effect whose
@@ -135,7 +135,7 @@ class Effect:
     Class attributes
     ----------------
     name : str
-        Effect name (DESIGN.md list).
+        Effect name (docs/diagnosis.md, "The effects").
     parameter_names, units : tuple of str
         Names and units of theta (one case's block for a per-case effect).
     scales : tuple of float

@@ -1,4 +1,5 @@
-"""Boundary effect: the inner layer on an elastic foundation instead of fixed (MODEL.md s. 2).
+"""Boundary effect: the inner layer on an elastic foundation instead of fixed
+(docs/model.md, "Dynamics").
 
 ``base_compliance``: the inner surface (w = 0) rests on a Winkler foundation of
 stiffness k_b [N/mm^3], with energy 1/2 k_b integral_{w=0} |u|^2 dA. Its inner

@@ -82,7 +82,8 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     Layering,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
-"""The default library: every effect name of DESIGN.md but ``stiffness_field``, in order."""
+"""The default library: every effect name of docs/diagnosis.md ("The effects") but
+``stiffness_field``, in order."""
 
 OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect,)
 """Effects searched only when named (``DiagnosisSettings.candidates``)."""

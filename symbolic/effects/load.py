@@ -1,4 +1,4 @@
-"""Load effects: the applied force differs from the declared one (MODEL.md eq. 20).
+"""Load effects: the applied force differs from the declared one (docs/model.md, eq. 20).
 
 The declared load of a case is F_B = a f^T with a = J(p) for a point force at
 the contact p = (u0, v0, 1) (or the probe's row). The effects change f, p or the

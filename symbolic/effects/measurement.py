@@ -1,4 +1,4 @@
-"""Measurement effects: maps of the predicted markers before comparison (MODEL.md eq. 24).
+"""Measurement effects: maps of the predicted markers before comparison (docs/inverse.md, eq. 24).
 
 Both are properties of each loaded capture (one block of theta per load case),
 applied about the centroid c of the case's observed rest markers:

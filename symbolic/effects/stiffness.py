@@ -1,4 +1,4 @@
-"""Stiffness effects: terms added to the elastic force K(B; x)(B - B0) (MODEL.md eq. 18).
+"""Stiffness effects: terms added to the elastic force K(B; x)(B - B0) (docs/model.md, eq. 18).
 
 Each is the gradient of an extra energy, so the extended K stays symmetric; all
 vanish at theta = 0 (``nonlinear_stiffening`` lives in ``stiffening``).
