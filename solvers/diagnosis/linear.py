@@ -160,7 +160,8 @@ def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
         data = chosen[0][0] * first.data
         for value, matrix in chosen[1:]:
             data += value * matrix.data
-        return sp.csc_matrix(type(first)((data, first.indices, first.indptr), shape=first.shape))
+        total = type(first)((data, first.indices, first.indptr), shape=first.shape)
+        return total.tocsc(copy=True)  # never the terms' own index arrays
     return sp.csc_matrix(sum(value * matrix for value, matrix in chosen))
 
 
