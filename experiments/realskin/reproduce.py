@@ -195,53 +195,72 @@ class Fit:
 
 
 def fit(extensometer: Extensometer, start, max_evaluations: int = 60) -> Fit:
-    """Least squares on z = (ln E, nu) with the exact Jacobian (scipy, trust region).
-
-    A parameter set without equilibrium gives NaN residuals (the trust region shrinks).
+    """Least squares on z = (ln E, nu) with the exact Jacobian (``least_squares_fit``).
 
     Raises
     ------
     EquilibriumFailed
         When the start has no equilibrium.
     """
+    return least_squares_fit(
+        lambda p, previous: extensometer.solve(p, previous=previous),
+        extensometer, start, np.array([True, False]), extensometer.cost,
+        (EquilibriumFailed, FloatingPointError), ftol=1e-10, max_evaluations=max_evaluations,
+    )  # fmt: skip
+
+
+def least_squares_fit(
+    solve_at, problem, start, log, measures, failures, ftol: float, max_evaluations: int
+) -> Fit:
+    """Trust-region least squares of ``problem.residuals`` on z (ln p where ``log``, p
+    elsewhere; nu, the second entry, within ``NU_BOUNDS``) with the exact Jacobian.
+
+    ``solve_at(p, previous)`` solves every frame (``previous``: the last solution that
+    had an equilibrium, a continuation start); a parameter set where it raises one of
+    ``failures`` has no equilibrium and gives NaN residuals, so the trust region shrinks.
+    ``measures(solution)`` gives the fit's record. Raises ``EquilibriumFailed`` when the
+    start has no equilibrium.
+    """
     began = time.perf_counter()
+    log = np.asarray(log, dtype=bool)
     cache: dict = {"z": None, "solution": None, "good": None}
 
+    def to_p(z):
+        return np.where(log, np.exp(np.where(log, z, 0.0)), z)
+
     def solve(z) -> Solution | None:
-        if cache["z"] is not None and np.array_equal(cache["z"], z):
-            return cache["solution"]
-        p = np.array([np.exp(z[0]), z[1]])
-        try:
-            solution = extensometer.solve(p, previous=cache["good"])
-        except (EquilibriumFailed, FloatingPointError):
-            solution = None
-        cache["z"], cache["solution"] = np.array(z), solution
-        if solution is not None:
-            cache["good"] = solution
-        return solution
+        if cache["z"] is None or not np.array_equal(cache["z"], z):
+            try:
+                solution = solve_at(to_p(z), cache["good"])
+            except failures:
+                solution = None
+            cache["z"], cache["solution"] = np.array(z), solution
+            cache["good"] = solution or cache["good"]
+        return cache["solution"]
 
     def residuals(z):
         solution = solve(z)
         if solution is None:
-            return np.full(len(extensometer.residuals(cache["good"])), np.nan)
-        return extensometer.residuals(solution)
+            return np.full(len(problem.residuals(cache["good"])), np.nan)
+        return problem.residuals(solution)
 
     def jacobian(z):
-        solution = solve(z)
-        return extensometer.jacobian(solution) * np.array([solution.p[0], 1.0])
+        return problem.jacobian(solve(z)) * np.where(log, to_p(z), 1.0)  # dp/dz
 
-    z0 = np.array([np.log(start[0]), start[1]])
+    start = np.asarray(start, dtype=float)
+    z0 = np.where(log, np.log(np.where(log, start, 1.0)), start)
     if solve(z0) is None:
         raise EquilibriumFailed(f"no equilibrium at the start values {tuple(start)}")
+    low, high = np.full(len(z0), -np.inf), np.full(len(z0), np.inf)
+    low[1], high[1] = NU_BOUNDS
     result = least_squares(
-        residuals, z0, jac=jacobian, bounds=([-np.inf, NU_BOUNDS[0]], [np.inf, NU_BOUNDS[1]]),
-        method="trf", x_scale="jac", xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=max_evaluations,
+        residuals, z0, jac=jacobian, bounds=(low, high), method="trf", x_scale="jac",
+        xtol=1e-8, ftol=ftol, gtol=1e-10, max_nfev=max_evaluations,
     )  # fmt: skip
     solution = solve(result.x)
-    x = np.array([np.exp(result.x[0]), result.x[1]])
     return Fit(
-        x, extensometer.cost(solution), solution, int(result.nfev), time.perf_counter() - began,
-        bool(result.status > 0), str(result.message),
+        to_p(result.x), measures(solution), solution, int(result.nfev),
+        time.perf_counter() - began, bool(result.status > 0), str(result.message),
     )  # fmt: skip
 
 

@@ -29,18 +29,16 @@ stiffening_study('/tmp/out')"``; it writes ``stiffening.json``, ``stiffening.md`
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
 from experiments.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin import authors
 from experiments.realskin.data import dic_noise_mm
-from experiments.realskin.planar import Assumptions, EquilibriumFailed, Extensometer, Solution
-from experiments.realskin.reproduce import NU_BOUNDS, Fit, measured, mesh_for
+from experiments.realskin.planar import Assumptions, Extensometer, Solution
+from experiments.realskin.reproduce import Fit, least_squares_fit, measured, mesh_for
 from symbolic.planar_stiffening import NAMES, PlanarStiffening
 
 FULL_TRAVEL_MM = 10.0
@@ -153,66 +151,13 @@ class WhitenedExtensometer(Extensometer):
         }
 
 
-def to_z(p) -> np.ndarray:
-    """z = (ln E, nu[, ln k1, ln k2])."""
-    p = np.asarray(p, dtype=float)
-    z = p.copy()
-    z[0] = np.log(p[0])
-    z[2:] = np.log(p[2:])
-    return z
-
-
-def to_p(z) -> np.ndarray:
-    """The inverse of ``to_z``."""
-    p = np.asarray(z, dtype=float).copy()
-    p[0] = np.exp(z[0])
-    p[2:] = np.exp(z[2:])
-    return p
-
-
 def fit(problem: WhitenedExtensometer, start, max_evaluations: int = 100) -> Fit:
-    """Trust-region least squares on z (``to_z``) with the exact Jacobian.
-
-    A parameter set without equilibrium gives NaN residuals (the trust region shrinks).
-    """
-    began = time.perf_counter()
-    cache: dict = {"z": None, "solution": None, "good": None}
-
-    def solve(z):
-        if cache["z"] is None or not np.array_equal(cache["z"], z):
-            try:
-                solution = problem.solve(to_p(z))
-            except (RuntimeError, ArithmeticError, ValueError):  # no equilibrium at z
-                solution = None
-            cache["z"], cache["solution"] = np.array(z), solution
-            cache["good"] = solution or cache["good"]
-        return cache["solution"]
-
-    def residuals(z):
-        solution = solve(z)
-        if solution is None:
-            return np.full(len(problem.residuals(cache["good"])), np.nan)
-        return problem.residuals(solution)
-
-    def jacobian(z):
-        solution = solve(z)
-        scale = to_p(z)
-        scale[1] = 1.0
-        return problem.jacobian(solution) * scale
-
-    z0 = to_z(start)
-    if solve(z0) is None:
-        raise EquilibriumFailed(f"no equilibrium at the start values {tuple(start)}")
-    low, high = np.full(len(z0), -np.inf), np.full(len(z0), np.inf)
-    low[1], high[1] = NU_BOUNDS
-    result = least_squares(
-        residuals, z0, jac=jacobian, bounds=(low, high), method="trf", x_scale="jac",
-        xtol=1e-8, ftol=1e-8, gtol=1e-10, max_nfev=max_evaluations,
-    )  # fmt: skip
-    solution = solve(result.x)
-    return Fit(
-        to_p(result.x), problem.measures(solution), solution, int(result.nfev),
-        time.perf_counter() - began, bool(result.status > 0), str(result.message),
+    """Trust-region least squares on z = (ln E, nu[, ln k1, ln k2]) with the exact
+    Jacobian (``reproduce.least_squares_fit``; each solve from rest)."""
+    log = np.arange(len(start)) != 1
+    return least_squares_fit(
+        lambda p, previous: problem.solve(p), problem, start, log, problem.measures,
+        (RuntimeError, ArithmeticError, ValueError), ftol=1e-8, max_evaluations=max_evaluations,
     )  # fmt: skip
 
 
