@@ -195,13 +195,7 @@ class Fit:
 
 
 def fit(extensometer: Extensometer, start, max_evaluations: int = 60) -> Fit:
-    """Least squares on z = (ln E, nu) with the exact Jacobian (``least_squares_fit``).
-
-    Raises
-    ------
-    EquilibriumFailed
-        When the start has no equilibrium.
-    """
+    """Least squares on z = (ln E, nu) with the exact Jacobian (``least_squares_fit``)."""
     return least_squares_fit(
         lambda p, previous: extensometer.solve(p, previous=previous),
         extensometer, start, np.array([True, False]), extensometer.cost,
