@@ -38,6 +38,7 @@ ENERGY_NAMES = {
     "dnurbs": DEFAULT_NAMES,
     "linear-elastic": ("E", "nu"),
     "neo-hookean": ("E", "nu"),
+    "exponential": ("E", "nu", "k1"),
 }
 """What ``dvs fit`` estimates by default for each ``--energy``."""
 
@@ -63,10 +64,10 @@ class FitSettings:
         Also fix the lateral ring of control points.
     fixed : dict
         Values of parameters that are not estimated.
-    energy : {"dnurbs", "linear-elastic", "neo-hookean"}
-        The base model: the paper's eq. (18), isotropic linear elasticity or the
+    energy : {"dnurbs", "linear-elastic", "neo-hookean", "exponential"}
+        The base model: the paper's eq. (18), isotropic linear elasticity, the
         compressible neo-Hookean energy (``symbolic.continuum_model``, parameters E
-        and nu).
+        and nu) or the neo-Hookean with strain stiffening (also k1 and k2, eq. C10).
     margin : float
         Width [mm] of the band of tissue beyond the markers that the volume also
         covers (``experiments.surroundings``); 0, the default, ends the volume at the

@@ -33,10 +33,12 @@ DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
     "k0": (0.0, 1e3),
     "E": (1e-2, 1e5),
     "nu": (0.0, 0.49),
+    "k1": (0.0, 1e4),
+    "k2": (1e-2, 1e4),
 }
 """Default bounds [natural units]; alpha spans four decades around the paper's values."""
 
-LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w", "E"})
+LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w", "E", "k2"})
 DYNAMIC_ONLY = frozenset({"mu", "gamma"})
 """Parameters that drop out of the steady state (eq. 22)."""
 

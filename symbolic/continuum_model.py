@@ -1,4 +1,4 @@
-"""Continuum base models: the volume spline with the linear-elastic or neo-Hookean energy.
+"""Continuum base models: the volume spline with a linear-elastic or hyperelastic energy.
 
 The stiffness of ``TissueModel`` is eq. (18), sum_t c_t (I3 (x) K_t) on the free
 control points. Here it is the continuum of ``symbolic.continuum`` instead,
@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from symbolic.continuum import PhysicalGradient, lame
+from symbolic.continuum import KPA, PhysicalGradient, lame
 from symbolic.hyperelastic import NeoHookeanForce, NeoHookeanTangent
 from symbolic.model import TissueModel
 from symbolic.sparse import combination, combined, to_casadi_sparse
@@ -27,6 +27,7 @@ CONTINUUM_TERMS = ("shear", "volumetric")
 """The terms of eq. (C3): K_mu (coefficient mu_L) and K_lambda (coefficient lambda)."""
 
 CONTINUUM_PARAMETERS = frozenset({"E", "nu"})
+EXPONENTIAL_PARAMETERS = CONTINUUM_PARAMETERS | {"k1", "k2"}
 
 
 class ContinuumModel(TissueModel):
@@ -123,7 +124,9 @@ class NeoHookeanModel(ContinuumModel):
     def __post_init__(self) -> None:
         super().__post_init__()
         self.force = NeoHookeanForce(
-            [p[:, self.free] for p in self.gradient.operators], self.gradient.volume
+            [p[:, self.free] for p in self.gradient.operators],
+            self.gradient.volume,
+            exponential=self.exponential,
         )
         self._tangent: NeoHookeanTangent | None = None
 
@@ -151,17 +154,47 @@ class NeoHookeanModel(ContinuumModel):
             )
 
         def tangent(delta_vec: np.ndarray, x: np.ndarray) -> sp.csc_matrix:
-            mu_l, lam = self.coefficients(self.values(dict(zip(names, np.ravel(x)))))
+            coefficients = self._tangent_coefficients(self.values(dict(zip(names, np.ravel(x)))))
             delta = np.zeros_like(self.rest)
             delta[self.free] = np.asarray(delta_vec)[: 3 * self.n_free].reshape(3, -1).T
-            return self._tangent(delta, mu_l, lam)
+            return self._tangent(delta, *coefficients)
 
         return tangent
+
+    def _tangent_coefficients(self, values: dict) -> tuple:
+        """The numbers ``NeoHookeanTangent`` takes after Delta: (mu_L, lambda) [N/mm^2]."""
+        return tuple(self.coefficients(values))
+
+
+class ExponentialModel(NeoHookeanModel):
+    """The neo-Hookean energy plus the isochoric exponential stiffening of eq. (C10).
+
+    Parameters E [kPa], nu, k1 [kPa] and k2 [1]. The added term, its stress and its
+    tangent vanish at rest, so the small-strain behaviour is ``NeoHookeanModel``'s
+    (and ``stiffness_matrix``, the tangent at rest, is its K(x)); at k1 = 0 the model is
+    the neo-Hookean one, so k1 is the loop's stiffening effect with null value 0.
+    """
+
+    energy = "exponential"
+    exponential = True
+
+    def influential(self, names: tuple[str, ...]) -> np.ndarray:
+        """E, nu, k1 and k2 enter the equilibrium."""
+        return np.array([n in EXPONENTIAL_PARAMETERS for n in names])
+
+    def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
+        """f(Delta) of eq. (C8) with the stress (C7) + (C11), (n_free, 3) [N]."""
+        mu_l, lam = self.coefficients(values)
+        return self.force(delta, mu_l, lam, KPA * values["k1"], values["k2"])
+
+    def _tangent_coefficients(self, values: dict) -> tuple:
+        return (*self.coefficients(values), KPA * values["k1"], values["k2"])
 
 
 ENERGIES = {
     "dnurbs": TissueModel,
     "linear-elastic": ContinuumModel,
     "neo-hookean": NeoHookeanModel,
+    "exponential": ExponentialModel,
 }
 """Base models by the name ``dvs fit --energy`` takes."""

@@ -20,6 +20,25 @@ eq. (C1) with the same Lame pair, so the tangent of (C8) at rest is K(x) of eq. 
 
     A_ijkl = mu_L d_ik d_jl + lambda a_ij a_kl + (mu_L - lambda ln J) a_il a_kj,  a = F^-T. (C9)
 
+**Strain stiffening** (``exponential``: skin stiffens as its collagen is recruited). The
+isotropic exponential term of Holzapfel-Gasser-Ogden type, in the isochoric invariant,
+is added to eq. (C6):
+
+    W_exp = k1 / (2 k2) (exp(k2 s^2) - 1),   s = Ibar1 - 3,   Ibar1 = J^(-2/3) tr(F^T F),  (C10)
+
+k1 [N/mm^2] and k2 [1] (the limit k2 -> 0 is k1/2 s^2). **Choice**: the isochoric
+Ibar1 - 3 is zero at rest and quadratic in the deviatoric strain, so W_exp, its stress
+and its tangent all vanish at rest: the small-strain E and nu are those of eq. (C6)
+alone, and the term is a pure stiffening (quartic at small strain). An exponent in
+I1 - 3 instead would add a bulk stiffness at rest that trades with nu (measured on the
+planar model, docs/realskin.md). With a = F^-T, e = exp(k2 s^2), W1 = k1 s e,
+W11 = k1 e (1 + 2 k2 s^2) and g = dIbar1/dF = J^(-2/3) (2 F - 2/3 tr(F^T F) a),
+
+    P_exp = W1 g,                                                                     (C11)
+
+    A_exp = W11 g (x) g + 2 W1 J^(-2/3) [ d_ik d_jl - 2/3 (F_ij a_kl + a_ij F_kl)
+            + 2/9 I1 a_ij a_kl + 1/3 I1 a_il a_kj ],         I1 = tr(F^T F).          (C12)
+
 The pointwise stress is a CasADi SX Function mapped over the quadrature points; the
 gradients are sparse operators on the control points, so the whole force is one MX
 expression that both inverse methods differentiate.
@@ -46,8 +65,9 @@ def _cofactor(f: list[list]) -> list[list]:
     ]
 
 
-def piola_stress() -> ca.Function:
-    """P(H, mu_L, lambda) of eq. (C7) for one point: H = grad u row-major (9,), P (9,).
+def piola_stress(exponential: bool = False) -> ca.Function:
+    """P(H, mu_L, lambda[, k1, k2]) of eq. (C7) [+ C11] for one point: H = grad u
+    row-major (9,), P (9,) [N/mm^2]; ``exponential`` adds the inputs k1 [N/mm^2], k2.
 
     J <= 0 (an inverted element) gives NaN, which the Newton line search rejects.
     """
@@ -62,7 +82,20 @@ def piola_stress() -> ca.Function:
         for i in range(3)
         for j in range(3)
     ]
-    return ca.Function("P", [h, mu_l, lam], [ca.vertcat(*stress)], ["H", "mu_L", "lambda"], ["P"])
+    inputs, names = [h, mu_l, lam], ["H", "mu_L", "lambda"]
+    if exponential:
+        k1, k2 = ca.SX.sym("k1"), ca.SX.sym("k2")
+        first = sum(f[i][j] ** 2 for i in range(3) for j in range(3))
+        scale = det ** (-2.0 / 3.0)
+        s = scale * first - 3.0
+        w1 = k1 * s * ca.exp(k2 * s**2)
+        stress = [
+            stress[3 * i + j] + w1 * scale * (2.0 * f[i][j] - 2.0 / 3.0 * first * cof[i][j] / det)
+            for i in range(3)
+            for j in range(3)
+        ]
+        inputs, names = inputs + [k1, k2], names + ["k1", "k2"]
+    return ca.Function("P", inputs, [ca.vertcat(*stress)], names, ["P"])
 
 
 def neo_hookean_energy_density(gradient: np.ndarray, mu_l: float, lam: float) -> np.ndarray:
@@ -76,6 +109,16 @@ def neo_hookean_energy_density(gradient: np.ndarray, mu_l: float, lam: float) ->
     )
 
 
+def exponential_energy_density(gradient: np.ndarray, k1: float, k2: float) -> np.ndarray:
+    """W_exp of eq. (C10) [N/mm^2] for displacement gradients (n_q, 3, 3), numpy;
+    k1 [N/mm^2], k2 [1] (k2 = 0: the limit k1/2 s^2)."""
+    f = np.eye(3) + np.asarray(gradient, dtype=float)
+    s = np.linalg.det(f) ** (-2.0 / 3.0) * np.einsum("qij,qij->q", f, f) - 3.0
+    if k2 == 0.0:
+        return 0.5 * k1 * s**2
+    return 0.5 * k1 / k2 * np.expm1(k2 * s**2)
+
+
 class NeoHookeanForce:
     """The internal force of eq. (C8) on a set of control points, as a CasADi expression.
 
@@ -86,22 +129,27 @@ class NeoHookeanForce:
         the chosen control points (``PhysicalGradient.operators``, columns restricted).
     volume : numpy.ndarray
         Quadrature weight times |det G| at each point [mm^3].
+    exponential : bool
+        Add the stiffening stress of eq. (C11); ``__call__`` then takes k1 and k2.
     """
 
-    def __init__(self, operators, volume: np.ndarray):
+    def __init__(self, operators, volume: np.ndarray, exponential: bool = False):
         self.n_points = int(operators[0].shape[0])
+        self.exponential = exponential
         self._operators = [to_casadi_sparse(sp.csr_matrix(p)) for p in operators]
         self._volume = ca.DM(np.asarray(volume, dtype=float))
-        self._stress = piola_stress().map(self.n_points)
+        self._stress = piola_stress(exponential).map(self.n_points)
 
     def gradient(self, delta: ca.MX) -> ca.MX:
         """grad u at the points, (9, n_q) with rows (i, j) -> 3 i + j, i the component."""
         columns = [ca.mtimes(p, delta) for p in self._operators]  # columns[j][q, i] = du_i/dx_j
         return ca.vertcat(*[columns[j][:, i].T for i in range(3) for j in range(3)])
 
-    def __call__(self, delta: ca.MX, mu_l, lam) -> ca.MX:
-        """f (n, 3) [N] of eq. (C8) for displacements delta (n, 3) [mm], Lame pair [N/mm^2]."""
-        stress = self._stress(self.gradient(delta), mu_l, lam)  # (9, n_q)
+    def __call__(self, delta: ca.MX, mu_l, lam, k1=0.0, k2=0.0) -> ca.MX:
+        """f (n, 3) [N] of eq. (C8) for displacements delta (n, 3) [mm], Lame pair and k1
+        [N/mm^2], k2 [1] (k1 and k2 only with ``exponential``)."""
+        arguments = (k1, k2) if self.exponential else ()
+        stress = self._stress(self.gradient(delta), mu_l, lam, *arguments)  # (9, n_q)
         force = 0
         for j, operator in enumerate(self._operators):
             weighted = ca.horzcat(*[stress[3 * i + j, :].T for i in range(3)]) * ca.repmat(
@@ -183,8 +231,11 @@ class NeoHookeanTangent:
         )
         self._laplace = pattern_entries(pattern, laplace)
 
-    def __call__(self, delta: np.ndarray, mu_l: float, lam: float) -> sp.csc_matrix:
-        """K_T at displacements delta (n, 3) [mm] on every control point, (3 m, 3 m) [N/mm]."""
+    def __call__(
+        self, delta: np.ndarray, mu_l: float, lam: float, k1: float = 0.0, k2: float = 0.0
+    ) -> sp.csc_matrix:
+        """K_T at displacements delta (n, 3) [mm] on every control point, (3 m, 3 m) [N/mm];
+        Lame pair and k1 [N/mm^2], k2 [1] of eq. (C12) (k1 = 0: the neo-Hookean tangent)."""
         local_delta = np.asarray(delta, dtype=float)[self._support]  # (n_q, k, 3): [q, a, i]
         f = np.eye(3) + np.einsum("qai,qaj->qij", local_delta, self._g)
         det = np.linalg.det(f)
@@ -193,13 +244,46 @@ class NeoHookeanTangent:
         a = np.linalg.inv(f).transpose(0, 2, 1)
         shape = (self.n_elements, self.points_per_element, 3 * self.k)
         d = np.einsum("qij,qaj->qai", a, self._g).reshape(shape)  # [e, q, (a, i)]
-        c1 = (self._w * lam).reshape(shape[:2])[:, :, None]
-        c2 = (self._w * (mu_l - lam * np.log(det))).reshape(shape[:2])[:, :, None]
-        first = np.matmul((d * c1).transpose(0, 2, 1), d)  # [(a, i), (b, k)]
-        second = np.matmul((d * c2).transpose(0, 2, 1), d)  # [(a, k), (b, i)]
-        second = second.reshape(-1, self.k, 3, self.k, 3).transpose(0, 1, 4, 3, 2)
-        local = (first + second.reshape(first.shape)).reshape(self.n_elements, -1)
+        first = self._outer(d, d, self._w * lam)  # [(a, i), (b, k)]
+        swapped = self._outer(d, d, self._w * (mu_l - lam * np.log(det)))  # [(a, k), (b, i)]
+        if k1 != 0.0:
+            extra, extra_swapped = self._exponential(f, det, d, k1, k2)
+            first, swapped = first + extra, swapped + extra_swapped
+        local = first + self._swap(swapped)
         data = np.bincount(
-            self._position, weights=local.ravel()[self._keep], minlength=self._indices.size
+            self._position,
+            weights=local.reshape(self.n_elements, -1).ravel()[self._keep],
+            minlength=self._indices.size,
         )
         return sp.csc_matrix((data + mu_l * self._laplace, self._indices, self._indptr), self.shape)
+
+    def _outer(self, left: np.ndarray, right: np.ndarray, weight: np.ndarray) -> np.ndarray:
+        """sum_q weight_q left_q (x) right_q per element: [e, (a, i), (b, k)]."""
+        c = weight.reshape(self.n_elements, self.points_per_element)[:, :, None]
+        return np.matmul((left * c).transpose(0, 2, 1), right)
+
+    def _swap(self, matrix: np.ndarray) -> np.ndarray:
+        """[(a, k), (b, i)] -> [(a, i), (b, k)]: the a_il a_kj terms of (C9) and (C12)."""
+        k = self.k
+        return matrix.reshape(-1, k, 3, k, 3).transpose(0, 1, 4, 3, 2).reshape(matrix.shape)
+
+    def _exponential(self, f, det, d, k1: float, k2: float) -> tuple[np.ndarray, np.ndarray]:
+        """The element matrices of A_exp, eq. (C12): (unswapped part, part to swap)."""
+        shape = d.shape
+        first = np.einsum("qij,qij->q", f, f)
+        scale = det ** (-2.0 / 3.0)
+        s = scale * first - 3.0
+        growth = np.exp(k2 * s * s)
+        w1, w11 = k1 * s * growth, k1 * growth * (1.0 + 2.0 * k2 * s * s)
+        fg = np.einsum("qij,qaj->qai", f, self._g).reshape(shape)  # F_ij g_aj
+        per_point = (shape[0], shape[1], 1)
+        big_g = scale.reshape(per_point) * (2.0 * fg - 2.0 / 3.0 * first.reshape(per_point) * d)
+        c = 2.0 * self._w * w1 * scale
+        matrix = self._outer(big_g, big_g, self._w * w11)
+        matrix += self._outer(d, d, 2.0 / 9.0 * c * first)
+        matrix -= 2.0 / 3.0 * (self._outer(fg, d, c) + self._outer(d, fg, c))
+        g = self._g.reshape(self.n_elements, -1, self.k, 3)  # [e, q, a, j]
+        gc = g * c.reshape(self.n_elements, -1, 1, 1)
+        gram = np.einsum("eqaj,eqbj->eab", gc, g)  # sum_q c g_a . g_b
+        matrix += np.einsum("eab,ik->eaibk", gram, np.eye(3)).reshape(matrix.shape)
+        return matrix, self._outer(d, d, c * first / 3.0)

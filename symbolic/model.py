@@ -46,6 +46,8 @@ PARAMETERS: dict[str, ParameterInfo] = {
     "k0": ParameterInfo(0.0, "1", "stiffening in s(eps) = 1 + k0 eps^2 (eq. 1)"),
     "E": ParameterInfo(10.0, "kPa", "Young's modulus of the linear-elastic model (eq. C1)"),
     "nu": ParameterInfo(0.45, "1", "Poisson's ratio of the linear-elastic model (eq. C1)"),
+    "k1": ParameterInfo(0.0, "kPa", "strain stiffening of the exponential energy (eq. C10)"),
+    "k2": ParameterInfo(10.0, "1", "exponent of the exponential energy (eq. C10)"),
 }
 """Every parameter the inverse can estimate, with the paper's start values."""
 
@@ -133,6 +135,11 @@ class TissueModel:
         if not isinstance(self.volume, VolumeSpline):
             raise ValueError("volume must be a VolumeSpline (see VolumeSpline.fit)")
         self.parameters = check_parameters(self.parameters)
+        if self.parameters["k1"] != 0.0 and not self.exponential:
+            raise ValueError(
+                f"the {self.energy} model has no exponential stiffening k1; leave k1 at 0 "
+                "or use the exponential energy (--energy exponential)"
+            )
         fields = dict(self.fields or {})
         self.terms = stiffness_terms(
             self.volume.basis,
@@ -228,6 +235,9 @@ class TissueModel:
 
     energy = "dnurbs"
     """The base model's name (``dvs fit --energy``)."""
+
+    exponential = False
+    """True when the energy has the strain-stiffening term of eq. (C10) (k1, k2)."""
 
     componentwise = True
     """The linear K acts as I3 (x) A on the free points (``solvers.componentwise``);
