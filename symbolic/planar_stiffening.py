@@ -1,31 +1,42 @@
 """A strain-stiffening plane-strain energy on P1 triangles: neo-Hookean plus an exponential.
 
 The neo-Hookean plane-strain energy of ``symbolic.planar_neohookean`` (eq. P3 there) plus
-the isotropic exponential term of Holzapfel-Gasser-Ogden type, written in 2D plane strain
-with I1 = tr C of the 2 x 2 C = F^T F (so I1 = 2 at rest):
+an isotropic exponential term of Holzapfel-Gasser-Ogden type in the **isochoric** first
+invariant of the 3D deformation in plane strain (F33 = 1). With F the 2 x 2 in-plane
+deformation gradient, J = det F and a = F^-T,
 
-    psi = psi_NH(E, nu) + k1 / (2 k2) (exp(k2 s^2) - 1),      s = I1 - 2,          (S1)
+    I1_3 = tr(F^T F) + 1,      Ibar1 = J^(-2/3) I1_3,      s = Ibar1 - 3,
 
-    psi_NH = mu/2 (I1 - 2 - 2 ln J) + lam/2 (ln J)^2,
+    psi = psi_NH(E, nu) + W(s),      W = k1 / (2 k2) (exp(k2 s^2) - 1),             (S1)
 
-with E [N/mm per unit depth], nu, k1 [N/mm] and k2 [-]. The added term and its stress
-are zero at rest; at k1 = 0 the energy is the neo-Hookean one exactly. Its stiffness at
-rest is **not** zero: s = I1 - 2 = 2 tr(eps) + O(eps^2) is linear in the strain, so at
-small strain the term is 2 k1 (tr eps)^2, a bulk stiffness that adds 4 k1 to lam (the
-tangent gains 4 k1 d_iJ d_kL at F = I). It stiffens exponentially as s grows. As k2 -> 0
-it tends to k1/2 s^2 (used at k2 = 0).
+    psi_NH = mu/2 (I1 - 2 - 2 ln J) + lam/2 (ln J)^2,      I1 = tr(F^T F),
 
-With W(I1) the added term, W1 = dW/dI1 = k1 s e, e = exp(k2 s^2), and
-W11 = d^2W/dI1^2 = k1 e (1 + 2 k2 s^2), the first Piola-Kirchhoff stress [N/mm] and its
-tangent are
+with E [N/mm per unit depth], nu, k1 [N/mm] and k2 [-]; as k2 -> 0, W tends to
+k1/2 s^2 (used at k2 = 0). At k1 = 0 the energy is the neo-Hookean one exactly.
 
-    P = P_NH + 2 W1 F,                                                              (S2)
+Why isochoric: Ibar1 >= 3 with equality only where the 3D F is a rotation times a
+dilatation (in plane strain: F a rotation), so s = 0 and dIbar1/dF = 0 at rest, and at
+small strain s = 2 |dev eps|^2 + O(eps^3) (the 3D deviator, eps33 = 0): W is quartic in
+the strain, zero in energy, stress **and tangent** at rest, a pure stiffening that leaves
+the small-strain moduli to (E, nu). The previous form, s = I1 - 2 = 2 tr(eps) + O(eps^2),
+was linear in the strain: at small strain it was 2 k1 (tr eps)^2 and added 4 k1 to lam,
+so k1 traded with nu (the keloid fit went to nu = -0.88; docs/realskin.md, "Strain
+stiffening on the authors' model").
 
-    dP_iJ/dF_kL = A_NH + 2 W1 d_ik d_JL + 4 W11 F_iJ F_kL,                          (S3)
+With e = exp(k2 s^2), W1 = dW/dIbar1 = k1 s e, W11 = d^2W/dIbar1^2 = k1 e (1 + 2 k2 s^2)
+and g = dIbar1/dF = J^(-2/3) (2 F - (2/3) I1_3 a), the first Piola-Kirchhoff stress
+[N/mm] and its tangent are
 
-and the parameter derivatives (F held)
+    P = P_NH + W1 g,                                                                (S2)
 
-    dP/dk1 = 2 s e F,        dP/dk2 = 2 k1 s^3 e F.                                 (S4)
+    dP_iJ/dF_kL = A_NH + W11 g_iJ g_kL + W1 dg_iJ/dF_kL,                            (S3)
+
+    dg_iJ/dF_kL = 2 J^(-2/3) [ d_ik d_JL - (2/3) F_iJ a_kL - (2/3) a_iJ F_kL
+                               + (2/9) I1_3 a_iJ a_kL + (1/3) I1_3 a_iL a_kJ ],
+
+(using dJ/dF = J a and da_iJ/dF_kL = -a_iL a_kJ), and the parameter derivatives (F held)
+
+    dP/dk1 = s e g,        dP/dk2 = k1 s^3 e g.                                     (S4)
 
 Assembled exactly as the neo-Hookean model (eq. P7 there, ``Triangles``): the class below
 only adds (S1)-(S4) to its parent's energy density, stress, tangent and derivatives.
@@ -34,35 +45,101 @@ Parameter order everywhere: p = (E, nu, k1, k2).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from symbolic.planar_neohookean import PlanarNeoHookean
+from symbolic.planar_neohookean import PlanarNeoHookean, _inverse_and_det
 
 NAMES = ("E", "nu", "k1", "k2")
 """The parameters, in the order of every derivative: E [N/mm], nu, k1 [N/mm], k2 [-]."""
 
 EXPONENT_CAP = 200.0
-"""Largest k2 s^2 evaluated (exp(200) ~ 7e86, far beyond any equilibrium of the data)."""
+"""Largest k2 s^2 evaluated (exp(200) ~ 7e86); beyond it an evaluation fails. A fit sliding
+to k1 -> 0, k2 -> inf can end on it (the healthy fit of docs/realskin.md does)."""
 
 
-def exponential_term(first, k1, k2):
-    """W of eq. (S1) [N/mm] and (s, e, W1, W11) at I1 = ``first`` (arrays per triangle).
+def exponential_term(s, k1, k2):
+    """W of eq. (S1) [N/mm] and (e, W1, W11) at s = Ibar1 - 3 (arrays per triangle).
 
-    k2 = 0 gives the limit k1/2 s^2 (W1 = k1 s, W11 = k1).
+    Parameters
+    ----------
+    s : ndarray (M',)
+        Ibar1 - 3 [-].
+    k1 : ndarray (M',)
+        [N/mm].
+    k2 : ndarray (M',)
+        [-]; k2 = 0 gives the limit k1/2 s^2 (W1 = k1 s, W11 = k1).
+
+    Returns
+    -------
+    energy, e, w1, w11 : ndarray (M',)
+        W [N/mm], exp(k2 s^2) [-], dW/dIbar1 and d^2W/dIbar1^2 [N/mm].
 
     Raises
     ------
     FloatingPointError
-        When k2 s^2 exceeds ``EXPONENT_CAP`` (the exponential about to overflow); a Newton
-        line search catches it and shortens the step.
+        When k2 s^2 exceeds ``EXPONENT_CAP`` (the exponential about to overflow) or is not
+        a number (k2 = inf, s = 0); a Newton line search catches it and shortens the step.
     """
-    s = first - 2.0
-    if np.any(k2 * s * s > EXPONENT_CAP):
+    with np.errstate(invalid="ignore"):
+        x = k2 * s * s
+    if not np.all(x <= EXPONENT_CAP):  # also NaN: k2 = inf at s = 0
         raise FloatingPointError("the exponential term overflows (k2 s^2 too large)")
-    e = np.exp(k2 * s * s)
+    e = np.exp(x)
     safe = np.where(k2 > 0, k2, 1.0)
-    energy = np.where(k2 > 0, 0.5 * k1 * np.expm1(k2 * s * s) / safe, 0.5 * k1 * s * s)
-    return energy, s, e, k1 * s * e, k1 * e * (1.0 + 2.0 * k2 * s * s)
+    energy = np.where(k2 > 0, 0.5 * k1 * np.expm1(x) / safe, 0.5 * k1 * s * s)
+    return energy, e, k1 * s * e, k1 * e * (1.0 + 2.0 * x)
+
+
+@dataclass(frozen=True)
+class Isochoric:
+    """Ibar1 of eq. (S1) and its derivatives on a stack of F (M', 2, 2).
+
+    Attributes
+    ----------
+    f, a : ndarray (M', 2, 2)
+        F and F^-T [-].
+    scale : ndarray (M',)
+        J^(-2/3) [-].
+    first : ndarray (M',)
+        I1_3 = tr(F^T F) + 1 [-].
+    s : ndarray (M',)
+        Ibar1 - 3 [-].
+    g : ndarray (M', 2, 2)
+        dIbar1/dF [-].
+    """
+
+    f: np.ndarray
+    a: np.ndarray
+    scale: np.ndarray
+    first: np.ndarray
+    s: np.ndarray
+    g: np.ndarray
+
+    @classmethod
+    def of(cls, f: np.ndarray) -> Isochoric:
+        """From F (M', 2, 2); raises ``FloatingPointError`` on J <= 0."""
+        inverse, det = _inverse_and_det(f)
+        if np.any(det <= 0):
+            raise FloatingPointError("an inverted triangle (J <= 0)")
+        a = np.transpose(inverse, (0, 2, 1))
+        scale = det ** (-2.0 / 3.0)
+        first = np.einsum("miJ,miJ->m", f, f) + 1.0
+        g = scale[:, None, None] * (2.0 * f - (2.0 / 3.0) * first[:, None, None] * a)
+        return cls(f, a, scale, first, scale * first - 3.0, g)
+
+    def second(self) -> np.ndarray:
+        """dg_iJ/dF_kL of eq. (S3) (M', 2, 2, 2, 2) [-]."""
+        f, a, c = self.f, self.a, self.first[:, None, None, None, None]
+        eye = np.eye(2)
+        bracket = (
+            np.einsum("ik,JL->iJkL", eye, eye)
+            - (2.0 / 3.0) * (np.einsum("miJ,mkL->miJkL", f, a) + np.einsum("miJ,mkL->miJkL", a, f))
+            + (2.0 / 9.0) * c * np.einsum("miJ,mkL->miJkL", a, a)
+            + (1.0 / 3.0) * c * np.einsum("miL,mkJ->miJkL", a, a)
+        )
+        return 2.0 * self.scale[:, None, None, None, None] * bracket
 
 
 class PlanarStiffening(PlanarNeoHookean):
@@ -94,34 +171,36 @@ class PlanarStiffening(PlanarNeoHookean):
         self.k2 = np.broadcast_to(np.asarray(k2, dtype=float), shape).copy()
 
     def _added(self, f: np.ndarray, cells):
+        """(Isochoric, W, e, W1, W11) of the triangles ``cells`` (default all)."""
         cells = slice(None) if cells is None else cells
-        first = np.einsum("miJ,miJ->m", f, f)
-        return exponential_term(first, self.k1[cells], self.k2[cells])
+        invariant = Isochoric.of(f)
+        return invariant, *exponential_term(invariant.s, self.k1[cells], self.k2[cells])
 
     def energy_density(self, f: np.ndarray, cells=None) -> np.ndarray:
         """psi of eq. (S1) [N/mm] per triangle."""
-        return super().energy_density(f, cells) + self._added(f, cells)[0]
+        return super().energy_density(f, cells) + self._added(f, cells)[1]
 
     def stress(self, f: np.ndarray, cells=None) -> np.ndarray:
         """P of eq. (S2) (M', 2, 2) [N/mm]."""
-        w1 = self._added(f, cells)[3]
-        return super().stress(f, cells) + 2.0 * w1[:, None, None] * f
+        invariant, _, _, w1, _ = self._added(f, cells)
+        return super().stress(f, cells) + w1[:, None, None] * invariant.g
 
     def tangent(self, f: np.ndarray, cells=None) -> np.ndarray:
         """dP_iJ / dF_kL of eq. (S3) (M', 2, 2, 2, 2) [N/mm]."""
-        _, _, _, w1, w11 = self._added(f, cells)
-        eye = np.eye(2)
+        invariant, _, _, w1, w11 = self._added(f, cells)
+        g = invariant.g
         result = super().tangent(f, cells)
-        result = result + 2.0 * w1[:, None, None, None, None] * np.einsum("ik,JL->iJkL", eye, eye)
-        return result + 4.0 * w11[:, None, None, None, None] * np.einsum("miJ,mkL->miJkL", f, f)
+        result = result + w11[:, None, None, None, None] * np.einsum("miJ,mkL->miJkL", g, g)
+        return result + w1[:, None, None, None, None] * invariant.second()
 
     def stress_derivatives(self, f: np.ndarray, cells=None) -> tuple[np.ndarray, ...]:
-        """dP/dE, dP/dnu (parent) and dP/dk1, dP/dk2 of eq. (S4), each (M', 2, 2)."""
+        """dP/dE, dP/dnu (parent) and dP/dk1, dP/dk2 of eq. (S4), each (M', 2, 2) [N/mm]."""
         d_young, d_poisson = super().stress_derivatives(f, cells)
-        _, s, e, _, _ = self._added(f, cells)
+        invariant, _, e, _, _ = self._added(f, cells)
+        s, g = invariant.s, invariant.g
         k1 = self.k1[slice(None) if cells is None else cells]
-        d_k1 = (2.0 * s * e)[:, None, None] * f
-        d_k2 = (2.0 * k1 * s**3 * e)[:, None, None] * f
+        d_k1 = (s * e)[:, None, None] * g
+        d_k2 = (k1 * s**3 * e)[:, None, None] * g
         return d_young, d_poisson, d_k1, d_k2
 
     def residual_derivatives(self, u: np.ndarray, weights: np.ndarray) -> np.ndarray:
