@@ -17,10 +17,12 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
     """Every estimated parameter must enter the chosen energy's equilibrium or dynamics."""
     from experiments.options import UsageError
 
+    paper = {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"}
     foreign = {
-        "dnurbs": {"E", "nu"},
-        "linear-elastic": {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"},
-        "neo-hookean": {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"},
+        "dnurbs": {"E", "nu", "k1", "k2"},
+        "linear-elastic": paper | {"k1", "k2"},
+        "neo-hookean": paper | {"k1", "k2"},
+        "exponential": paper,
     }
     wrong = [n for n in names if n in foreign[energy]]
     if wrong:
@@ -49,12 +51,14 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
         default="auto",
         help="base model: auto (step 0 of dvs diagnose chooses between the paper's eq. 18 and "
         "isotropic linear elasticity with its surroundings, docs/continuum.md), dnurbs, "
-        "linear-elastic or neo-hookean",
+        "linear-elastic, neo-hookean or exponential (neo-Hookean with strain stiffening "
+        "k1, k2; docs/continuum.md)",
     )
     parser.add_argument(
         "--params",
         default=None,
-        help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for the continua)",
+        help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for the continua; "
+        "E,nu,k1 for exponential)",
     )
     parser.add_argument(
         "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"

@@ -13,7 +13,7 @@ optimised OpenBLAS (docs/inverse.md, "The factorisation itself").
   The four structures it reads are CHOLMOD 3's public ones (``cholmod_core.h``); the
   defaults ``cholmod_start`` writes are checked field by field before anything is
   factorised, so a library with another layout is refused, not misread.
-- **BLAS.** Before libcholmod is opened, an OpenBLAS that a package of the design card
+- **BLAS.** Before libcholmod is opened, an OpenBLAS that a required package (pyproject.toml)
   already ships (opencv-python-headless, then CasADi) is opened with global symbols,
   so CHOLMOD's dgemm/dsyrk/dtrsm/dpotrf resolve to it, on one thread
   (``OPTIMISED_BLAS``). numpy and scipy call their own prefixed copies and are not

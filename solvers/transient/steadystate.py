@@ -1,6 +1,6 @@
 """The transient run to steady state, checked against the static equilibrium.
 
-The design card's check: integrate eq. (22) from rest with ``solvers.transient``
+The check docs/transient.md asks for: integrate eq. (22) from rest with ``solvers.transient``
 until velocity and residual vanish (the paper's forward solution), and compare the
 end state with the equilibrium K(B)(B - B0) = F_B that ``solvers.equilibrium``
 solves directly (docs/model.md, eq. 22).
