@@ -42,3 +42,38 @@ def test_neo_hookean_poisson_ratio_matches_the_authors(shared_data, case):
     row = summary(case, fit, SETTINGS.thickness_mm)
     low, high = AUTHORS[case]["nu"]
     assert low <= row["parameters"]["nu"]["value"] <= high
+
+
+PATH_DEPENDENT = (
+    "measured 2026-11-27: the healthy membrane's equilibria at the force-only frames "
+    "depend on the Newton path (cost 121.66 at the neo-Hookean estimate warm-started "
+    "along its fit, 116.68 solved from rest); the k1 refit ends above the neo-Hookean "
+    "cost (132.57) and is refused (docs/realskin.md)"
+)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "case",
+    [
+        "keloid",
+        pytest.param("healthy", marks=pytest.mark.xfail(strict=True, reason=PATH_DEPENDENT)),
+    ],
+)
+def test_the_loop_on_the_membrane_finds_strain_stiffening(shared_data, case):
+    """The real-skin loop on the neo-Hookean membrane (``stiffening_loop``): the score
+    test ranks the exponential stiffening k1 first and significant, its refit is
+    accepted, and the stiffened membrane follows the force curve better without losing
+    the DIC field (docs/realskin.md, "The loop on the continuum membrane")."""
+    from experiments.realskin.continuum import stiffening_loop
+
+    result = stiffening_loop(build(case, SETTINGS), SETTINGS, SETTINGS.thickness_mm, log=print)
+    scores = result["rounds"][0]["scores"]
+    assert max(scores, key=lambda name: scores[name].statistic) == "k1"
+    assert scores["k1"].p_value < 1e-3
+    assert result["rounds"][0]["chosen"] == "k1"
+    before, after = result["stages"][0], result["stages"][-1]
+    print(case, "force RMS", before.rms_force_n, "->", after.rms_force_n)
+    print(case, "displacement RMS", before.rms_displacement_mm, "->", after.rms_displacement_mm)
+    assert after.rms_force_n < 0.5 * before.rms_force_n
+    assert after.rms_displacement_mm < before.rms_displacement_mm

@@ -11,27 +11,39 @@ its plane is in plane stress, the authors' 2D model, so E t [N/mm] and nu compar
 their E and nu directly if their E is per unit thickness (the README says "probably
 N/mm"); E [kPa] is the modulus of a 3D slab of thickness t.
 
-Writes ``continuum.json`` (estimates, standard errors, RMS errors, the authors' ranges)
-and ``continuum.md`` (the table of docs/realskin.md).
+**The loop on the continuum base** (``stiffening_loop``): the neo-Hookean membrane is
+the exponential energy of eq. (C10) at k1 = 0 (docs/continuum.md), so strain stiffening
+is an effect like any other of the real-skin loop (``experiments.realskin.loop``): a
+score test of k1 at 0 (one-sided, k2 at its default 10), a refit when it is significant
+and worth it, then the same for the exponent k2 (two-sided in log space; it has no
+influence until k1 is in).
+
+Writes ``continuum.json`` (estimates, standard errors, RMS errors, the authors' ranges,
+the loop's rounds) and ``continuum.md`` (the table of docs/realskin.md).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from experiments.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cases import load_cases
+from experiments.realskin.loop import close_the_loop, likelihood_ratio
 from experiments.realskin.model import SkinParameterSpace
 from experiments.realskin.setup import RealSkinSettings, Setup, build
-from experiments.realskin.stages import StageFit, fit_stage
+from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.study import AUTHORS
 from symbolic.continuum import KPA
 from symbolic.continuum_model import ENERGIES
 from symbolic.model import BoundaryConditions
 
-CONTINUUM_ENERGIES = ("linear-elastic", "neo-hookean")
-BOUNDS = {"E": (0.1, 1e4), "nu": (0.0, 0.49)}
-"""E [kPa] and nu [1]."""
+CONTINUUM_ENERGIES = ("linear-elastic",)
+"""Fitted alone; the neo-Hookean membrane is the base of ``stiffening_loop``."""
+BOUNDS = {"E": (0.1, 1e4), "nu": (0.0, 0.49), "k1": (0.0, 1e4), "k2": (0.01, 1e5)}
+"""E [kPa], nu [1], k1 [kPa] and k2 [1]."""
+LOOP_CANDIDATES = ("k1", "k2")
+"""The continuum loop's effects: strain stiffening, then its exponent."""
 
 
 def start_values(name: str, thickness_mm: float) -> dict[str, float]:
@@ -55,17 +67,71 @@ def fit_energy(setup: Setup, energy: str, thickness_mm: float, log=print) -> Sta
     return fit_stage(model, cases, space, f"{name}, {energy}", log)
 
 
+def continuum_setup(setup: Setup, thickness_mm: float) -> Setup:
+    """The case on the membrane with the exponential energy at k1 = 0 (the neo-Hookean),
+    started from the authors' E and nu."""
+    start = start_values(setup.case.name, thickness_mm)
+    model = ENERGIES["exponential"](
+        setup.model.volume,
+        dict(start),
+        BoundaryConditions(fix_inner=False, fix_lateral=True),
+        prescribed=setup.pads.prescribed,
+    )
+    cases = load_cases(model, setup.pads, setup.data, setup.weight)
+    return replace(setup, model=model, cases=cases, base_names=("E", "nu"), start=start, grid=None)
+
+
+def stiffening_loop(
+    setup: Setup, settings: RealSkinSettings, thickness_mm: float, log=print
+) -> dict:
+    """The real-skin loop on the neo-Hookean membrane with ``LOOP_CANDIDATES``.
+
+    Returns ``close_the_loop``'s dict: ``stages`` (the neo-Hookean fit first) and
+    ``rounds`` (the score tests of each round and the chosen effect).
+    """
+    loop = replace(settings, candidates=LOOP_CANDIDATES, bounds=BOUNDS, diagnostics=())
+    return close_the_loop(continuum_setup(setup, thickness_mm), loop, log, "neo-Hookean")
+
+
+def loop_summary(result: dict) -> list[dict]:
+    """Per round: every candidate's score statistic and p-value, the chosen effect and,
+    when one was added, the likelihood ratio of the refit (or the refit that was
+    refused because it ended above the previous cost)."""
+    stages, rounds = result["stages"], []
+    for index, entry in enumerate(result["rounds"]):
+        row = {
+            "scores": {
+                name: {"statistic": score.statistic, "p_value": score.p_value}
+                for name, score in entry["scores"].items()
+            },
+            "chosen": entry["chosen"],
+        }
+        if entry["chosen"] is not None and index + 1 < len(stages):
+            row["likelihood_ratio"] = likelihood_ratio(stages[index], stages[index + 1])
+        if "failed_refit" in entry:
+            failed = entry["failed_refit"]
+            row["failed_refit"] = {
+                "label": failed.label,
+                "cost": failed.cost,
+                "previous_cost": stages[index].cost,
+                "parameters": failed.as_dict(),
+            }
+        rounds.append(row)
+    return rounds
+
+
 def paper_fit(setup: Setup, bounds: dict, log=print) -> StageFit:
     """The paper's linear energy (alpha_u, isotropic in the plane) on the same membrane."""
     space = SkinParameterSpace.build(setup.base_names, setup.start, bounds)
     return fit_stage(setup.model, setup.cases, space, f"{setup.case.name}, dnurbs (eq. 18)", log)
 
 
-def summary(name: str, fit: StageFit, thickness_mm: float) -> dict:
-    """One row: estimates with standard errors, E t against the authors, RMS errors."""
+def summary(name: str, fit: StageFit, thickness_mm: float, model: str | None = None) -> dict:
+    """One row: estimates with standard errors, E t against the authors, RMS errors;
+    ``model`` names the row (default: the fit's label after the case)."""
     row = {
         "case": name,
-        "model": fit.label.split(", ", 1)[1],
+        "model": model or fit.label.split(", ", 1)[1],
         "rms_displacement_mm": fit.rms_displacement_mm,
         "rms_force_n": fit.rms_force_n,
         "cost": fit.cost,
@@ -84,9 +150,9 @@ def summary(name: str, fit: StageFit, thickness_mm: float) -> dict:
 def table(rows: list[dict]) -> str:
     """The markdown table of docs/realskin.md."""
     lines = [
-        "| case | model | E [kPa] | nu | E t [N/mm] | authors E, nu | RMS displacement [mm] "
-        "| RMS force [N] |",
-        "|---|---|---|---|---|---|---|---|",
+        "| case | model | E [kPa] | nu | k1 [kPa], k2 | E t [N/mm] | authors E, nu "
+        "| RMS displacement [mm] | RMS force [N] |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         p = row["parameters"]
@@ -98,24 +164,37 @@ def table(rows: list[dict]) -> str:
             authors = f"{e0}-{e1}, {n0}-{n1}"
         else:
             young = poisson = membrane = authors = ""
+        stiffening = ", ".join(
+            f"{p[n]['value']:.4g} +/- {p[n]['std']:.2g}" for n in ("k1", "k2") if n in p
+        )
         lines.append(
-            f"| {row['case']} | {row['model']} | {young} | {poisson} | {membrane} | {authors} "
+            f"| {row['case']} | {row['model']} | {young} | {poisson} | {stiffening} "
+            f"| {membrane} | {authors} "
             f"| {row['rms_displacement_mm']:.4f} | {row['rms_force_n']:.4f} |"
         )
     return "\n".join(lines)
 
 
 def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=print) -> dict:
-    """Fit every case with the paper's energy and both continua; write the outputs."""
+    """Fit every case with the paper's energy and the linear continuum, run the loop on
+    the neo-Hookean membrane; write the outputs."""
     settings = RealSkinSettings(thickness_mm=thickness_mm, boundary="lateral")
-    rows = []
+    rows, loops = [], {}
     for name in cases:
         log(f"{name}: fitting the paper's energy and the continua")
         setup = build(name, settings)
         rows.append(summary(name, paper_fit(setup, settings.bounds, log), thickness_mm))
         for energy in CONTINUUM_ENERGIES:
             rows.append(summary(name, fit_energy(setup, energy, thickness_mm, log), thickness_mm))
-    document = {"thickness_mm": thickness_mm, "boundary": "lateral", "fits": rows}
+        log(f"{name}: the loop on the neo-Hookean membrane")
+        result = stiffening_loop(setup, settings, thickness_mm, log)
+        labels = ["neo-Hookean"] + [
+            "neo-Hookean + " + ", ".join(LABELS[r["chosen"]] for r in result["rounds"][: i + 1])
+            for i in range(len(result["stages"]) - 1)
+        ]
+        rows += [summary(name, f, thickness_mm, m) for f, m in zip(result["stages"], labels)]
+        loops[name] = loop_summary(result)
+    document = {"thickness_mm": thickness_mm, "boundary": "lateral", "fits": rows, "loop": loops}
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "continuum.json", document)
     atomic_write_text(out / "continuum.md", table(rows) + "\n")

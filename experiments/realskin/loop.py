@@ -86,21 +86,26 @@ def _score(entry):
     return entry.score if isinstance(entry, ScanResult) else entry
 
 
-def close_the_loop(setup: Setup, settings: RealSkinSettings, log=print) -> dict:
-    """Linear fit, then score tests and refits while a candidate is worth adding.
+def close_the_loop(
+    setup: Setup, settings: RealSkinSettings, log=print, base_label: str = "linear"
+) -> dict:
+    """Base fit (``base_label``), then score tests and refits while a candidate is worth
+    adding.
 
     Returns
     -------
     dict
         ``stages`` (list of StageFit, the linear fit first), ``rounds`` (per round the
-        scores of every remaining candidate and the chosen one) and ``diagnostics``
+        scores of every remaining candidate and the chosen one; ``failed_refit``, the
+        StageFit of a refit that ended above the previous cost, which the nested model
+        cannot do at a true optimum: it is not added and the loop stops) and ``diagnostics``
         (scores of extensions that are not candidates, at the final fit).
     """
     stage = fit_stage(
         setup.model,
         setup.cases,
         parameter_space(setup.base_names, setup.start, settings),
-        "linear",
+        base_label,
         log,
     )
     stages, rounds = [stage], []
@@ -136,7 +141,15 @@ def close_the_loop(setup: Setup, settings: RealSkinSettings, log=print) -> dict:
             log(f"  found region: {found.rect} (direction {found.score.direction:+.0f})")
         names = stage.names + (parameter,)
         start = {**stage.as_dict(), parameter: NULL[parameter]}
-        stage = fit_from_starts(setup, names, start, settings, f"+ {LABELS[best.name]}", log)
+        refit = fit_from_starts(setup, names, start, settings, f"+ {LABELS[best.name]}", log)
+        if refit.cost > stage.cost:  # nested: the null value alone gives stage.cost
+            log(
+                f"  {LABELS[best.name]}: the refit ends above the previous cost "
+                f"({refit.cost:.6g} > {stage.cost:.6g}); not added, the loop stops"
+            )
+            rounds[-1].update(chosen=None, failed_refit=refit)
+            break
+        stage = refit
         stages.append(stage)
         available.remove(best.name)
     diagnostics = {

@@ -30,10 +30,27 @@ from experiments.realskin.solve import (
     PlanarProblem,
 )
 from solvers.problem import LoadCase
+from symbolic.model import PARAMETERS
 
-NULL = {"k0": 0.0, REGION_RATIO: 1.0, ANISOTROPY: 1.0, POISSON: 0.0, "region_scan": 1.0}
-"""Null value of every candidate parameter: the model without the effect."""
-ONE_SIDED = {"k0": True, REGION_RATIO: False, ANISOTROPY: False, POISSON: True}
+NULL = {
+    "k0": 0.0,
+    REGION_RATIO: 1.0,
+    ANISOTROPY: 1.0,
+    POISSON: 0.0,
+    "region_scan": 1.0,
+    "k1": 0.0,
+    "k2": PARAMETERS["k2"].default,
+}
+"""Null value of every candidate parameter: the model without the effect (k2: the
+exponent's default, tested once k1 is in; at k1 = 0 it has no influence)."""
+ONE_SIDED = {
+    "k0": True,
+    REGION_RATIO: False,
+    ANISOTROPY: False,
+    POISSON: True,
+    "k1": True,
+    "k2": False,
+}
 """Candidates that may only grow from their null value (k0 >= 0, c >= 0)."""
 LABELS = {
     "k0": "stiffening k0",
@@ -41,6 +58,8 @@ LABELS = {
     ANISOTROPY: "anisotropy",
     POISSON: "Poisson coupling",
     "region_scan": "second material (scanned region)",
+    "k1": "strain stiffening k1 (exponential, continuum)",
+    "k2": "stiffening exponent k2",
 }
 """How reports name the effects."""
 
