@@ -45,10 +45,11 @@ def test_neo_hookean_poisson_ratio_matches_the_authors(shared_data, case):
 
 
 PATH_DEPENDENT = (
-    "measured 2026-11-27: the healthy membrane's equilibria at the force-only frames "
-    "depend on the Newton path (cost 121.66 at the neo-Hookean estimate warm-started "
-    "along its fit, 116.68 solved from rest); the k1 refit ends above the neo-Hookean "
-    "cost (132.57) and is refused (docs/realskin.md)"
+    "measured 2026-11-27: the healthy membrane buckles out of its plane and Newton's "
+    "branch depends on its start (cost 121.66 at the neo-Hookean estimate warm-started "
+    "along its fit, 116.68 solved from rest; 4 of 10 load cases differ by up to 6 mm in "
+    "z); the k1 refit ends above the neo-Hookean cost (132.57) and is refused "
+    "(docs/realskin.md)"
 )
 
 
