@@ -1,4 +1,4 @@
-"""The compressible neo-Hookean energy in the volume spline (docs/continuum.md).
+"""The large-strain energies in the volume spline: neo-Hookean and exponential (docs/continuum.md).
 
 For strains beyond a few per cent (real skin under an extensometer: 10-15 %) the
 linear energy of eq. (C1) is replaced by the compressible neo-Hookean
