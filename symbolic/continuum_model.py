@@ -14,10 +14,13 @@ the D-NURBS ones of eq. (13) and (16), unchanged.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from symbolic.basis import gauss_rule
 from symbolic.continuum import KPA, PhysicalGradient, lame
 from symbolic.hyperelastic import NeoHookeanForce, NeoHookeanTangent
 from symbolic.model import TissueModel
@@ -111,24 +114,62 @@ class ContinuumModel(TissueModel):
         raise ValueError(f"the {self.energy} model has no spring edges (no k0 stiffening)")
 
 
+def face_areas(volume, w: float = 0.0) -> np.ndarray:
+    """integral of N_a dA over the face w = const of the volume, per control point
+    (n,) [mm^2] (Gauss rule of degree + 1 points per knot span in u and v)."""
+    (pu, wu), (pv, wv) = (gauss_rule(b) for b in volume.basis.bases[:2])
+    uu, vv = np.meshgrid(pu, pv, indexing="ij")
+    params = np.column_stack([uu.ravel(), vv.ravel(), np.full(uu.size, w)])
+    normal = np.cross(volume.evaluate(params, (1, 0, 0)), volume.evaluate(params, (0, 1, 0)))
+    area = np.linalg.norm(normal, axis=1) * np.outer(wu, wv).ravel()
+    return np.asarray(volume.collocation(params).T @ area).ravel()
+
+
+@dataclass
 class NeoHookeanModel(ContinuumModel):
     """The compressible neo-Hookean energy of eq. (C6) as the base model (large strain).
 
     Same parameters as ``ContinuumModel`` (E [kPa], nu); the internal force is eq. (C8),
     nonlinear in the displacement, so the solvers take their Newton and AD paths. At rest
     its tangent is ``ContinuumModel``'s K(x); ``stiffness_matrix`` returns that tangent.
+
+    Parameters
+    ----------
+    support : float
+        Stiffness [N/mm^3] of an elastic (Winkler) foundation under the inner face w = 0
+        that resists only the normal displacement u_z, lumped on the control points:
+        f_az += support * integral(N_a dA) * Delta_az. 0 (default): none. A membrane
+        with a free inner face buckles out of its plane under an in-plane pull, and
+        Newton's branch then depends on its start (docs/realskin.md); skin lies on fat.
     """
 
     energy = "neo-hookean"
+    support: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not (np.isfinite(self.support) and self.support >= 0):
+            raise ValueError(f"support must be a stiffness >= 0 N/mm^3, got {self.support}")
         self.force = NeoHookeanForce(
             [p[:, self.free] for p in self.gradient.operators],
             self.gradient.volume,
             exponential=self.exponential,
         )
         self._tangent: NeoHookeanTangent | None = None
+        self._support = self.support * face_areas(self.volume)[self.free]  # [N/mm]
+        n = self.n_free
+        self._support_matrix = sp.diags(np.concatenate([np.zeros(2 * n), self._support]))
+
+    def _supported(self, force: ca.MX, delta: ca.MX) -> ca.MX:
+        """The internal force plus the foundation's, (n_free, 3) [N]."""
+        if self.support == 0.0:
+            return force
+        column = ca.DM(self._support) * delta[:, 2]
+        return force + ca.horzcat(ca.DM.zeros(self.n_free, 2), column)
+
+    def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
+        """The tangent at rest: K(x) of eq. (C3) plus the foundation [N/mm]."""
+        return (super().stiffness_matrix(overrides) + self._support_matrix).tocsr()
 
     @property
     def is_linear_fixed(self) -> bool:
@@ -139,9 +180,9 @@ class NeoHookeanModel(ContinuumModel):
         return False
 
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
-        """f(Delta) of eq. (C8) on the free points, (n_free, 3) [N]."""
+        """f(Delta) of eq. (C8) on the free points (and the foundation), (n_free, 3) [N]."""
         mu_l, lam = self.coefficients(values)
-        return self.force(delta, mu_l, lam)
+        return self._supported(self.force(delta, mu_l, lam), delta)
 
     def tangent(self, names: tuple[str, ...] = ()):
         """(vec(Delta_free), x) -> K_T of eq. (C9) on the free points (numpy, CSC)."""
@@ -157,7 +198,8 @@ class NeoHookeanModel(ContinuumModel):
             coefficients = self._tangent_coefficients(self.values(dict(zip(names, np.ravel(x)))))
             delta = np.zeros_like(self.rest)
             delta[self.free] = np.asarray(delta_vec)[: 3 * self.n_free].reshape(3, -1).T
-            return self._tangent(delta, *coefficients)
+            matrix = self._tangent(delta, *coefficients)
+            return matrix + self._support_matrix if self.support else matrix
 
         return tangent
 
@@ -185,7 +227,8 @@ class ExponentialModel(NeoHookeanModel):
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
         """f(Delta) of eq. (C8) with the stress (C7) + (C11), (n_free, 3) [N]."""
         mu_l, lam = self.coefficients(values)
-        return self.force(delta, mu_l, lam, KPA * values["k1"], values["k2"])
+        force = self.force(delta, mu_l, lam, KPA * values["k1"], values["k2"])
+        return self._supported(force, delta)
 
     def _tangent_coefficients(self, values: dict) -> tuple:
         return (*self.coefficients(values), KPA * values["k1"], values["k2"])

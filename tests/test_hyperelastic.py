@@ -364,3 +364,31 @@ def test_stiffening_is_found_when_present_and_only_then():
     assert stiffening["neo-hookean"] < 1e-6
     assert decrease["neo-hookean"] < 1e-6
     assert decrease["exponential"] > 10.8
+
+
+def test_the_foundation_resists_only_the_normal_displacement():
+    """``support``: the lumped areas of the inner face sum to its area; the tangent with
+    the foundation equals AD of the force (exponential energy, 20 % random state) and
+    differs from the one without by support * area on the z diagonal only."""
+    from symbolic.continuum_model import ExponentialModel, face_areas
+    from symbolic.model import BoundaryConditions
+
+    volume = box_volume((20.0, 16.0, 3.0), (6, 5, 3), (3, 3, 2))
+    assert face_areas(volume).sum() == pytest.approx(20.0 * 16.0, rel=1e-12)
+    boundary = BoundaryConditions(fix_inner=False, fix_lateral=True)
+    values = {"E": 20.0, "nu": 0.4, "k1": 5.0}
+    supported = ExponentialModel(volume, values, boundary, support=1e-3)
+    free = ExponentialModel(volume, values, boundary)
+    n = supported.n_free
+    state = 0.2 * np.random.default_rng(0).normal(size=3 * n)
+    tangent = supported.tangent(("E",))(state, np.array([20.0])).toarray()
+    delta = ca.MX.sym("delta", n, 3)
+    force = ca.vec(supported.elastic_force(delta, supported.values(), ()))
+    automatic = ca.Function("K", [delta], [ca.jacobian(force, ca.vec(delta))])
+    reference = automatic(state.reshape(3, -1).T).full()
+    assert np.abs(tangent - reference).max() < 1e-12 * np.abs(reference).max()
+    added = tangent - free.tangent(("E",))(state, np.array([20.0])).toarray()
+    expected = np.concatenate([np.zeros(2 * n), 1e-3 * face_areas(volume)[supported.free]])
+    assert np.abs(added - np.diag(expected)).max() < 1e-15
+    with pytest.raises(ValueError, match="support must be"):
+        ExponentialModel(volume, values, boundary, support=-1.0)

@@ -42,6 +42,10 @@ CONTINUUM_ENERGIES = ("linear-elastic",)
 """Fitted alone; the neo-Hookean membrane is the base of ``stiffening_loop``."""
 BOUNDS = {"E": (0.1, 1e4), "nu": (0.0, 0.49), "k1": (0.0, 1e4), "k2": (0.01, 1e5)}
 """E [kPa], nu [1], k1 [kPa] and k2 [1]."""
+SUPPORT_N_PER_MM3 = 2e-4
+"""The membrane's foundation in z (**choice**): a soft fat layer, E about 2 kPa over about
+10 mm, as a Winkler stiffness E / h. Without it the membrane buckles out of its plane and
+its equilibria are not unique (docs/realskin.md)."""
 LOOP_CANDIDATES = ("k1", "k2")
 """The continuum loop's effects: strain stiffening, then its exponent."""
 
@@ -67,15 +71,16 @@ def fit_energy(setup: Setup, energy: str, thickness_mm: float, log=print) -> Sta
     return fit_stage(model, cases, space, f"{name}, {energy}", log)
 
 
-def continuum_setup(setup: Setup, thickness_mm: float) -> Setup:
-    """The case on the membrane with the exponential energy at k1 = 0 (the neo-Hookean),
-    started from the authors' E and nu."""
+def continuum_setup(setup: Setup, thickness_mm: float, support: float = SUPPORT_N_PER_MM3) -> Setup:
+    """The case on the membrane with the exponential energy at k1 = 0 (the neo-Hookean)
+    on a foundation of ``support`` [N/mm^3] in z, started from the authors' E and nu."""
     start = start_values(setup.case.name, thickness_mm)
     model = ENERGIES["exponential"](
         setup.model.volume,
         dict(start),
         BoundaryConditions(fix_inner=False, fix_lateral=True),
         prescribed=setup.pads.prescribed,
+        support=support,
     )
     cases = load_cases(model, setup.pads, setup.data, setup.weight)
     return replace(setup, model=model, cases=cases, base_names=("E", "nu"), start=start, grid=None)
