@@ -16,7 +16,12 @@ import pytest
 from experiments.realskin import authors, mesh2d
 from experiments.realskin.data import load_case
 from experiments.realskin.geometry import Rect, SkinGeometry
-from experiments.realskin.stiffening import WhitenedExtensometer, fit
+from experiments.realskin.stiffening import (
+    STIFFENING_CAP,
+    WhitenedExtensometer,
+    fit,
+    stiffening_start,
+)
 from symbolic.planar_neohookean import PlanarNeoHookean
 from symbolic.planar_stiffening import EXPONENT_CAP, PlanarStiffening, exponential_term
 
@@ -259,3 +264,30 @@ def test_the_whitened_fit_recovers_k1_and_k2_from_synthetic_data(shared_data):
     relative = np.abs(result.x - truth) / truth
     assert relative[[0, 2, 3]].max() < 0.05, result.x
     assert abs(result.x[1] - truth[1]) < 0.01, result.x
+
+
+@pytest.mark.parametrize("s_max", [0.011, 0.082])
+def test_the_stiffening_start_is_active_at_s_max_and_the_bound_caps_it(s_max):
+    """The start is the neo-Hookean (E, nu), k1 = E/10 and k2 s_max^2 = 1 exactly; the bound
+    caps k2 s_max^2 at STIFFENING_CAP, inside EXPONENT_CAP."""
+    young, poisson = 0.03, 0.13
+    (e, nu, k1, k2), k2_max = stiffening_start((young, poisson), s_max)
+    assert (e, nu, k1) == (young, poisson, young / 10.0)
+    assert k2 * s_max**2 == pytest.approx(1.0, rel=1e-15)
+    assert k2_max * s_max**2 == pytest.approx(STIFFENING_CAP, rel=1e-15)
+    assert STIFFENING_CAP < EXPONENT_CAP / 2
+
+
+def test_the_fit_stops_on_the_k2_bound(shared_data):
+    """Data made with k2 s^2 beyond the bound: the fit ends on k2_max, not past it."""
+    data = load_case("healthy")
+    frames = authors.load_frames(data, 10.0, count=4)
+    mesh = mesh2d.build_mesh(data.geometry, 3.0)
+    keep = ~np.asarray(data.spurious, dtype=bool)
+    problem = WhitenedExtensometer(mesh, frames, 4, 0.0118, 1.5e-5, keep)
+    made = problem.solve(np.array([0.03, 0.2, 0.2, 300.0]), sensitivities=False)
+    problem.frames = dataclasses.replace(frames, force_n=made.force)
+    problem.observed = problem.at_points(made)
+    result = fit(problem, (0.03, 0.2, 0.2, 50.0), max_evaluations=30, k2_max=100.0)
+    assert result.x[3] <= 100.0 * (1 + 1e-12)
+    assert result.x[3] == pytest.approx(100.0, rel=1e-3), result.x

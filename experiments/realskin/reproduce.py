@@ -31,18 +31,17 @@ Writes ``authors.json`` (every fit, with the authors' values and the source) and
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from experiments.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin import authors, mesh2d
 from experiments.realskin.data import load_case
-from experiments.realskin.planar import Assumptions, EquilibriumFailed, Extensometer, Solution
+from experiments.realskin.planar import Assumptions, EquilibriumFailed, Extensometer
+from experiments.realskin.planarfit import NU_BOUNDS, Fit, least_squares_fit
 
 ALL_TRAVEL_MM = 3.83
 """'Frames to 3.8 mm': the project's healthy range (every healthy DIC frame)."""
@@ -59,8 +58,6 @@ VARIANTS = {
 
 START = {"healthy": (0.03, 0.2), "keloid": (0.12, 0.38)}
 """Start values (E [N/mm], nu)."""
-
-NU_BOUNDS = (-0.9, 0.499)
 
 
 @dataclass(frozen=True)
@@ -181,80 +178,12 @@ def problem(setting: Setting, held=None) -> Extensometer:
 
 
 # ------------------------------------------------------------------------- the fit
-@dataclass
-class Fit:
-    """A fitted (E, nu) with its cost and errors."""
-
-    x: np.ndarray
-    measures: dict
-    solution: Solution
-    evaluations: int
-    seconds: float
-    success: bool
-    message: str
-
-
 def fit(extensometer: Extensometer, start, max_evaluations: int = 60) -> Fit:
     """Least squares on z = (ln E, nu) with the exact Jacobian (``least_squares_fit``)."""
     return least_squares_fit(
         lambda p, previous: extensometer.solve(p, previous=previous),
         extensometer, start, np.array([True, False]), extensometer.cost,
         (EquilibriumFailed, FloatingPointError), ftol=1e-10, max_evaluations=max_evaluations,
-    )  # fmt: skip
-
-
-def least_squares_fit(
-    solve_at, problem, start, log, measures, failures, ftol: float, max_evaluations: int
-) -> Fit:
-    """Trust-region least squares of ``problem.residuals`` on z (ln p where ``log``, p
-    elsewhere; nu, the second entry, within ``NU_BOUNDS``) with the exact Jacobian.
-
-    ``solve_at(p, previous)`` solves every frame (``previous``: the last solution that
-    had an equilibrium, a continuation start); a parameter set where it raises one of
-    ``failures`` has no equilibrium and gives NaN residuals, so the trust region shrinks.
-    ``measures(solution)`` gives the fit's record. Raises ``EquilibriumFailed`` when the
-    start has no equilibrium.
-    """
-    began = time.perf_counter()
-    log = np.asarray(log, dtype=bool)
-    cache: dict = {"z": None, "solution": None, "good": None}
-
-    def to_p(z):
-        return np.where(log, np.exp(np.where(log, z, 0.0)), z)
-
-    def solve(z) -> Solution | None:
-        if cache["z"] is None or not np.array_equal(cache["z"], z):
-            try:
-                solution = solve_at(to_p(z), cache["good"])
-            except failures:
-                solution = None
-            cache["z"], cache["solution"] = np.array(z), solution
-            cache["good"] = solution or cache["good"]
-        return cache["solution"]
-
-    def residuals(z):
-        solution = solve(z)
-        if solution is None:
-            return np.full(len(problem.residuals(cache["good"])), np.nan)
-        return problem.residuals(solution)
-
-    def jacobian(z):
-        return problem.jacobian(solve(z)) * np.where(log, to_p(z), 1.0)  # dp/dz
-
-    start = np.asarray(start, dtype=float)
-    z0 = np.where(log, np.log(np.where(log, start, 1.0)), start)
-    if solve(z0) is None:
-        raise EquilibriumFailed(f"no equilibrium at the start values {tuple(start)}")
-    low, high = np.full(len(z0), -np.inf), np.full(len(z0), np.inf)
-    low[1], high[1] = NU_BOUNDS
-    result = least_squares(
-        residuals, z0, jac=jacobian, bounds=(low, high), method="trf", x_scale="jac",
-        xtol=1e-8, ftol=ftol, gtol=1e-10, max_nfev=max_evaluations,
-    )  # fmt: skip
-    solution = solve(result.x)
-    return Fit(
-        to_p(result.x), measures(solution), solution, int(result.nfev),
-        time.perf_counter() - began, bool(result.status > 0), str(result.message),
     )  # fmt: skip
 
 
