@@ -42,10 +42,12 @@ CONTINUUM_ENERGIES = ("linear-elastic",)
 """Fitted alone; the neo-Hookean membrane is the base of ``stiffening_loop``."""
 BOUNDS = {"E": (0.1, 1e4), "nu": (0.0, 0.49), "k1": (0.0, 1e4), "k2": (0.01, 1e5)}
 """E [kPa], nu [1], k1 [kPa] and k2 [1]."""
-SUPPORT_N_PER_MM3 = 2e-4
-"""The membrane's foundation in z (**choice**): a soft fat layer, E about 2 kPa over about
-10 mm, as a Winkler stiffness E / h. Without it the membrane buckles out of its plane and
-its equilibria are not unique (docs/realskin.md)."""
+SUPPORT_N_PER_MM3 = 1e-2
+"""The membrane's foundation in z [N/mm^3] (**choice**): stiff enough to keep it in its
+plane, the authors' 2D assumption. Without it the membrane buckles out of its plane
+and Newton's branch depends on its start; a fat-like 2e-4 (E ~ 2 kPa over ~10 mm)
+removed the branches on healthy skin but not under the stiffer keloid (measured,
+docs/realskin.md)."""
 LOOP_CANDIDATES = ("k1", "k2")
 """The continuum loop's effects: strain stiffening, then its exponent."""
 
