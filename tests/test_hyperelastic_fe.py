@@ -152,6 +152,14 @@ def first_piola(f: np.ndarray, mu_l, lam, k1, k2) -> np.ndarray:
     return stress
 
 
+def _exponential_parts(f, a, log_j, k2):
+    """I1 = F:F, J^(-2/3), s = J^(-2/3) I1 - 3, e = exp(k2 s^2) and q = 2 F - 2/3 I1 a."""
+    first = np.einsum("ij...,ij...->...", f, f)
+    scale = np.exp(-2.0 / 3.0 * log_j)
+    s = scale * first - 3.0
+    return first, scale, s, np.exp(k2 * s**2), 2.0 * f - 2.0 / 3.0 * first * a
+
+
 def piola_increment(f: np.ndarray, h: np.ndarray, mu_l, lam, k1, k2) -> np.ndarray:
     """dP/dF [H], the directional derivative of ``first_piola``, for F and H (3, 3, ...).
 
@@ -166,11 +174,7 @@ def piola_increment(f: np.ndarray, h: np.ndarray, mu_l, lam, k1, k2) -> np.ndarr
     aha = _product(_product(a, np.einsum("ij...->ji...", h)), a)
     change = mu_l * h + lam * a_h * a + (mu_l - lam * log_j) * aha
     if k1:
-        first = np.einsum("ij...,ij...->...", f, f)
-        scale = np.exp(-2.0 / 3.0 * log_j)
-        s = scale * first - 3.0
-        e = np.exp(k2 * s**2)
-        q = 2.0 * f - 2.0 / 3.0 * first * a
+        first, scale, s, e, q = _exponential_parts(f, a, log_j, k2)
         g = scale * q
         f_h = np.einsum("ij...,ij...->...", f, h)
         dg = scale * (
@@ -201,11 +205,7 @@ def tangent_moduli(f: np.ndarray, mu_l, lam, k1, k2) -> np.ndarray:
         + (mu_l - lam * log_j) * crossed
     )
     if k1:
-        first = np.einsum("ij...,ij...->...", f, f)
-        scale = np.exp(-2.0 / 3.0 * log_j)
-        s = scale * first - 3.0
-        e = np.exp(k2 * s**2)
-        q = 2.0 * f - 2.0 / 3.0 * first * a
+        first, scale, s, e, q = _exponential_parts(f, a, log_j, k2)
         change = (
             -2.0 / 3.0 * np.einsum("ij...,kl...->ijkl...", q, a)
             + 2.0 * identity
