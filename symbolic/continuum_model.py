@@ -156,20 +156,16 @@ class NeoHookeanModel(ContinuumModel):
             exponential=self.exponential,
         )
         self._tangent: NeoHookeanTangent | None = None
-        self._support = self.support * face_areas(self.volume)[self.free]  # [N/mm]
-        n = self.n_free
-        self._support_matrix = sp.diags(np.concatenate([np.zeros(2 * n), self._support]))
-
-    def _supported(self, force: ca.MX, delta: ca.MX) -> ca.MX:
-        """The internal force plus the foundation's, (n_free, 3) [N]."""
-        if self.support == 0.0:
-            return force
-        column = ca.DM(self._support) * delta[:, 2]
-        return force + ca.horzcat(ca.DM.zeros(self.n_free, 2), column)
+        self._support = None  # the foundation on u_z of the free points [N/mm]
+        if self.support > 0.0:
+            self._support = self.support * face_areas(self.volume)[self.free]
+            zeros = np.zeros(2 * self.n_free)
+            self._support_matrix = sp.diags(np.concatenate([zeros, self._support]))
 
     def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
-        """The tangent at rest: K(x) of eq. (C3) plus the foundation [N/mm]."""
-        return (super().stiffness_matrix(overrides) + self._support_matrix).tocsr()
+        """The tangent at rest: K(x) of eq. (C3), plus the foundation [N/mm]."""
+        matrix = super().stiffness_matrix(overrides)
+        return matrix if self._support is None else (matrix + self._support_matrix).tocsr()
 
     @property
     def is_linear_fixed(self) -> bool:
@@ -181,8 +177,11 @@ class NeoHookeanModel(ContinuumModel):
 
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
         """f(Delta) of eq. (C8) on the free points (and the foundation), (n_free, 3) [N]."""
-        mu_l, lam = self.coefficients(values)
-        return self._supported(self.force(delta, mu_l, lam), delta)
+        force = self.force(delta, *self._energy_coefficients(values))
+        if self._support is None:
+            return force
+        column = ca.DM(self._support) * delta[:, 2]
+        return force + ca.horzcat(ca.DM.zeros(self.n_free, 2), column)
 
     def tangent(self, names: tuple[str, ...] = ()):
         """(vec(Delta_free), x) -> K_T of eq. (C9) on the free points (numpy, CSC)."""
@@ -195,16 +194,17 @@ class NeoHookeanModel(ContinuumModel):
             )
 
         def tangent(delta_vec: np.ndarray, x: np.ndarray) -> sp.csc_matrix:
-            coefficients = self._tangent_coefficients(self.values(dict(zip(names, np.ravel(x)))))
+            coefficients = self._energy_coefficients(self.values(dict(zip(names, np.ravel(x)))))
             delta = np.zeros_like(self.rest)
             delta[self.free] = np.asarray(delta_vec)[: 3 * self.n_free].reshape(3, -1).T
             matrix = self._tangent(delta, *coefficients)
-            return matrix + self._support_matrix if self.support else matrix
+            return matrix if self._support is None else matrix + self._support_matrix
 
         return tangent
 
-    def _tangent_coefficients(self, values: dict) -> tuple:
-        """The numbers ``NeoHookeanTangent`` takes after Delta: (mu_L, lambda) [N/mm^2]."""
+    def _energy_coefficients(self, values: dict) -> tuple:
+        """The numbers the force and the tangent take after Delta: (mu_L, lambda)
+        [N/mm^2] (values may be CasADi expressions)."""
         return tuple(self.coefficients(values))
 
 
@@ -224,13 +224,8 @@ class ExponentialModel(NeoHookeanModel):
         """E, nu, k1 and k2 enter the equilibrium."""
         return np.array([n in EXPONENTIAL_PARAMETERS for n in names])
 
-    def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
-        """f(Delta) of eq. (C8) with the stress (C7) + (C11), (n_free, 3) [N]."""
-        mu_l, lam = self.coefficients(values)
-        force = self.force(delta, mu_l, lam, KPA * values["k1"], values["k2"])
-        return self._supported(force, delta)
-
-    def _tangent_coefficients(self, values: dict) -> tuple:
+    def _energy_coefficients(self, values: dict) -> tuple:
+        """(mu_L, lambda, k1) [N/mm^2] and k2 [1]: the stress (C7) + (C11)."""
         return (*self.coefficients(values), KPA * values["k1"], values["k2"])
 
 
