@@ -88,16 +88,27 @@ def standard_errors(solver: PlanarNestedSolver, x: np.ndarray) -> tuple[np.ndarr
     """
     space = solver.problem.space
     z = space.to_internal(x)
-    r, jac_z = solver.evaluate(z)
-    sigma = float(np.sqrt(r @ r / max(r.size - len(x), 1)))
-    scaled = jac_z  # columns d r / d z: relative (log) or scaled sensitivities
-    if not np.all(np.isfinite(scaled)):  # no equilibrium at x: no local information
-        return np.full(len(x), np.nan), sigma
-    singular = np.linalg.svd(scaled, compute_uv=False)
-    if singular.min() <= 1e-10 * singular.max():
-        return np.full(len(x), np.nan), sigma
-    std_z = sigma * np.sqrt(np.diag(np.linalg.inv(scaled.T @ scaled)))
+    r, jac_z = solver.evaluate(z)  # columns d r / d z: relative (log) or scaled
+    std_z, sigma, _ = internal_standard_errors(r, jac_z)
     return std_z * space.natural_derivative(z), sigma
+
+
+def internal_standard_errors(
+    r: np.ndarray, jac_z: np.ndarray, rank_tolerance: float = 1e-10
+) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """sigma (S^T S)^-1/2 diagonals for S = dr/dz (internal coordinates), the residual
+    scale sigma = sqrt(RSS / (m - p)) and S's singular values (None if S is not finite:
+    no equilibrium, no local information). NaN errors where S is not finite or its
+    smallest singular value is below ``rank_tolerance`` times the largest."""
+    n = jac_z.shape[1]
+    sigma = float(np.sqrt(r @ r / max(r.size - n, 1)))
+    if not np.all(np.isfinite(jac_z)):
+        return np.full(n, np.nan), sigma, None
+    singular = np.linalg.svd(jac_z, compute_uv=False)
+    if singular.min() <= rank_tolerance * singular.max():
+        return np.full(n, np.nan), sigma, singular
+    std_z = sigma * np.sqrt(np.diag(np.linalg.inv(jac_z.T @ jac_z)))
+    return std_z, sigma, singular
 
 
 @dataclass(frozen=True)

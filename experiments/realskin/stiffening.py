@@ -45,6 +45,7 @@ from experiments.realskin.data import dic_noise_mm
 from experiments.realskin.planar import Assumptions, Extensometer, Solution
 from experiments.realskin.planarfit import Fit, least_squares_fit
 from experiments.realskin.reproduce import measured, mesh_for
+from experiments.realskin.stages import internal_standard_errors
 from symbolic.planar_stiffening import EXPONENT_CAP, NAMES, Isochoric, PlanarStiffening
 
 FULL_TRAVEL_MM = 10.0
@@ -215,23 +216,18 @@ def stiffening_start(neo_hookean, s_max: float) -> tuple[tuple, float]:
 
 def standard_errors(problem: WhitenedExtensometer, result: Fit) -> dict:
     """sigma (S^T S)^-1/2 diagonals, S = dr/dz at the estimate, sigma = sqrt(RSS / (m - n))
-    (as ``stages.standard_errors``): the whitened residuals carry the model error, so
+    (``stages.internal_standard_errors``): the whitened residuals carry the model error, so
     sigma >> 1 and these errors hold only if that misfit were noise. ``std`` in natural
     units (delta method: p std(ln p) for the log parameters), ``std_log`` of z."""
     x = np.asarray(result.x, dtype=float)
     log = np.arange(len(x)) != 1
     r = problem.residuals(result.solution)
     scaled = problem.jacobian(result.solution) * np.where(log, x, 1.0)
-    sigma = float(np.sqrt(r @ r / max(r.size - len(x), 1)))
-    singular = np.linalg.svd(scaled, compute_uv=False)
-    if not np.all(np.isfinite(scaled)) or singular.min() <= 1e-12 * singular.max():
-        std_z = np.full(len(x), np.nan)
-    else:
-        std_z = sigma * np.sqrt(np.diag(np.linalg.inv(scaled.T @ scaled)))
+    std_z, sigma, singular = internal_standard_errors(r, scaled, rank_tolerance=1e-12)
     names = NAMES[: len(x)]
     return {
         "sigma": sigma,
-        "condition": float(singular.max() / singular.min()),
+        "condition": float("nan") if singular is None else float(singular.max() / singular.min()),
         "std": dict(zip(names, map(float, std_z * np.where(log, x, 1.0)))),
         "std_log": dict(zip(names, map(float, std_z))),
     }
