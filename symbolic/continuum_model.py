@@ -52,9 +52,10 @@ class ContinuumModel(TissueModel):
         self.elasticity = self.gradient.elasticity()
         """K_mu and K_lambda on every control point, stacked (3 n, 3 n) [mm]."""
         free = np.concatenate([self.free + k * self.volume.basis.size for k in range(3)])
-        self.continuum = {
-            t: sp.csc_matrix(self.elasticity[t][free][:, free]) for t in CONTINUUM_TERMS
-        }
+        self.continuum = {t: self.elasticity[t][free][:, free] for t in CONTINUUM_TERMS}
+        """K_mu and K_lambda on the free points, CSR: the linear path sums them with the
+        effects' CSR terms on one pattern (``solvers.diagnosis.linear``); a CSC copy was
+        converted back there for every model, 5 % of a diagnosis on row D."""
         self._dm: dict | None = None
 
     @property
@@ -82,7 +83,7 @@ class ContinuumModel(TissueModel):
     def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
         """K(x) on the free points, stacked (3 n_free, 3 n_free) [N/mm] (not eq. 18)."""
         mu_l, lam = self.coefficients(self.values(overrides))
-        return (mu_l * self.continuum["shear"] + lam * self.continuum["volumetric"]).tocsr()
+        return mu_l * self.continuum["shear"] + lam * self.continuum["volumetric"]
 
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
         """K(x) vec(Delta) as an (n_free, 3) expression [N]."""

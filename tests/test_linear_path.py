@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import solvers.diagnosis.linear as linear
@@ -74,9 +75,11 @@ def _count_factorisations(monkeypatch) -> list:
         calls.append(1)
         return original(*args, **kwargs)
 
-    def counted_choice(matrix, fallback):
+    def counted_choice(matrix, fallback, **options):
         calls.append(1)
-        return choose(matrix, lambda m: original(m, **linear.FACTOR_OPTIONS))
+        return choose(
+            matrix, lambda m: original(sp.csc_matrix(m), **linear.FACTOR_OPTIONS), **options
+        )
 
     monkeypatch.setattr(linear.spla, "splu", counted)
     monkeypatch.setattr(linear, "factorised", counted_choice)
@@ -278,13 +281,13 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
             cholmod.Cholesky(linear.stiffness_matrix(gradient, corner))
         cholmod.Cholesky(linear.stiffness_matrix(gradient, into_admissible(gradient, corner)))
     seen = []
-    evaluate = gradient.evaluate
+    evaluate = gradient.evaluate_full
 
     def recorded(p, *args, **kwargs):
         seen.append(least_modulus(gradient, p))
         return evaluate(p, *args, **kwargs)
 
-    monkeypatch.setattr(gradient, "evaluate", recorded)
+    monkeypatch.setattr(gradient, "evaluate_full", recorded)
     fitted = fit(gradient, corner, max_evaluations=8)
     assert seen and min(seen) > STIFFNESS_FLOOR
     assert admissible(gradient, fitted.p)
@@ -311,5 +314,26 @@ def test_k_summed_on_a_shared_pattern_is_the_sum_of_its_terms(continuum):
             assert all(linear._same_pattern(filled[0], m) for m in filled[1:]) == shared
         c = np.ravel(np.asarray(extended.numeric_of(terms.coefficients)(p)[0]))
         reference = sum(v * m for v, m in zip(c, matrices))
-        difference = abs(linear.stiffness_matrix(extended, p) - reference).max()
+        summed = linear.stiffness_matrix(extended, p)
+        difference = abs(summed - reference).max()
         assert difference <= 1e-12 * abs(reference).max()
+        if shared:  # found once per set of terms; the sum never holds a term's arrays
+            assert terms.shares_pattern and all(terms.shares_pattern.values())
+            assert not any(np.shares_memory(summed.indices, m.indices) for m in filled)
+        # a symmetric CSR K goes to CHOLMOD as it stands: the solve is K's own
+        right = np.linspace(-1.0, 1.0, summed.shape[0])
+        solution = linear._factorised(summed).solve(right)
+        assert np.linalg.norm(reference @ solution - right) <= 1e-8 * np.linalg.norm(right)
+
+
+def test_a_csr_matrix_that_is_not_symmetric_is_solved_as_itself():
+    """``linear._factorised`` passes a symmetric CSR matrix's arrays to CHOLMOD as its CSC
+    form; one that is not symmetric must not be read so (that would solve its transpose)."""
+    rng = np.random.default_rng(3)
+    n = 40
+    matrix = sp.random(n, n, density=0.2, random_state=rng) + 5.0 * sp.identity(n)
+    matrix = sp.csr_matrix(matrix)
+    right = rng.standard_normal(n)
+    solution = linear._factorised(matrix).solve(right)
+    assert np.allclose(matrix @ solution, right, atol=1e-12)
+    assert not np.allclose(matrix.T @ solution, right, atol=1e-6)

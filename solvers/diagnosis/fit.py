@@ -168,8 +168,10 @@ def fit(
         p = problem.to_natural(z)
         if not admissible(problem, p):  # no equilibrium: trf shrinks its step and retries
             return np.full_like(cache["rho"], np.nan), None
-        r, jac, new_states = problem.evaluate(p, cache["states"])
-        cache.update(z=np.array(z_free), states=new_states, r=r)
+        r, jac, new_states, state_jacobians = problem.evaluate_full(p, cache["states"])
+        cache.update(
+            z=np.array(z_free), states=new_states, full=(r, jac, new_states, state_jacobians)
+        )
         cache["rho"] = problem.whiten(r)
         cache["jac"] = problem.whiten(jac)[:, free] * problem.natural_derivative(z)[free]
         if prior is not None:  # the prior's rows: the cost is the negative log posterior
@@ -201,7 +203,10 @@ def fit(
     z = z_full.copy()
     z[free] = z_free
     p = problem.to_natural(z)
-    r, jac, final_states, state_jacobians = problem.evaluate_full(p, cache["states"])
+    if free.any() and cache.get("z") is not None and np.array_equal(cache["z"], z_free):
+        r, jac, final_states, state_jacobians = cache["full"]  # trf's last evaluation
+    else:
+        r, jac, final_states, state_jacobians = problem.evaluate_full(p, cache["states"])
     return EffectFit(
         problem=problem,
         p=p,

@@ -30,9 +30,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.linalg.blas import daxpy
 
 from solvers.blas import one_thread
-from solvers.cholmod import factorised
+from solvers.cholmod import factorised, symmetric
 from solvers.componentwise import ORDERING
 from symbolic.sparse import term_matrix
 
@@ -71,7 +72,7 @@ class StateJacobian:
     def __init__(
         self, matrix: sp.spmatrix, rows: np.ndarray | None = None, split: int | None = None
     ):
-        self.matrix = sp.csc_matrix(matrix)
+        self.matrix = matrix if matrix.format in ("csr", "csc") else sp.csc_matrix(matrix)
         self.rows = None if rows is None else np.asarray(rows, dtype=float)
         self.split = split
         self._lu = None
@@ -99,7 +100,8 @@ class StateJacobian:
         """True when ``matrix`` has this one's pattern and values, entry by entry."""
         mine = self.matrix
         return (
-            mine.shape == matrix.shape
+            mine.format == matrix.format
+            and mine.shape == matrix.shape
             and np.array_equal(mine.indptr, matrix.indptr)
             and np.array_equal(mine.indices, matrix.indices)
             and np.array_equal(mine.data, matrix.data)
@@ -107,7 +109,17 @@ class StateJacobian:
 
 
 def _factorised(matrix: sp.spmatrix):
-    return factorised(sp.csc_matrix(matrix), lambda m: spla.splu(m, **FACTOR_OPTIONS))
+    """CHOLMOD for a symmetric positive definite matrix, else SuperLU. The arrays of a
+    symmetric CSR matrix are those of its CSC form (of its transpose, which is itself),
+    so it goes to CHOLMOD without a conversion; SuperLU gets the CSC form."""
+    if matrix.format == "csr" and symmetric(matrix):
+        view = sp.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
+        return factorised(view, lambda _: _lu(matrix), known_symmetric=True)
+    return factorised(sp.csc_matrix(matrix), _lu)
+
+
+def _lu(matrix: sp.spmatrix):
+    return spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
 
 
 class _BlockTriangular:
@@ -139,30 +151,39 @@ def solve_states(factor: StateJacobian, right: np.ndarray) -> np.ndarray:
     return states
 
 
-def stiffness_matrix(problem, p: np.ndarray) -> sp.csc_matrix:
+def stiffness_matrix(problem, p: np.ndarray) -> sp.spmatrix:
     """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``).
 
     A term whose coefficient is zero (an effect at theta = 0) is never assembled. Terms
     that share one sparsity pattern (the continuum's K_mu, K_lambda and the gradient's
     versions of them; a depth band of layering may cover only part of it) are
-    summed on their stored values; a sum of scipy matrices built the
-    union pattern anew each time: 1.2 s against 0.6 s for six terms of the 40 x 33 x 6
-    K (13.5 M nonzeros), a quarter of one diagnosis's CPU on row D.
+    summed on their stored values, in the terms' own (CSR) format: a sum of scipy
+    matrices built the union pattern anew each time (1.2 s against 0.6 s for six terms
+    of the 40 x 33 x 6 K, 13.5 M nonzeros), and a conversion to CSC cost a third of
+    what is left (``_factorised`` gives CHOLMOD a symmetric CSR matrix as it stands).
+    Which terms share the first one's pattern is found once per set of terms.
     """
     terms = problem.extended.stiffness_terms()
     c = np.ravel(_dense(problem.numeric_of(terms.coefficients)(p)[0]))
-    chosen = [(value, term_matrix(term)) for value, term in zip(c, terms.matrices) if value != 0.0]
-    chosen = [(value, matrix) for value, matrix in chosen if matrix.nnz]
+    chosen = [
+        (t, value, term_matrix(term))
+        for t, (value, term) in enumerate(zip(c, terms.matrices))
+        if value != 0.0
+    ]
+    chosen = [(t, value, matrix) for t, value, matrix in chosen if matrix.nnz]
     if not chosen:  # every coefficient zero
         return sp.csc_matrix(terms.matrices[0].shape)
-    first = chosen[0][1]
-    if all(_same_pattern(first, matrix) for _, matrix in chosen[1:]):
-        data = chosen[0][0] * first.data
-        for value, matrix in chosen[1:]:
-            data += value * matrix.data
-        total = type(first)((data, first.indices, first.indptr), shape=first.shape)
-        return total.tocsc(copy=True)  # never the terms' own index arrays
-    return sp.csc_matrix(sum(value * matrix for value, matrix in chosen))
+    reference, _, first = chosen[0]
+    for t, _, matrix in chosen[1:]:
+        if (reference, t) not in terms.shares_pattern:
+            terms.shares_pattern[reference, t] = _same_pattern(first, matrix)
+    if all(terms.shares_pattern[reference, t] for t, _, _ in chosen[1:]):
+        data = chosen[0][1] * first.data
+        for _, value, matrix in chosen[1:]:  # in place: a temporary per term cost 2x
+            data = daxpy(matrix.data, data, a=value)
+        # never the terms' own index arrays
+        return type(first)((data, first.indices.copy(), first.indptr.copy()), shape=first.shape)
+    return sp.csc_matrix(sum(value * matrix for _, value, matrix in chosen))
 
 
 def _same_pattern(a, b) -> bool:

@@ -8,7 +8,7 @@ symbolic coefficients.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 
@@ -98,7 +98,11 @@ class StiffnessTerms:
         ``ProductTerm`` is applied without its matrix until its coefficient is not zero.
     coefficients : casadi.Function
         p -> (c(p), dc/dp), (T, 1) and (T, n_p): the only symbolic part.
+    shares_pattern : dict
+        (s, t) -> whether K_s and K_t store their entries at the same positions, filled
+        as the terms are summed (``solvers.diagnosis.linear.stiffness_matrix``).
     """
 
     matrices: list
     coefficients: ca.Function
+    shares_pattern: dict = field(default_factory=dict, compare=False, repr=False)
