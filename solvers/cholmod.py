@@ -126,13 +126,16 @@ def threads() -> int:
 
 
 class _threaded:
-    """Inside: CHOLMOD's OpenBLAS on ``threads()`` threads; after: as it was before."""
+    """Inside: CHOLMOD's OpenBLAS on ``count`` threads; after: as it was before."""
+
+    def __init__(self, count: int):
+        self.count = count
 
     def __enter__(self):
         self.before = None
         if _blas_library is not None:
             self.before = _blas_library.openblas_get_num_threads()
-            _blas_library.openblas_set_num_threads(threads())
+            _blas_library.openblas_set_num_threads(self.count)
 
     def __exit__(self, *_):
         if self.before is not None:
@@ -292,6 +295,8 @@ class Cholesky:
     ----------
     matrix : scipy.sparse matrix
         Square and symmetric; only its lower triangle is read.
+    blas_threads : int, optional
+        BLAS threads of the factorisation and the solves (default ``threads()``).
 
     Raises
     ------
@@ -301,7 +306,8 @@ class Cholesky:
         When a pivot is not positive.
     """
 
-    def __init__(self, matrix):
+    def __init__(self, matrix, blas_threads: int | None = None):
+        self.blas_threads = threads() if blas_threads is None else int(blas_threads)
         library = _load()
         if library is None:
             raise RuntimeError("CHOLMOD (libcholmod.so.3 of SuiteSparse 5) is not available")
@@ -320,7 +326,7 @@ class Cholesky:
         )
         if not self._factor.value:
             raise RuntimeError("cholmod_copy_factor failed (out of memory?)")
-        with _threaded():
+        with _threaded(self.blas_threads):
             self._lib.cholmod_factorize(structure, self._factor, self._common)
         minor = _FactorHead.from_address(self._factor.value).minor
         if minor < self.n:
@@ -332,7 +338,7 @@ class Cholesky:
         right = np.asarray(right, dtype=float)
         block = np.asfortranarray(right.reshape(self.n, -1))
         dense = _Dense(self.n, block.shape[1], block.size, self.n, block.ctypes.data, None, REAL)
-        with _threaded():
+        with _threaded(self.blas_threads):
             result = self._lib.cholmod_solve(0, self._factor, dense, self._common)  # CHOLMOD_A
         if not result:
             raise RuntimeError("cholmod_solve failed (out of memory?)")

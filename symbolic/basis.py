@@ -231,9 +231,12 @@ class VolumeBasis:
         values = vu[:, :, None, None] * vv[:, None, :, None] * vw[:, None, None, :]
         columns = (iu[:, :, None, None] * n_v + iv[:, None, :, None]) * n_w + iw[:, None, None, :]
         n_points, per_row = points.shape[0], values[0].size
-        rows = np.repeat(np.arange(n_points), per_row)
+        # every row holds its span's (p_u + 1)(p_v + 1)(p_w + 1) functions, their columns
+        # increasing (u-major, each index range ascending): CSR as it stands, without the
+        # sort and duplicate sum of a COO conversion (8 s of a 70 x 58 x 8 model's build)
+        indptr = np.arange(0, n_points * per_row + 1, per_row)
         matrix = sp.csr_matrix(
-            (values.reshape(-1), (rows, columns.reshape(-1))), shape=(n_points, self.size)
+            (values.reshape(-1), columns.reshape(-1), indptr), shape=(n_points, self.size)
         )
         if not keep_zeros:
             matrix.eliminate_zeros()

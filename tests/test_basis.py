@@ -138,3 +138,24 @@ def test_refinement_into_a_space_that_is_not_nested_reports_its_deviation():
     assert 1e-9 < measured.max() <= 1.01 * deviation < 1e-3
     with pytest.raises(ValueError, match="coarser"):
         volume.refined((7, 9, 2))
+
+
+def test_collocation_rows_are_each_points_span_in_canonical_csr():
+    """``VolumeBasis.collocation`` writes CSR directly (no COO sort): each row must be its
+    point's span, columns strictly increasing, equal to the triple product of the
+    univariate values summed entry by entry, also at knots and at the ends."""
+    basis = VolumeBasis((12, 9, 5), (3, 3, 2))
+    rng = np.random.default_rng(0)
+    grid = np.array(np.meshgrid(*[np.linspace(0.0, 1.0, 7)] * 3)).reshape(3, -1).T
+    points = np.vstack([rng.random((300, 3)), grid])
+    for derivative in ((0, 0, 0), (1, 0, 0), (0, 1, 1), (2, 0, 0)):
+        matrix = basis.collocation(points, derivative, keep_zeros=True)
+        assert np.all(np.diff(matrix.indptr) == 4 * 4 * 3)
+        assert np.all(np.diff(matrix.indices.reshape(len(points), -1), axis=1) > 0)
+        for i in rng.choice(len(points), 20, replace=False):
+            parts = [
+                b.evaluate_dense(points[i : i + 1, k], derivative[k]).ravel()
+                for k, b in enumerate(basis.bases)
+            ]
+            dense = np.einsum("i,j,k->ijk", *parts).ravel()
+            assert np.allclose(matrix[i].toarray().ravel(), dense, atol=1e-13)

@@ -75,3 +75,20 @@ def test_one_analysis_serves_every_matrix_of_a_pattern_and_each_factor_stays_its
     for shape in shapes:
         cholmod.Cholesky(_elasticity(shape))
     assert len(cholmod._analyses) == cholmod.ANALYSES_KEPT
+
+
+def test_the_factorisation_takes_the_cores_and_leaves_blas_on_one_thread(monkeypatch):
+    """Inside ``Cholesky`` CHOLMOD's OpenBLAS runs on ``threads()`` threads (the
+    supernodes are dense blocks); outside it stays on one, where SuperLU's thin solves
+    share that library's threads. One thread or several, the solution is the same."""
+    matrix = _elasticity((8, 7, 3))
+    right = np.random.default_rng(1).standard_normal((matrix.shape[0], 3))
+    single = cholmod.Cholesky(matrix, blas_threads=1).solve(right)
+    many = cholmod.Cholesky(matrix, blas_threads=2).solve(right)
+    assert np.abs(many - single).max() <= 1e-12 * np.abs(single).max()
+    if cholmod._blas_library is not None:
+        assert cholmod._blas_library.openblas_get_num_threads() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert cholmod.threads() == 3 and cholmod.Cholesky(matrix).blas_threads == 3
+    monkeypatch.setenv("OMP_NUM_THREADS", "not a number")
+    assert cholmod.threads() >= 1

@@ -73,7 +73,10 @@ MAX_REFINEMENTS = 2
 
 MAX_CHECK_POINTS = 20000
 """Largest volume (control points) the resolution check refits on: 53 x 42 x 7 takes
-about 20 s to build and factor once; the next step up costs 5x that."""
+about 20 s to build and factor once; the next step up costs 5x that. Rows D and E of
+docs/continuum.md stop below it (47 x 40 x 7, next 70 x 58 x 8); checked there with
+40000 (2026-11-27) both are converged (chi^2 0.2 and 4.2, limit 6.6), but the check
+adds about 18 s, and D's gradient then ends at 123 s, over the two minutes."""
 
 PAPER_PARAMETERS = 3
 """k of the paper's base model in the BIC: alpha_u, alpha_v, alpha_w."""

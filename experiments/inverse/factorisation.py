@@ -4,8 +4,10 @@ K of a clamped quadratic B-spline box in linear elasticity (E 20 kPa, nu 0.45, a
 40 x 30 x 5 mm patch with a margin, as the continuum base models of docs/continuum.md),
 at the grids step 0 checks on FE tissue. Each solver factorises it twice (the median
 is printed) and solves 10 right-hand sides, one BLAS thread each; the ratio is the
-figure to compare (a shared machine moves both). ``solvers.cholmod`` says why CHOLMOD
-needs an optimised BLAS. Part of ``make bench`` (``--diagnose``).
+figure to compare (a shared machine moves both). CHOLMOD then runs again on the BLAS
+threads it uses by default (``cholmod.threads``), wall time side by side.
+``solvers.cholmod`` says why CHOLMOD needs an optimised BLAS. Part of ``make bench``
+(``--diagnose``).
 """
 
 from __future__ import annotations
@@ -62,18 +64,25 @@ def factorisation_benchmark(grids=GRIDS, log=print) -> list[dict]:
             if not cholmod.available():
                 log(f"factorisation {'x'.join(map(str, shape))}: SuperLU {lu:.2f} s; no CHOLMOD")
                 continue
-            chol, chol_solve, solution = _timed(cholmod.Cholesky, matrix, right)
+            chol, chol_solve, solution = _timed(
+                lambda m: cholmod.Cholesky(m, blas_threads=1), matrix, right
+            )
+            threaded, threaded_solve, _ = _timed(cholmod.Cholesky, matrix, right)
         gap = float(np.abs(solution - reference).max() / np.abs(reference).max())
         row = {
             "grid": shape, "unknowns": matrix.shape[0], "nonzeros": matrix.nnz,
             "superlu_s": lu, "cholmod_s": chol, "superlu_solve_s": lu_solve,
             "cholmod_solve_s": chol_solve, "ratio": lu / chol, "gap": gap,
+            "threads": cholmod.threads(), "threaded_s": threaded,
+            "threaded_solve_s": threaded_solve,
         }  # fmt: skip
         log(
             f"factorisation {'x'.join(map(str, shape))} ({matrix.shape[0]} unknowns, "
             f"{matrix.nnz / 1e6:.1f} M nonzeros): SuperLU {lu:.2f} s, {cholmod.backend()} "
             f"{chol:.2f} s: {row['ratio']:.1f}x; 10 solves {lu_solve:.2f} against "
-            f"{chol_solve:.2f} s; solutions agree to {gap:.1e}"
+            f"{chol_solve:.2f} s; solutions agree to {gap:.1e}; CHOLMOD on "
+            f"{row['threads']} BLAS threads {threaded:.2f} s ({chol / threaded:.2f}x), "
+            f"10 solves {threaded_solve:.2f} s"
         )
         rows.append(row)
     return rows
