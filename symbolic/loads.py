@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,14 +173,13 @@ def surface_points(volume: VolumeSpline, spacing: float) -> SurfacePoints:
     sqrt(sigma^2) / 3 meet)."""
     key = (id(volume), round(float(spacing), 9))
     entry = _SURFACE_POINTS.get(key)
-    if entry is None or entry[0] is not volume:
+    if entry is None or entry[0]() is not volume:
         params, area = surface_quadrature(volume, spacing)
         collocation = sp.csr_matrix(volume.collocation(params))
         points = SurfacePoints(params, area, collocation @ volume.control_points, collocation)
-        entry = (volume, points)
-        if len(_SURFACE_POINTS) > 16:
-            _SURFACE_POINTS.clear()
+        entry = (weakref.ref(volume), points)  # the volume held weakly: gone with it
         _SURFACE_POINTS[key] = entry
+        weakref.finalize(volume, _SURFACE_POINTS.pop, key, None)
     return entry[1]
 
 

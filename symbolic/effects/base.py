@@ -23,6 +23,7 @@ property of each capture, like a registration error).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -299,8 +300,9 @@ class Effect:
 
     # ---------------------------------------------------------------- helpers
     def cached(self, model: TissueModel, key: str, build):
-        """A numeric object built once per model instance."""
-        return per_model(self._cache, model, key, build)
+        """A numeric object built once per model instance (held with the model: the
+        values may refer to it, and the store goes with the effect)."""
+        return per_model(self._cache, model, key, build, weak=False)
 
 
 class OneTermStiffness:
@@ -317,15 +319,24 @@ class OneTermStiffness:
         return theta[0] * block
 
 
-def per_model(store: dict, model: TissueModel, key, build):
-    """``build()`` once per (model instance, key) in ``store``.
+def per_model(store: dict, model: TissueModel, key, build, weak: bool = True):
+    """``build()`` once per (model instance, key) in ``store``; an id reused by a later
+    model is not mistaken for it.
 
-    Entries keep their model, so an id reused by a later model is not mistaken for it.
+    With ``weak`` (the module-level stores, whose values do not refer to the model) an
+    entry holds its model weakly and goes when the model is collected. Entries that
+    held their model kept every model of every diagnosis alive in one process. A store
+    that lives no longer than its owner (``Effect.cached``) holds the model instead: a
+    weak entry there would be kept by its finalizer while its value holds the model.
     """
-    entry = store.get((id(model), key))
-    if entry is None or entry[0] is not model:
-        entry = (model, build())
-        store[(id(model), key)] = entry
+    slot = (id(model), key)
+    entry = store.get(slot)
+    held = None if entry is None else (entry[0]() if weak else entry[0])
+    if held is not model:
+        entry = (weakref.ref(model) if weak else model, build())
+        store[slot] = entry
+        if weak:
+            weakref.finalize(model, store.pop, slot, None)
     return entry[1]
 
 
