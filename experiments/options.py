@@ -125,14 +125,17 @@ def plural(count: int, noun: str) -> str:
     return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
-def parse_grid(text: str, option: str = "--grid") -> tuple[int, int, int]:
-    """'9x9x2' -> (9, 9, 2): three integers >= 2."""
+def parse_grid(text: str, option: str = "--grid", sizes: int = 3) -> tuple[int, ...]:
+    """'9x9x2' -> (9, 9, 2): ``sizes`` integers >= 2 joined by x (two for a planar grid,
+    '21x11'): one syntax for every command's grid."""
     try:
         grid = tuple(int(part) for part in text.lower().split("x"))
     except ValueError:
         grid = ()
-    if len(grid) != 3 or min(grid) < 2:
-        raise UsageError(f"{option} must look like 9x9x2 (three integers >= 2), got {text!r}")
+    if len(grid) != sizes or min(grid) < 2:
+        example = "x".join(["9", "9", "2"][:sizes] if sizes <= 3 else ["9"] * sizes)
+        count = {2: "two", 3: "three"}.get(sizes, str(sizes))
+        raise UsageError(f"{option} must look like {example} ({count} integers >= 2), got {text!r}")
     return grid
 
 

@@ -267,7 +267,7 @@ def build_parser(prog: str = "python -m experiments.realskin"):
         "--stiffening", choices=tuple(STIFFENING), default="exponential", help="s(eps) of eq. 1"
     )
     parser.add_argument(
-        "--grid", type=int, nargs=2, default=(21, 11), metavar=("M", "N"), help="control grid"
+        "--grid", default="21x11", metavar="MxN", help="control grid of the slab (21x11)"
     )
     parser.add_argument(
         "--case", choices=("healthy", "keloid"), action="append", help="repeatable; default both"
@@ -280,7 +280,13 @@ def build_parser(prog: str = "python -m experiments.realskin"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin") -> int:
     """``dvs realskin --out DIR [--boundary lateral] [--case keloid]``."""
-    from experiments.options import UsageError, check_output_dir, parse_numbers, run_guarded
+    from experiments.options import (
+        UsageError,
+        check_output_dir,
+        parse_grid,
+        parse_numbers,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 
@@ -289,12 +295,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.reals
         k0_starts = parse_numbers(args.k0_starts, "--k0-starts")
         if not all(low <= v <= high for v in k0_starts):
             raise UsageError(f"--k0-starts takes numbers in [{low:g}, {high:g}]")
-        if not (4 <= args.grid[0] <= 101 and 4 <= args.grid[1] <= 101):
-            raise UsageError(f"--grid takes two integers in 4-101, got {args.grid}")
+        grid = parse_grid(args.grid, sizes=2)
+        if not all(4 <= size <= 101 for size in grid):
+            raise UsageError(f"--grid takes MxN with M and N in 4-101, got {args.grid!r}")
         settings = RealSkinSettings(
             boundary=args.boundary,
             stiffening=args.stiffening,
-            grid=tuple(args.grid),
+            grid=grid,
             starts={"k0": k0_starts} if k0_starts else {},
         )
         run(check_output_dir(args.out), settings, tuple(args.case or ("healthy", "keloid")))
