@@ -72,7 +72,8 @@ class StateJacobian:
     def __init__(
         self, matrix: sp.spmatrix, rows: np.ndarray | None = None, split: int | None = None
     ):
-        self.matrix = matrix if matrix.format in ("csr", "csc") else sp.csc_matrix(matrix)
+        compressed = sp.issparse(matrix) and matrix.format in ("csr", "csc")
+        self.matrix = matrix if compressed else sp.csc_matrix(matrix)
         self.rows = None if rows is None else np.asarray(rows, dtype=float)
         self.split = split
         self._lu = None
