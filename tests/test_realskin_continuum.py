@@ -8,6 +8,10 @@ neo-Hookean fits (about 75 and 130 s) are marked slow.
 
 from __future__ import annotations
 
+import copy
+
+import casadi as ca
+import numpy as np
 import pytest
 
 from experiments.realskin.continuum import fit_energy, paper_fit, summary
@@ -65,3 +69,87 @@ def test_the_loop_on_the_membrane_finds_strain_stiffening(shared_data, case):
     print(case, "displacement RMS", before.rms_displacement_mm, "->", after.rms_displacement_mm)
     assert after.rms_force_n < 0.5 * before.rms_force_n
     assert after.rms_displacement_mm < 1.01 * before.rms_displacement_mm
+
+
+def _membrane_with_cell_scaled(model, points: np.ndarray, factor: float):
+    """A copy of a large-strain model whose energy density is ``factor`` times the
+    model's at the Gauss points ``points`` (boolean, n_q): a cell made stiffer."""
+    from symbolic.hyperelastic import NeoHookeanForce, NeoHookeanTangent
+
+    scaled = copy.copy(model)
+    gradient = model.gradient
+    volume = np.where(points, factor, 1.0) * gradient.volume
+    scaled.force = NeoHookeanForce(
+        [p[:, model.free] for p in gradient.operators], volume, exponential=model.exponential
+    )
+    scaled._tangent = NeoHookeanTangent(
+        model.volume.collocation(gradient.points), gradient.operators, volume, model.free
+    )
+    return scaled
+
+
+def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
+    """The continuum map's column of a cell (eq. M2 of ``continuum_cells``) equals the
+    central difference of the residual of a membrane whose energy in that cell is
+    exp(+-h) times its own; and the cells' internal forces sum to the tissue's (the
+    foundation excluded). On an exponential membrane on its foundation, pads pulled
+    1 mm apart, no measured data."""
+    from test_realskin import FIXED, MOVING, REGION, _marker_case
+
+    from experiments.realskin.continuum_cells import ContinuumCells
+    from experiments.realskin.model import SkinParameterSpace
+    from experiments.realskin.scan import CellGrid, cell_columns
+    from experiments.realskin.slab import Pads, slab_volume
+    from experiments.realskin.solve import PlanarNestedSolver, PlanarProblem
+    from symbolic.continuum_model import ENERGIES
+    from symbolic.model import BoundaryConditions
+
+    pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
+    names, x = ("E", "nu", "k1"), np.array([6.0, 0.3, 20.0])
+    model = ENERGIES["exponential"](
+        slab_volume(REGION, 2.0, (9, 5)),
+        dict(zip(names, x)),
+        BoundaryConditions(fix_inner=False, fix_lateral=True),
+        prescribed=pads.prescribed,
+        support=1e-2,
+    )
+    case = _marker_case(model, pads, *_MARKERS, [-1.0, 0.0])
+    bounds = {"E": (0.1, 1e4), "nu": (0.0, 0.49), "k1": (0.0, 1e4)}
+    space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
+
+    def residual(m):
+        solver = PlanarNestedSolver(PlanarProblem(m, [case], space))
+        r, _ = solver.evaluate(space.to_internal(x))
+        return r, solver.memory[0].state
+
+    r, state = residual(model)
+    grid = CellGrid.of(model, REGION)
+    cells = ContinuumCells.build(model, grid)
+    problem = PlanarProblem(model, [case], space)
+    columns = cell_columns(model, problem, x, [state], cells)
+
+    delta = np.zeros_like(model.rest)
+    delta[model.free] = state[: 3 * model.n_free].reshape(3, -1).T
+    parts = cells.force_columns(model, names, x, delta).sum(axis=1)
+    tissue = ENERGIES["exponential"](
+        model.volume, dict(zip(names, x)), model.boundary, prescribed=pads.prescribed
+    )
+    whole = tissue.force(ca.DM(delta[model.free]), *tissue._energy_coefficients(model.values({})))
+    assert np.allclose(parts, np.asarray(whole).T.ravel(), rtol=1e-9, atol=1e-12 * abs(parts).max())
+
+    in_cell = grid.cell_of(model.gradient.points)
+    h = 1e-5
+    for cell in (2 * grid.shape[1] + 2, 4 * grid.shape[1] + 2):
+        up, _ = residual(_membrane_with_cell_scaled(model, in_cell == cell, np.exp(h)))
+        down, _ = residual(_membrane_with_cell_scaled(model, in_cell == cell, np.exp(-h)))
+        difference = (up - down) / (2 * h)
+        assert np.abs(columns[:, cell]).max() > 1e-4 * np.abs(r).max()
+        assert np.allclose(
+            columns[:, cell], difference, rtol=1e-5, atol=1e-7 * abs(difference).max()
+        )
+
+
+_MARKERS = (
+    np.array([[45.0, 18.0], [55.0, 22.0], [40.0, 25.0], [60.0, 15.0]]),
+    np.array([[0.1, -0.2, 0.0], [0.3, 0.0, 0.0], [0.2, 0.1, 0.0], [0.0, 0.1, 0.0]]),
+)

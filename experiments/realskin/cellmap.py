@@ -214,3 +214,60 @@ def compare_strain(cell_map: CellMap, grid: CellGrid, case, frame: int) -> dict:
         "strain": strain.tolist(),
         "pearson": float(np.corrcoef(map_s, strain)[0, 1]) if len(x) > 2 else None,
     }
+
+
+def map_report(setup, model, stage, bounds: dict, cells, path) -> dict:
+    """The map (R1) of ``model`` at a fitted stage, its comparisons and its figure.
+
+    Parameters
+    ----------
+    setup : experiments.realskin.setup.Setup
+        The case (its load cases, cell grid, pads, outline and DIC).
+    model : SkinSlabModel or symbolic.continuum_model.NeoHookeanModel
+        The model without a second material the stage was fitted with.
+    stage : experiments.realskin.stages.StageFit
+        The stage (its parameter names and estimates).
+    bounds : dict
+        Bounds of the stage's parameters (natural units).
+    cells : scan.CellTerms or continuum_cells.ContinuumCells
+        The cells' terms of ``model`` on ``setup.grid``.
+    path : pathlib.Path
+        The figure (s, and s / std with the |z| = 2 contour).
+
+    Returns
+    -------
+    dict
+        s and std per cell, the effective dof, the GCV factor, the linearised costs,
+        ``significant_cells``, ``compare_strain`` at the last DIC frame and
+        ``compare_outline`` (None without a keloid outline).
+    """
+    from experiments.realskin.plots import plot_cell_map
+
+    found = estimate_map(model, setup.cases, stage.names, stage.x, bounds, setup.grid, cells)
+    frames = [f for f in setup.data.frames if f is not None]
+    keloid = setup.case.geometry.keloid
+    out = {
+        "stage": stage.label,
+        "s": found.s.tolist(),
+        "std": found.std.tolist(),
+        "effective_dof": found.effective_dof,
+        "prior_rms": PRIOR_RMS,
+        "gcv_scale": found.gcv_scale,
+        "cost_before": found.cost_before,
+        "cost_after_linearised": found.cost_after,
+        "cells": significant_cells(found),
+        "strain": compare_strain(found, setup.grid, setup.case, frames[-1]),
+        "outline": None if keloid is None else compare_outline(found, setup.grid, keloid),
+    }
+    plot_cell_map(
+        path,
+        f"{setup.case.name}: stiffness map at '{stage.label}' ({found.effective_dof:.1f} dof)",
+        setup.grid.region,
+        (setup.grid.x_edges, setup.grid.y_edges),
+        found.s,
+        found.z,
+        setup.pad_rects,
+        keloid,
+        setup.case.dic_reference_model_mm,
+    )
+    return out

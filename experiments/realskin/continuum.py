@@ -18,8 +18,13 @@ score test of k1 at 0 (one-sided, k2 at its default 10), a refit when it is sign
 and worth it, then the same for the exponent k2 (two-sided in log space; it has no
 influence until k1 is in).
 
+**The keloid as a field on the continuum** (``membrane_map``): the cell map of
+``cellmap.py`` on the membrane at the loop's last stage, every cell's strain energy
+scaled by exp(s_c) (``continuum_cells``), compared with the keloid outline.
+
 Writes ``continuum.json`` (estimates, standard errors, RMS errors, the authors' ranges,
-the loop's rounds) and ``continuum.md`` (the table of docs/realskin.md).
+the loop's rounds, the maps), ``continuum.md`` (the tables of docs/realskin.md) and
+``continuum_map_<case>.png``.
 """
 
 from __future__ import annotations
@@ -29,8 +34,11 @@ from pathlib import Path
 
 from experiments.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cases import load_cases
+from experiments.realskin.cellmap import map_report
+from experiments.realskin.continuum_cells import ContinuumCells
 from experiments.realskin.loop import close_the_loop, likelihood_ratio
 from experiments.realskin.model import SkinParameterSpace
+from experiments.realskin.report import map_table
 from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.study import AUTHORS
@@ -96,8 +104,23 @@ def stiffening_loop(
     Returns ``close_the_loop``'s dict: ``stages`` (the neo-Hookean fit first) and
     ``rounds`` (the score tests of each round and the chosen effect).
     """
+    return _loop(continuum_setup(setup, thickness_mm), settings, log)
+
+
+def _loop(membrane: Setup, settings: RealSkinSettings, log=print) -> dict:
+    """``stiffening_loop`` on a membrane already set up (``continuum_setup``)."""
     loop = replace(settings, candidates=LOOP_CANDIDATES, bounds=BOUNDS, diagnostics=())
-    return close_the_loop(continuum_setup(setup, thickness_mm), loop, log, "neo-Hookean")
+    return close_the_loop(membrane, loop, log, "neo-Hookean")
+
+
+def membrane_map(setup: Setup, membrane: Setup, stage: StageFit, path: Path) -> dict:
+    """The cell map (``cellmap.py``) on the continuum membrane at a fitted stage: every
+    cell's strain energy times exp(s_c) (``continuum_cells``, eq. M1), on the cells of
+    ``setup.grid``; compared with the keloid outline and the model-free strain."""
+    cells = ContinuumCells.build(membrane.model, setup.grid)
+    return map_report(
+        replace(membrane, grid=setup.grid), membrane.model, stage, BOUNDS, cells, path
+    )
 
 
 def loop_summary(result: dict) -> list[dict]:
@@ -186,7 +209,7 @@ def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=p
     """Fit every case with the paper's energy and the linear continuum, run the loop on
     the neo-Hookean membrane; write the outputs."""
     settings = RealSkinSettings(thickness_mm=thickness_mm, boundary="lateral")
-    rows, loops = [], {}
+    rows, loops, maps = [], {}, {}
     for name in cases:
         log(f"{name}: fitting the paper's energy and the continua")
         setup = build(name, settings)
@@ -194,18 +217,32 @@ def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=p
         for energy in CONTINUUM_ENERGIES:
             rows.append(summary(name, fit_energy(setup, energy, thickness_mm, log), thickness_mm))
         log(f"{name}: the loop on the neo-Hookean membrane")
-        result = stiffening_loop(setup, settings, thickness_mm, log)
+        membrane = continuum_setup(setup, thickness_mm)
+        result = _loop(membrane, settings, log)
         labels = ["neo-Hookean"] + [
             "neo-Hookean + " + ", ".join(LABELS[r["chosen"]] for r in result["rounds"][: i + 1])
             for i in range(len(result["stages"]) - 1)
         ]
         rows += [summary(name, f, thickness_mm, m) for f, m in zip(result["stages"], labels)]
         loops[name] = loop_summary(result)
-    document = {"thickness_mm": thickness_mm, "boundary": "lateral", "fits": rows, "loop": loops}
-    out.mkdir(parents=True, exist_ok=True)
+        log(f"{name}: the stiffness map on the membrane at its last stage")
+        out.mkdir(parents=True, exist_ok=True)
+        maps[name] = membrane_map(
+            setup, membrane, result["stages"][-1], out / f"continuum_map_{name}.png"
+        )
+    document = {
+        "thickness_mm": thickness_mm,
+        "boundary": "lateral",
+        "fits": rows,
+        "loop": loops,
+        "map": maps,
+    }
     atomic_write_json(out / "continuum.json", document)
-    atomic_write_text(out / "continuum.md", table(rows) + "\n")
-    log(table(rows))
+    text = (
+        table(rows) + "\n\n" + "\n".join(map_table({n: {"map": m} for n, m in maps.items()}, maps))
+    )
+    atomic_write_text(out / "continuum.md", text + "\n")
+    log(text)
     return document
 
 

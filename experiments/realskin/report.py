@@ -132,7 +132,7 @@ def map_table(summary: dict, cases) -> list[str]:
     """The cell map: dof, cells departing from the mean, outline overlap, strain."""
     lines = [
         "| case | stage | dof | stiffer / softer cells (z > 2) | Bonferroni | inside outline "
-        "(chance) | IoU | centroid inside | corr(map, strain) |",
+        "(chance) | IoU | centroid inside, distance [mm] | corr(map, strain) |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name in cases:
@@ -147,7 +147,8 @@ def map_table(summary: dict, cases) -> list[str]:
             f"{cells['stiffer_bonferroni']} / {cells['softer_bonferroni']} "
             f"(z > {cells['bonferroni_level']:.2f}) | "
             + (f"{inside:.2f} ({outline['chance']:.2f})" if inside is not None else "-")
-            + f" | {_number(outline.get('iou'), 2)} | {outline.get('centroid_inside', '-')} | "
+            + f" | {_number(outline.get('iou'), 2)} | {outline.get('centroid_inside', '-')}, "
+            f"{_number(outline.get('centroid_distance_mm'), 3)} | "
             f"{_number(found['strain']['pearson'], 2)} |"
         )
     return lines

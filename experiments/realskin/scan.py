@@ -35,7 +35,7 @@ from experiments.realskin.model import (
     SkinParameterSpace,
     SkinSlabModel,
 )
-from experiments.realskin.solve import PlanarNestedSolver, PlanarProblem
+from experiments.realskin.solve import ForwardSolver, PlanarNestedSolver, PlanarProblem
 from experiments.realskin.stages import Score
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.energy import quadrature
@@ -192,65 +192,72 @@ class CellTerms:
         )
         return cls(np.column_stack([a, b]), edges, divergence, onehot)
 
+    def force_columns(
+        self, model: SkinSlabModel, names: tuple, x: np.ndarray, delta: np.ndarray
+    ) -> np.ndarray:
+        """dg/dtheta_c of every cell at the displacement ``delta`` (n, 3) [mm], on the free
+        points in vec(Delta_free) order, (3 n_free, n_cells).
 
-def cell_columns(
-    model: SkinSlabModel, problem: PlanarProblem, x: np.ndarray, states: list, cells: CellTerms
-) -> np.ndarray:
-    """d(residual)/d(theta_c) of every cell at the fit (x, states), (n_residuals, n_cells).
-
-    theta_c is the relative stiffness change of cell c (ratio 1 + theta_c, estimated in
-    log space: at theta = 0 both derivatives agree). dg/dtheta_c = K_c(B) Delta: the
-    cell's spring entries (< 0) times s(eps_ab), the others as they are, the diagonal
-    the negative row sum; plus the cell's coupling C L_x L_y D_c^T W_c D_c vec(Delta).
-    """
-    if model.region is not None:
-        raise ValueError("scan a model without a second material")
-    names = problem.names
-    values = model.values(dict(zip(names, x)))
-    coefficients = {t: float(model.coefficient(t, values)) for t in ALPHA_TERMS}
-    coupling = float(model.coupling_coefficients(values)[0])
-    k0 = float(values["k0"])
-    strain = ca.SX.sym("eps")
-    s = ca.Function("s", [strain], [model.stiffening(strain, k0)])
-    a, b = cells.pairs.T
-    n, n_free = model.rest.shape[0], model.n_free
-    n_pairs = a.size
-    incidence = sp.csr_matrix(
-        (
-            np.r_[np.ones(n_pairs), -np.ones(n_pairs)],
-            (np.r_[a, b], np.r_[np.arange(n_pairs), np.arange(n_pairs)]),
-        ),
-        shape=(n, n_pairs),
-    )
-    rest_length = np.linalg.norm(model.rest[a] - model.rest[b], axis=1)
-    index = np.concatenate([model.free + k * n for k in range(3)])
-    jacobian = model.jacobian_function(names)
-    columns = []
-    for case, state in zip(problem.cases, states):
-        delta = np.zeros((n, 3))
-        delta[model.free] = state[: 3 * n_free].reshape(3, n_free).T
+        dg/dtheta_c = K_c(B) Delta: the cell's spring entries (< 0) times s(eps_ab), the
+        others as they are, the diagonal the negative row sum; plus the cell's coupling
+        C L_x L_y D_c^T W_c D_c vec(Delta).
+        """
+        if model.region is not None:
+            raise ValueError("scan a model without a second material")
+        values = model.values(dict(zip(names, x)))
+        coefficients = {t: float(model.coefficient(t, values)) for t in ALPHA_TERMS}
+        coupling = float(model.coupling_coefficients(values)[0])
+        k0 = float(values["k0"])
+        strain = ca.SX.sym("eps")
+        s = ca.Function("s", [strain], [model.stiffening(strain, k0)])
+        a, b = self.pairs.T
+        n, n_pairs = model.rest.shape[0], a.size
+        incidence = sp.csr_matrix(
+            (
+                np.r_[np.ones(n_pairs), -np.ones(n_pairs)],
+                (np.r_[a, b], np.r_[np.arange(n_pairs), np.arange(n_pairs)]),
+            ),
+            shape=(n, n_pairs),
+        )
+        rest_length = np.linalg.norm(model.rest[a] - model.rest[b], axis=1)
         positions = model.rest + delta
         eps = np.linalg.norm(positions[a] - positions[b], axis=1) / rest_length - 1.0
         factor = np.asarray(s(eps.reshape(1, -1)).full()).ravel() if k0 != 0.0 else 1.0
         stiffness = 0
-        for t, matrix in cells.edges.items():
+        for t, matrix in self.edges.items():
             springs = matrix.minimum(0.0)
             stiffness = stiffness + coefficients[t] * (
                 sp.diags(np.broadcast_to(factor, n_pairs)) @ springs + matrix.maximum(0.0)
             )
         difference = delta[a] - delta[b]  # (n_pairs, 3)
-        d_g = np.zeros((state.size, cells.weights.shape[1]))
-        full = []
-        for i in range(3):
-            full.append(-(incidence @ (sp.diags(difference[:, i]) @ stiffness)).toarray())
-        flat = np.vstack(full)
+        flat = np.vstack(
+            [-(incidence @ (sp.diags(difference[:, i]) @ stiffness)).toarray() for i in range(3)]
+        )
         if coupling != 0.0:
-            div = cells.divergence @ delta.T.reshape(-1)
-            flat = (
-                flat + coupling * (cells.divergence.T @ (sp.diags(div) @ cells.weights)).toarray()
-            )
-        d_g[: 3 * n_free] = flat[index]
-        d_s = sp.csc_matrix(jacobian(state, x, case.force, case.prescribed)[0].sparse())
+            div = self.divergence @ delta.T.reshape(-1)
+            flat = flat + coupling * (self.divergence.T @ (sp.diags(div) @ self.weights)).toarray()
+        return flat[np.concatenate([model.free + k * n for k in range(3)])]
+
+
+def cell_columns(model, problem: PlanarProblem, x: np.ndarray, states: list, cells) -> np.ndarray:
+    """d(residual)/d(theta_c) of every cell at the fit (x, states), (n_residuals, n_cells).
+
+    theta_c is the relative stiffness change of cell c (ratio 1 + theta_c, estimated in
+    log space: at theta = 0 both derivatives agree). ``cells`` gives dg/dtheta_c at each
+    equilibrium (``force_columns``): ``CellTerms`` for the paper's energy,
+    ``continuum_cells.ContinuumCells`` for the large-strain continuum; the state's
+    sensitivity is -(dg/ds)^-1 dg/dtheta_c with dg/ds at the equilibrium.
+    """
+    names = problem.names
+    n, n_free = model.rest.shape[0], model.n_free
+    derivatives = ForwardSolver(model, names).derivatives
+    columns = []
+    for case, state in zip(problem.cases, states):
+        delta = np.zeros((n, 3))
+        delta[model.free] = state[: 3 * n_free].reshape(3, n_free).T
+        d_g = np.zeros((state.size, cells.weights.shape[1]))
+        d_g[: 3 * n_free] = cells.force_columns(model, names, x, delta)
+        d_s = sp.csc_matrix(derivatives(state, x, case.force, case.prescribed)[0])
         sensitivity = -sp.linalg.splu(d_s).solve(d_g)
         columns.append(problem.case_residual_jacobian(case) @ sensitivity)
     return np.vstack(columns)

@@ -26,13 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.atomic import atomic_write_json, atomic_write_text
-from experiments.realskin.cellmap import (
-    PRIOR_RMS,
-    compare_outline,
-    compare_strain,
-    estimate_map,
-    significant_cells,
-)
+from experiments.realskin.cellmap import map_report
 from experiments.realskin.figures import case_figures, stage_summary
 from experiments.realskin.loop import (
     NULL,
@@ -42,7 +36,6 @@ from experiments.realskin.loop import (
     parameter_space,
 )
 from experiments.realskin.model import REGION_RATIO
-from experiments.realskin.plots import plot_cell_map
 from experiments.realskin.report import report
 from experiments.realskin.scan import (
     SCAN,
@@ -138,44 +131,13 @@ def _heterogeneity(setup: Setup, found: ScanResult | None, stages: list[StageFit
 
 def _cell_map(setup: Setup, base_model, loop: dict, settings: RealSkinSettings, path) -> dict:
     """The regularised cell map (``cellmap.py``) at the stage where the loop took the
-    scanned region (the final stage if it did not), with the model without it; its
-    comparison with the outline (keloid) and with the model-free strain; its figure."""
+    scanned region (the final stage if it did not), with the model without it."""
     index = next(
         (k for k, r in enumerate(loop["rounds"]) if r["chosen"] == SCAN), len(loop["stages"]) - 1
     )
-    stage = loop["stages"][index]
     if setup.cells is None:
         setup.cells = CellTerms.build(base_model, setup.grid)
-    found = estimate_map(
-        base_model, setup.cases, stage.names, stage.x, settings.bounds, setup.grid, setup.cells
-    )
-    frames = [f for f in setup.data.frames if f is not None]
-    keloid = setup.case.geometry.keloid
-    out = {
-        "stage": stage.label,
-        "s": found.s.tolist(),
-        "std": found.std.tolist(),
-        "effective_dof": found.effective_dof,
-        "prior_rms": PRIOR_RMS,
-        "gcv_scale": found.gcv_scale,
-        "cost_before": found.cost_before,
-        "cost_after_linearised": found.cost_after,
-        "cells": significant_cells(found),
-        "strain": compare_strain(found, setup.grid, setup.case, frames[-1]),
-        "outline": None if keloid is None else compare_outline(found, setup.grid, keloid),
-    }
-    plot_cell_map(
-        path,
-        f"{setup.case.name}: stiffness map at '{stage.label}' ({found.effective_dof:.1f} dof)",
-        setup.grid.region,
-        (setup.grid.x_edges, setup.grid.y_edges),
-        found.s,
-        found.z,
-        setup.pad_rects,
-        keloid,
-        setup.case.dic_reference_model_mm,
-    )
-    return out
+    return map_report(setup, base_model, loop["stages"][index], settings.bounds, setup.cells, path)
 
 
 def _variants(name: str, settings: RealSkinSettings, stages: list[StageFit], found, log) -> dict:
