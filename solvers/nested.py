@@ -5,9 +5,12 @@ Jacobian is exact, by the implicit function theorem,
 
     dB/dx = -(dg/ds)^-1 dg/dx,
 
-with dg/dx from CasADi and dg/ds factorised once per solve. scipy's
-``least_squares`` (trf with bounds, or lm without) does the outer iteration in
-the internal coordinates z of ``ParameterSpace``.
+with dg/dx from CasADi (or the model's closed form) and dg/ds from the equilibrium's
+LU. A nonlinear case starts Newton at its first-order prediction from the previous
+evaluation, s(x') + ds/dx (x - x'), with the previous LU (``EquilibriumSolver``'s chord
+steps), so most evaluations factorise little. scipy's ``least_squares`` (trf with
+bounds, or lm without) does the outer iteration in the internal coordinates z of
+``ParameterSpace``.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from scipy.optimize import least_squares
 
 from solvers.componentwise import ScalarSystem
 from solvers.continuumfit import ContinuumSystem
-from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
+from solvers.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings, casadi_to_scipy
 from solvers.problem import InverseProblem
 from solvers.result import InverseResult
 
@@ -63,13 +66,28 @@ class NestedSolver:
         ftol = xtol = gtol of least_squares.
     max_evaluations : int
         Cap on residual evaluations.
+    failures : {"raise", "shrink"}
+        A load case without equilibrium during the fit: "raise" ends the fit as failed;
+        "shrink" returns a non-finite residual, on which trf shortens its step (the
+        stiffening fits of real skin, docs/realskin.md). A first evaluation that fails
+        from rest is retried by load continuation either way.
     """
 
     name = "nested"
 
-    def __init__(self, problem: InverseProblem, method="trf", tolerance=1e-12, max_evaluations=200):
+    def __init__(
+        self,
+        problem: InverseProblem,
+        method="trf",
+        tolerance=1e-12,
+        max_evaluations=200,
+        failures="raise",
+    ):
         if method not in ("trf", "lm"):
             raise ValueError(f"method must be 'trf' or 'lm', got {method!r}")
+        if failures not in ("raise", "shrink"):
+            raise ValueError(f"failures must be 'raise' or 'shrink', got {failures!r}")
+        self.failures = failures
         start = time.perf_counter()
         self.problem = problem
         self.method = method
@@ -82,24 +100,61 @@ class NestedSolver:
         elif ContinuumSystem.applies(problem):
             self.continuum = ContinuumSystem(problem)
         else:
-            self.equilibrium = EquilibriumSolver(model, problem.names, residual=problem.g)
-            s, x, force, prescribed = problem.g.mx_in()
-            value = problem.g(s, x, force, prescribed)
-            self.g_x = ca.Function("dg_dx", [s, x, force, prescribed], [ca.jacobian(value, x)])
+            settings = NewtonSettings(reuse_lu=True)
+            self.equilibrium = EquilibriumSolver(model, problem.names, settings, problem.g)
+            self._g_x = None
         self.observation_jacobians = [problem.case_residual_jacobian(c) for c in problem.cases]
         self.build_time = time.perf_counter() - start
         self.forward_solves = 0
         self._states = [None] * len(problem.cases)
+        self._memory: list[tuple | None] = [None] * len(problem.cases)
         self._cache: tuple | None = None
+
+    @property
+    def states(self) -> list:
+        """The equilibrium state of every case at the last evaluation."""
+        return list(self._states)
 
     def _case(self, k: int, case, x: np.ndarray, factor) -> tuple[np.ndarray, np.ndarray]:
         """The equilibrium state of one case and its sensitivity ds/dx."""
         if self.scalar is not None:
             state = self.scalar.state(factor, case.force, case.prescribed)
             return state, self.scalar.sensitivity(factor, state)
-        result = self.equilibrium.solve(case.force, x, case.prescribed, self._states[k])
-        g_x = casadi_to_scipy(self.g_x(result.state, x, case.force, case.prescribed))
-        return result.state, -result.factor.solve(g_x.toarray())
+        result = self._equilibrium(case, x, self._memory[k])
+        g_x = result.parameter_jacobian
+        if g_x is None:
+            g_x = casadi_to_scipy(self._parameter_jacobian()(result.state, x, *_loads(case)))
+        sensitivity = -result.solve(g_x.toarray())
+        self._memory[k] = (np.array(x), result.state, sensitivity, result.factor)
+        return result.state, sensitivity
+
+    def _equilibrium(self, case, x: np.ndarray, previous: tuple | None):
+        """Newton from the first-order prediction of the previous evaluation with its LU;
+        if that fails (a long step of a stiffening model), from rest; a first evaluation
+        that fails from rest, by load continuation."""
+        solver, args = self.equilibrium, (case.force, x, case.prescribed)
+        if previous is not None:
+            x_0, state, sensitivity, factor = previous
+            start = state + sensitivity @ (x - x_0)
+            try:
+                return solver.solve(*args, start=start, factor=factor, label=case.label)
+            except EquilibriumError:
+                pass
+        try:
+            return solver.solve(*args, label=case.label)
+        except EquilibriumError:
+            if previous is not None:
+                raise
+            return solver.solve_by_continuation(*args, label=case.label)
+
+    def _parameter_jacobian(self) -> ca.Function:
+        """dg/dx(s, x, F_B, d) by CasADi AD (built on first use)."""
+        if self._g_x is None:
+            g = self.problem.g
+            s, x, force, prescribed = g.mx_in()
+            value = g(s, x, force, prescribed)
+            self._g_x = ca.Function("dg_dx", [s, x, force, prescribed], [ca.jacobian(value, x)])
+        return self._g_x
 
     def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual r(z) and its exact Jacobian dr/dz."""
@@ -113,7 +168,13 @@ class NestedSolver:
         residuals, jacobians = [], []
         for k, case in enumerate(problem.cases):
             if every is None:
-                state, sensitivity = self._case(k, case, x, factor)
+                try:
+                    state, sensitivity = self._case(k, case, x, factor)
+                except EquilibriumError:
+                    if self.failures == "raise":
+                        raise
+                    nan = np.full(problem.n_residuals, np.nan)  # trf shortens its step
+                    return nan, np.full((nan.size, len(x)), np.nan)
             else:  # the linear-elastic model: all cases from one factorisation
                 state, sensitivity = every[0][:, k], every[1][:, k]
             self.forward_solves += 1
@@ -137,6 +198,7 @@ class NestedSolver:
         """Run least_squares from ``start`` (natural units; default: the space's start)."""
         self.forward_solves = 0
         self._states = [None] * len(self.problem.cases)
+        self._memory = [None] * len(self.problem.cases)
         z, success, status, nfev, elapsed = least_squares_fit(
             self.evaluate,
             self.problem.space,
@@ -146,7 +208,17 @@ class NestedSolver:
             self.tolerance,
             self.max_evaluations,
         )
-        return _result(self, z, self.evaluate(z)[0], success, status, nfev, elapsed)
+        residual = self.evaluate(z)[0]
+        if not np.all(np.isfinite(residual)):  # failures="shrink" and no equilibrium at z
+            raise EquilibriumError(
+                f"no equilibrium at the end of the fit ({status}); try another start"
+            )
+        return _result(self, z, residual, success, status, nfev, elapsed)
+
+
+def _loads(case) -> tuple:
+    """(F_B, d) of a load case, as the residual takes them."""
+    return case.force, case.prescribed
 
 
 def least_squares_fit(

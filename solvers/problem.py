@@ -284,6 +284,10 @@ class InverseProblem:
         True when the rest markers that define the geometry are measured with
         the same noise (datasets). The residual of a marker is then
         (loaded noise - rest noise), and the rest noise is shared by all cases.
+    observed : tuple of int
+        The displacement components the markers are observed in: (0, 1, 2) for
+        triangulated markers, ``PLANAR`` = (0, 1) for 2D DIC of a surface in the x-y
+        plane (``PlanarProblem``).
     """
 
     model: TissueModel
@@ -291,6 +295,7 @@ class InverseProblem:
     space: ParameterSpace
     noise_mm: float | None = None
     rest_noise: bool = False
+    observed: tuple[int, ...] = (0, 1, 2)
 
     def __post_init__(self) -> None:
         if not self.cases:
@@ -332,30 +337,36 @@ class InverseProblem:
 
     @property
     def n_residuals(self) -> int:
-        """Total number of scalar residuals (3 per observed point)."""
-        return sum(3 * case.n_observations for case in self.cases)
+        """Total number of scalar residuals: one per observed component of every marker,
+        plus one per measured force component."""
+        forces = sum(0 if c.force_rows is None else c.force_rows.shape[0] for c in self.cases)
+        return sum(len(self.observed) * c.n_observations for c in self.cases) + forces
 
     def case_residual(self, case: LoadCase, state: np.ndarray) -> np.ndarray:
-        """W (S B - Y) for one case, flattened column-wise (all x, then y, then z) [mm],
-        followed by the weighted force residual if the case measures a force."""
+        """W (S B - Y) for one case over the observed components, flattened column-wise
+        (all x, then y, then z) [mm], followed by the weighted force residual if the
+        case measures a force."""
         return self.case_residual_jacobian(case) @ state + self.case_offset(case)
 
     def case_offset(self, case: LoadCase) -> np.ndarray:
-        """The residual at s = 0 (rest): vec(W (S B0 - Y)), then -w_f * force target."""
-        markers = (case.weights[:, None] * case.offset).T.reshape(-1)
+        """The residual at s = 0 (rest): vec(W (S B0 - Y)) over the observed components,
+        then -w_f * force target."""
+        markers = (case.weights[:, None] * case.offset[:, list(self.observed)]).T.reshape(-1)
         if case.force_rows is None:
             return markers
         return np.concatenate([markers, -case.force_weight * np.asarray(case.force_target)])
 
     def case_residual_jacobian(self, case: LoadCase) -> sp.csr_matrix:
-        """d(residual)/d(state), constant: kron(I3, W S) on Delta, w_f R on lam (cached)."""
+        """d(residual)/d(state), constant: kron(I3 restricted to the observed rows, W S) on
+        Delta, w_f R on lam (cached)."""
         key = id(case)
         if key not in self._jacobians:
             self._jacobians[key] = self._residual_jacobian(case)
         return self._jacobians[key]
 
     def _residual_jacobian(self, case: LoadCase) -> sp.csr_matrix:
-        block = sp.kron(sp.identity(3), sp.diags(case.weights) @ case.rows)
+        rows = sp.csr_matrix(np.eye(3)[list(self.observed)])
+        block = sp.kron(rows, sp.diags(case.weights) @ case.rows)
         extra = self.n_state - block.shape[1]
         if extra:
             block = sp.hstack([block, sp.csr_matrix((block.shape[0], extra))])
@@ -388,10 +399,28 @@ class InverseProblem:
         """
         return rest_noise_map(self.cases, self.rest_noise)
 
-    def point_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
-        """Per case, the distance |S B - Y| of every observed point [mm] (unweighted)."""
+    def marker_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
+        """Per case, model minus measured displacement of every marker in the observed
+        components, (n_obs, len(observed)) [mm] (unweighted)."""
         errors = []
         for case, state in zip(self.cases, states):
             delta = state[: 3 * self.model.n_free].reshape(3, -1).T
-            errors.append(np.linalg.norm(case.rows @ delta + case.offset, axis=1))
+            errors.append((case.rows @ delta + case.offset)[:, list(self.observed)])
         return errors
+
+    def point_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
+        """Per case, the distance |S B - Y| of every observed point over the observed
+        components [mm] (unweighted)."""
+        return [np.linalg.norm(e, axis=1) for e in self.marker_errors(states)]
+
+
+PLANAR = (0, 1)
+"""The components 2D DIC of a surface in the x-y plane observes."""
+
+
+@dataclass
+class PlanarProblem(InverseProblem):
+    """An ``InverseProblem`` whose markers are observed in x and y only (2D DIC, e.g. the
+    two-pad extensometer of docs/realskin.md): a marker gives two residuals."""
+
+    observed: tuple[int, ...] = PLANAR

@@ -166,3 +166,27 @@ def test_closed_form_jacobian_equals_automatic_differentiation(prescribed):
         if jac[1].size == 0:  # no prescribed points: d has no entries
             continue
         assert np.max(np.abs(jac[0] - jac[1])) < 1e-12 * max(1.0, np.abs(jac[1]).max())
+
+
+@pytest.mark.parametrize("energy", ["dnurbs", "neo-hookean", "exponential"])
+def test_the_residual_at_rest_is_the_load_alone(energy):
+    """Newton's scale |g(0)| is computed as |[F_B; C d]| (``_load_norm``): every model's
+    rest state is stress-free. Checked against g(0) itself, with random loads and
+    prescribed displacements, on the nonlinear paper model and both large-strain ones."""
+    from symbolic.continuum_model import ENERGIES
+
+    base = forehead_model(parameters={**TRUE_PARAMETERS, "k0": 50.0})
+    pad = PrescribedDisplacement(np.array([[0.2, 0.5], [0.25, 0.5], [0.8, 0.4]]))
+    values = dict(TRUE_PARAMETERS, k0=50.0) if energy == "dnurbs" else {"E": 8.0, "nu": 0.3}
+    if energy == "exponential":
+        values["k1"] = 5.0
+    options = {"support": 1e-3} if energy != "dnurbs" else {}
+    model = ENERGIES[energy](base.volume, values, prescribed=pad, **options)
+    names = ("k0",) if energy == "dnurbs" else ("E",)
+    solver = EquilibriumSolver(model, names)
+    rng = np.random.default_rng(3)
+    force = rng.normal(size=(model.n_free, 3))
+    prescribed = rng.normal(size=(model._constraint_rows.shape[1], 3))
+    x = np.array([values[names[0]]])
+    at_rest = solver.residual(np.zeros(solver.n_state), x, force, prescribed).full()
+    assert solver._load_norm(force, prescribed) == pytest.approx(np.linalg.norm(at_rest), 1e-12)

@@ -22,9 +22,8 @@ from experiments.realskin.slab import (
     slab_volume,
     surface_uv,
 )
-from experiments.realskin.solve import PlanarProblem
 from experiments.realskin.stages import standard_errors
-from solvers.problem import LoadCase, ParameterSpace
+from solvers.problem import LoadCase, ParameterSpace, PlanarProblem
 from symbolic.model import BoundaryConditions
 from symbolic.stiffening import exponential_stiffening
 
@@ -185,14 +184,14 @@ def test_keloid_is_stiffer_than_its_surroundings(shared_data):
 def test_standard_errors_scale_with_the_residual(shared_data):
     from experiments.realskin.loop import parameter_space as _space
     from experiments.realskin.setup import RealSkinSettings, build
-    from experiments.realskin.solve import PlanarNestedSolver
+    from experiments.realskin.stages import stage_solver
 
     settings = RealSkinSettings()
     setup = build("healthy", settings)
     problem = PlanarProblem(
         setup.model, setup.cases, _space(setup.base_names, setup.start, settings)
     )
-    solver = PlanarNestedSolver(problem)
+    solver = stage_solver(problem)
     fit = solver.solve()
     std, sigma = standard_errors(solver, fit.x)
     assert sigma == pytest.approx(np.sqrt(2 * fit.cost / (problem.n_residuals - len(fit.x))))
@@ -220,18 +219,18 @@ def test_equilibrium_does_not_depend_on_the_warm_start():
     """A warm start Newton cannot use (here a non-finite previous state: Newton fails
     from its prediction and restarts from rest) gives the residual and Jacobian of a
     cold solve."""
-    from experiments.realskin.solve import ForwardState, PlanarNestedSolver
+    from experiments.realskin.stages import stage_solver
 
     model, pads = small_model(BoundaryConditions(fix_inner=True))
     names, x = ("alpha_u", "k0"), np.array([0.01, 3.0])
     case, space, _ = _case(model, pads, names, x)
     z = space.to_internal(x)
-    cold = PlanarNestedSolver(PlanarProblem(model, [case], space))
+    cold = stage_solver(PlanarProblem(model, [case], space))
     r_cold, j_cold = cold.evaluate(z)
-    done = cold.memory[0]
-    warm = PlanarNestedSolver(PlanarProblem(model, [case], space))
-    poisoned = np.full_like(done.state, np.nan)
-    warm.memory = [ForwardState(x, poisoned, np.zeros_like(done.sensitivity), None)]
+    _, state, sensitivity, factor = cold._memory[0]
+    warm = stage_solver(PlanarProblem(model, [case], space))
+    poisoned = np.full_like(state, np.nan)
+    warm._memory = [(x, poisoned, np.zeros_like(sensitivity), factor)]
     r_warm, j_warm = warm.evaluate(z)
     assert np.all(np.isfinite(r_cold)) and np.all(np.isfinite(j_cold))
     np.testing.assert_allclose(r_warm, r_cold, rtol=1e-7, atol=1e-9)
@@ -292,7 +291,7 @@ def test_scan_cell_columns_equal_the_models_own_sensitivity():
         rect_indicator,
         with_region,
     )
-    from experiments.realskin.solve import PlanarNestedSolver
+    from experiments.realskin.stages import stage_solver
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     model = SkinSlabModel(
@@ -306,12 +305,10 @@ def test_scan_cell_columns_equal_the_models_own_sensitivity():
     names, x = ("alpha_u", "k0", POISSON), np.array([0.01, 0.5, 0.4])
     case, space, bounds = _case(model, pads, names, x)
     problem = PlanarProblem(model, [case], space)
-    solver = PlanarNestedSolver(problem)
+    solver = stage_solver(problem)
     solver.evaluate(space.to_internal(x))
     grid = CellGrid.of(model, REGION)
-    columns = cell_columns(
-        model, problem, x, [m.state for m in solver.memory], CellTerms.build(model, grid)
-    )
+    columns = cell_columns(model, problem, x, solver.states, CellTerms.build(model, grid))
     for cell in (2 * grid.shape[1] + 1, 3 * grid.shape[1] + 2):
         i, j = divmod(cell, grid.shape[1])
         single = with_region(model, rect_indicator(REGION, grid.rect((i, i + 1, j, j + 1))))
@@ -319,7 +316,7 @@ def test_scan_cell_columns_equal_the_models_own_sensitivity():
         space2 = SkinParameterSpace.build(
             names2, {**dict(zip(names, x)), REGION_RATIO: 1.0}, bounds
         )
-        solver2 = PlanarNestedSolver(PlanarProblem(single, [case], space2))
+        solver2 = stage_solver(PlanarProblem(single, [case], space2))
         _, jacobian = solver2.evaluate(space2.to_internal(space2.start))
         assert np.abs(columns[:, cell]).max() > 1e-6
         assert np.allclose(jacobian[:, -1], columns[:, cell], rtol=1e-8, atol=1e-12)
@@ -338,9 +335,9 @@ def test_poisson_coupling_contracts_the_skin_across_the_pull():
             isotropic=True,
             poisson=c,
         )
-        from experiments.realskin.solve import ForwardSolver
+        from solvers.equilibrium import EquilibriumSolver
 
-        result = ForwardSolver(model, ("alpha_u",)).solve(
+        result = EquilibriumSolver(model, ("alpha_u",)).solve(
             np.zeros((model.n_free, 3)), np.array([0.01]), pads.displacement([-2.0, 0.0])
         )
         delta = result.state[: 3 * model.n_free].reshape(3, -1).T
@@ -434,19 +431,18 @@ def test_load_continuation_reaches_the_equilibrium_newton_misses(shared_data):
     equilibrium (residual at Newton's tolerance). Where Newton converges (k0 = 0.25), the
     two agree."""
     from experiments.realskin.setup import RealSkinSettings, build
-    from experiments.realskin.solve import ForwardSolver
-    from solvers.equilibrium import EquilibriumError
+    from solvers.equilibrium import EquilibriumError, EquilibriumSolver
 
     setup = build("healthy", RealSkinSettings())
     case = setup.cases[-1]
-    solver = ForwardSolver(setup.model, ("alpha_u", "alpha_w", "k0"))
+    solver = EquilibriumSolver(setup.model, ("alpha_u", "alpha_w", "k0"))
     args = (case.force, np.array([0.01199, 0.06124, 1.0]), case.prescribed)
     with pytest.raises(EquilibriumError):
         solver.solve(*args)
     reached = solver.solve_by_continuation(*args)
     inputs = (args[1], args[0], args[2])  # g(s, x, F_B, d)
-    g = solver.g(reached.state, *inputs).full().ravel()
-    scale = np.linalg.norm(solver.g(np.zeros_like(reached.state), *inputs).full())
+    g = solver.residual(reached.state, *inputs).full().ravel()
+    scale = np.linalg.norm(solver.residual(np.zeros_like(reached.state), *inputs).full())
     assert np.linalg.norm(g) <= 1e-8 * scale
     easy = (case.force, np.array([0.01199, 0.06124, 0.25]), case.prescribed)
     np.testing.assert_allclose(

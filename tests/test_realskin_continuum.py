@@ -100,7 +100,8 @@ def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
     from experiments.realskin.model import SkinParameterSpace
     from experiments.realskin.scan import CellGrid, cell_columns
     from experiments.realskin.slab import Pads, slab_volume
-    from experiments.realskin.solve import PlanarNestedSolver, PlanarProblem
+    from experiments.realskin.stages import stage_solver
+    from solvers.problem import PlanarProblem
     from symbolic.continuum_model import ENERGIES
     from symbolic.model import BoundaryConditions
 
@@ -118,9 +119,9 @@ def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
 
     def residual(m):
-        solver = PlanarNestedSolver(PlanarProblem(m, [case], space))
+        solver = stage_solver(PlanarProblem(m, [case], space))
         r, _ = solver.evaluate(space.to_internal(x))
-        return r, solver.memory[0].state
+        return r, solver.states[0]
 
     r, state = residual(model)
     grid = CellGrid.of(model, REGION)

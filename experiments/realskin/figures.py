@@ -108,7 +108,7 @@ def case_figures(
     residuals = {}
     for fit in (stages[0], stages[-1]) if len(stages) > 1 else stages[:1]:
         label = "before" if fit is stages[0] else "after"
-        residuals[label] = fit.problem.planar_errors(fit.states)[last]
+        residuals[label] = fit.problem.marker_errors(fit.states)[last]
     paths.append(
         plot_residual_maps(
             out / f"residual_{name}.png",

@@ -185,11 +185,9 @@ def geometry_from_geo(text: str) -> SkinGeometry:
 
 
 def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Mask (N,) of points (N, 2) inside the polygon (V, 2) by the even-odd rule."""
-    x, y = np.asarray(points, dtype=float).T[:, :, None]
-    xa, ya = polygon.T
-    xb, yb = np.roll(polygon, -1, axis=0).T
-    crosses = (ya > y) != (yb > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x_cross = xa + (y - ya) * (xb - xa) / (yb - ya)
-    return ((crosses & (x < x_cross)).sum(axis=1) % 2) == 1
+    """Mask (N,) of points (N, 2) inside the polygon (V, 2) by the even-odd rule
+    (matplotlib's ``Path.contains_points``; the outlines here do not cross themselves)."""
+    from matplotlib.path import Path
+
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    return Path(np.asarray(polygon, dtype=float)).contains_points(points)

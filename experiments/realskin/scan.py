@@ -35,8 +35,9 @@ from experiments.realskin.model import (
     SkinParameterSpace,
     SkinSlabModel,
 )
-from experiments.realskin.solve import ForwardSolver, PlanarNestedSolver, PlanarProblem
-from experiments.realskin.stages import Score
+from experiments.realskin.stages import Score, stage_solver
+from solvers.equilibrium import EquilibriumSolver
+from solvers.problem import PlanarProblem
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.energy import quadrature
 
@@ -250,14 +251,14 @@ def cell_columns(model, problem: PlanarProblem, x: np.ndarray, states: list, cel
     """
     names = problem.names
     n, n_free = model.rest.shape[0], model.n_free
-    derivatives = ForwardSolver(model, names).derivatives
+    jacobian = EquilibriumSolver(model, names).jacobian
     columns = []
     for case, state in zip(problem.cases, states):
         delta = np.zeros((n, 3))
         delta[model.free] = state[: 3 * n_free].reshape(3, n_free).T
         d_g = np.zeros((state.size, cells.weights.shape[1]))
         d_g[: 3 * n_free] = cells.force_columns(model, names, x, delta)
-        d_s = sp.csc_matrix(derivatives(state, x, case.force, case.prescribed)[0])
+        d_s = jacobian(state, x, case.force, case.prescribed)
         sensitivity = -sp.linalg.splu(d_s).solve(d_g)
         columns.append(problem.case_residual_jacobian(case) @ sensitivity)
     return np.vstack(columns)
@@ -278,9 +279,9 @@ def profiled_cell_columns(
     """
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
     problem = PlanarProblem(model, cases, space)
-    solver = PlanarNestedSolver(problem)
+    solver = stage_solver(problem)
     r, jac_x = solver.evaluate(space.to_internal(space.start))
-    states = [m.state for m in solver.memory]
+    states = solver.states
     columns = cell_columns(model, problem, space.start, states, cells)
     basis, _ = np.linalg.qr(jac_x)
     return r, columns - basis @ (basis.T @ columns)

@@ -6,6 +6,10 @@
   its null value with the fitted parameters profiled out;
 - ``fit_stage``: fit one parameter set and summarise it (``StageFit``);
 - ``force_curve``: the model's pad force along the travel.
+
+The fits run on the shared solvers: the planar observation is ``solvers.problem.PlanarProblem``,
+the nested inverse ``solvers.nested.NestedSolver`` with the loop's settings
+(``stage_solver``), the equilibria ``solvers.equilibrium.EquilibriumSolver``.
 """
 
 from __future__ import annotations
@@ -23,13 +27,9 @@ from experiments.realskin.model import (
     SkinParameterSpace,
     SkinSlabModel,
 )
-from experiments.realskin.solve import (
-    ForwardSolver,
-    ForwardState,
-    PlanarNestedSolver,
-    PlanarProblem,
-)
-from solvers.problem import LoadCase
+from solvers.equilibrium import EquilibriumSolver, NewtonSettings
+from solvers.nested import NestedSolver
+from solvers.problem import LoadCase, PlanarProblem
 from symbolic.model import PARAMETERS
 
 NULL = {
@@ -62,19 +62,30 @@ LABELS = {
     "k2": "stiffening exponent k2",
 }
 """How reports name the effects."""
+FIT_TOLERANCE = 1e-10
+"""ftol = xtol = gtol of a stage's fit."""
+MAX_EVALUATIONS = 80
+"""Cap on a stage's residual evaluations (a stiffening fit sliding into a corner of
+its bounds stops here; docs/realskin.md)."""
+
+
+def stage_solver(problem: PlanarProblem) -> NestedSolver:
+    """The nested inverse with the loop's settings: a load case without equilibrium
+    during a fit shortens trf's step instead of ending the fit."""
+    return NestedSolver(problem, "trf", FIT_TOLERANCE, MAX_EVALUATIONS, failures="shrink")
 
 
 # ------------------------------------------------------------------- errors, statistics
 def rms_errors(problem: PlanarProblem, states: list) -> tuple[float, float]:
     """RMS in-plane displacement error [mm] (per component, over all markers and DIC
     frames) and RMS force error [N] (over all fitted frames)."""
-    planar = [e.reshape(-1) for e in problem.planar_errors(states) if e.size]
+    planar = [e.reshape(-1) for e in problem.marker_errors(states) if e.size]
     forces = [e for e in problem.force_errors(states) if e is not None]
     disp = float(np.sqrt(np.mean(np.concatenate(planar) ** 2)))
     return disp, float(np.sqrt(np.mean(np.concatenate(forces) ** 2)))
 
 
-def standard_errors(solver: PlanarNestedSolver, x: np.ndarray) -> tuple[np.ndarray, float]:
+def standard_errors(solver: NestedSolver, x: np.ndarray) -> tuple[np.ndarray, float]:
     """sigma (S^T S)^-1/2 diagonals, S = dr/dx at x, sigma = sqrt(RSS / (m - p)).
 
     Returns
@@ -155,7 +166,7 @@ def score_test(
     """
     start = {**dict(zip(names, x)), candidate: null}
     space = SkinParameterSpace.build(tuple(names) + (candidate,), start, bounds)
-    solver = PlanarNestedSolver(PlanarProblem(model, cases, space))
+    solver = stage_solver(PlanarProblem(model, cases, space))
     r, jac = solver.evaluate(space.to_internal(space.start))
     basis, _ = np.linalg.qr(jac[:, :-1])
     column = jac[:, -1] - basis @ (basis.T @ jac[:, -1])
@@ -239,7 +250,7 @@ def fit_stage(
     """Fit the parameters of ``space`` and summarise errors and standard errors."""
     begin = time.perf_counter()
     problem = PlanarProblem(model, cases, space)
-    solver = PlanarNestedSolver(problem)
+    solver = stage_solver(problem)
     result = solver.solve()
     std, sigma = standard_errors(solver, result.x)
     disp, force = rms_errors(problem, result.states)
@@ -254,7 +265,7 @@ def fit_stage(
         result.states,
         sigma,
         result.success,
-        result.evaluations,
+        result.iterations,
         time.perf_counter() - begin,
         problem,
     )
@@ -270,15 +281,14 @@ def force_curve(
     model: SkinSlabModel, pads, fit: StageFit, travels: np.ndarray, drift: np.ndarray
 ) -> np.ndarray:
     """Model x force on the tissue [N] at pad travels (T,) [mm] with y drift (T,) [mm]."""
-    solver = ForwardSolver(model, fit.names)
+    solver = EquilibriumSolver(model, fit.names, NewtonSettings(reuse_lu=True))
     rows = model.point_force_rows(pads.moving_index)[:1]
     zero = np.zeros((model.n_free, 3))
-    previous, out = None, []
+    state = factor = None
+    out = []
     for travel, dy in zip(travels, drift):
-        result = solver.solve(zero, fit.x, pads.displacement([-travel, dy]), previous)
-        # the predictor extrapolates in x only: restart from this state for the next travel
-        previous = ForwardState(
-            result.x, result.state, np.zeros_like(result.sensitivity), result.factor
-        )
+        # each travel starts from the last one's state and LU
+        result = solver.solve(zero, fit.x, pads.displacement([-travel, dy]), state, factor)
+        state, factor = result.state, result.factor
         out.append(float((rows @ result.state[3 * model.n_free :])[0]))
     return np.array(out)

@@ -34,8 +34,9 @@ from experiments.realskin.model import REGION_RATIO, SkinParameterSpace, SkinSla
 from experiments.realskin.scan import SCAN, CellGrid, overlap
 from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.slab import region_indicator
-from experiments.realskin.solve import ForwardSolver, PlanarNestedSolver, PlanarProblem
-from experiments.realskin.stages import fit_stage, score_test
+from experiments.realskin.stages import fit_stage, score_test, stage_solver
+from solvers.equilibrium import EquilibriumSolver
+from solvers.problem import PlanarProblem
 
 FORCE_NOISE_N = 0.02
 """Force noise [N] per frame: the real keloid's RMS force residual after the loop."""
@@ -82,7 +83,7 @@ def make_twin(
     """Noisy and noise-free twins of ``real``: the same model, pads, frames and points,
     with the truth's predictions at ``truth_x`` (+ Gaussian noise of the given sigmas
     [mm], [N]) as data and the force weight recomputed from them, as the pipeline does."""
-    solver = ForwardSolver(truth, TRUTH_NAMES)
+    solver = EquilibriumSolver(truth, TRUTH_NAMES)
     n = 3 * truth.n_free
     clean_u, clean_f = [], []
     for case in real.cases:
@@ -105,9 +106,7 @@ def make_twin(
 def cost_at(model: SkinSlabModel, cases, names, x, settings: RealSkinSettings) -> float:
     """1/2 |r|^2 [mm^2] of a model at parameters x of ``names`` (no fit)."""
     space = SkinParameterSpace.build(names, dict(zip(names, x)), settings.bounds)
-    r, _ = PlanarNestedSolver(PlanarProblem(model, cases, space)).evaluate(
-        space.to_internal(space.start)
-    )
+    r, _ = stage_solver(PlanarProblem(model, cases, space)).evaluate(space.to_internal(space.start))
     return 0.5 * float(r @ r)
 
 
