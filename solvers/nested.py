@@ -94,7 +94,7 @@ class NestedSolver:
         self.tolerance = tolerance
         self.max_evaluations = max_evaluations
         model = problem.model
-        self.scalar = self.continuum = None
+        self.scalar = self.continuum = self.equilibrium = None
         if model.componentwise and model.is_linear(problem.names):
             self.scalar = ScalarSystem(model, problem.names)
         elif ContinuumSystem.applies(problem):
@@ -109,24 +109,29 @@ class NestedSolver:
         self._states = [None] * len(problem.cases)
         self._memory: list[tuple | None] = [None] * len(problem.cases)
         self._cache: tuple | None = None
+        self._pending: tuple | None = None  # (z, r, x, equilibria) without sensitivities
 
     @property
     def states(self) -> list:
         """The equilibrium state of every case at the last evaluation."""
         return list(self._states)
 
-    def _case(self, k: int, case, x: np.ndarray, factor) -> tuple[np.ndarray, np.ndarray]:
-        """The equilibrium state of one case and its sensitivity ds/dx."""
-        if self.scalar is not None:
-            state = self.scalar.state(factor, case.force, case.prescribed)
-            return state, self.scalar.sensitivity(factor, state)
-        result = self._equilibrium(case, x, self._memory[k])
+    def seed(self, x: np.ndarray, states: list) -> None:
+        """Start every case's Newton at a known equilibrium ``states`` at x (natural
+        units), e.g. a fitted stage's at its estimate: an evaluation there then costs
+        one factorisation per case instead of Newton from rest."""
+        x = np.asarray(x, dtype=float)
+        self._memory = [(x, np.asarray(s), np.zeros((len(s), x.size)), None) for s in states]
+
+    def _sensitivity(self, k: int, case, x: np.ndarray, result) -> np.ndarray:
+        """ds/dx = -(dg/ds)^-1 dg/dx of one case at its equilibrium ``result``; kept with
+        the state and LU as the next evaluation's prediction."""
         g_x = result.parameter_jacobian
         if g_x is None:
             g_x = casadi_to_scipy(self._parameter_jacobian()(result.state, x, *_loads(case)))
         sensitivity = -result.solve(g_x.toarray())
         self._memory[k] = (np.array(x), result.state, sensitivity, result.factor)
-        return result.state, sensitivity
+        return sensitivity
 
     def _equilibrium(self, case, x: np.ndarray, previous: tuple | None):
         """Newton from the first-order prediction of the previous evaluation with its LU;
@@ -156,32 +161,72 @@ class NestedSolver:
             self._g_x = ca.Function("dg_dx", [s, x, force, prescribed], [ca.jacobian(value, x)])
         return self._g_x
 
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """Residual r(z) alone. On the Newton path the sensitivities are left for
+        ``evaluate`` at the same z: trf asks for the Jacobian only at the points it
+        accepts (on real skin a quarter of the points it tries are rejected)."""
+        if self._cache is not None and _same(self._cache[0], z):
+            return self._cache[1]
+        if self.equilibrium is None:
+            return self.evaluate(z)[0]
+        if self._pending is not None and _same(self._pending[0], z):
+            return self._pending[1]
+        problem = self.problem
+        x = problem.space.to_natural(z)
+        results, residuals = [], []
+        for k, case in enumerate(problem.cases):
+            try:
+                result = self._equilibrium(case, x, self._memory[k])
+            except EquilibriumError:
+                if self.failures == "raise":
+                    raise
+                self._pending = None
+                return np.full(problem.n_residuals, np.nan)  # trf shortens its step
+            self.forward_solves += 1
+            self._states[k] = result.state
+            results.append(result)
+            residuals.append(problem.case_residual(case, result.state))
+        r = np.concatenate(residuals)
+        self._pending = (np.array(z), r, x, results)
+        return r
+
     def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual r(z) and its exact Jacobian dr/dz."""
-        if self._cache is not None and np.array_equal(self._cache[0], z):
+        if self._cache is not None and _same(self._cache[0], z):
             return self._cache[1], self._cache[2]
         problem = self.problem
         x = problem.space.to_natural(z)
         dx_dz = problem.space.natural_derivative(z)
-        factor = None if self.scalar is None else self.scalar.factor(x)
-        every = None if self.continuum is None else self.continuum.evaluate(x)
-        residuals, jacobians = [], []
-        for k, case in enumerate(problem.cases):
-            if every is None:
-                try:
-                    state, sensitivity = self._case(k, case, x, factor)
-                except EquilibriumError:
-                    if self.failures == "raise":
-                        raise
-                    nan = np.full(problem.n_residuals, np.nan)  # trf shortens its step
-                    return nan, np.full((nan.size, len(x)), np.nan)
+        if self.equilibrium is not None:
+            r = self.residual(z)
+            if not np.all(np.isfinite(r)):
+                return r, np.full((r.size, len(x)), np.nan)
+            _, _, x, results = self._pending
+            sensitivities = [
+                self._sensitivity(k, case, x, result)
+                for k, (case, result) in enumerate(zip(problem.cases, results))
+            ]
+        else:
+            r = None
+            if self.scalar is not None:
+                factor = self.scalar.factor(x)
+                solved = [self.scalar.state(factor, c.force, c.prescribed) for c in problem.cases]
+                pairs = [(state, self.scalar.sensitivity(factor, state)) for state in solved]
             else:  # the linear-elastic model: all cases from one factorisation
-                state, sensitivity = every[0][:, k], every[1][:, k]
-            self.forward_solves += 1
-            self._states[k] = state
-            residuals.append(problem.case_residual(case, state))
-            jacobians.append((self.observation_jacobians[k] @ sensitivity) * dx_dz[None, :])
-        r, jac = np.concatenate(residuals), np.vstack(jacobians)
+                every = self.continuum.evaluate(x)
+                pairs = [(every[0][:, k], every[1][:, k]) for k in range(len(problem.cases))]
+            self._states = [state for state, _ in pairs]
+            self.forward_solves += len(pairs)
+            sensitivities = [sensitivity for _, sensitivity in pairs]
+            r = np.concatenate(
+                [problem.case_residual(c, s) for c, s in zip(problem.cases, self._states)]
+            )
+        jac = np.vstack(
+            [
+                (observe @ sensitivity) * dx_dz[None, :]
+                for observe, sensitivity in zip(self.observation_jacobians, sensitivities)
+            ]
+        )
         self._cache = (np.array(z), r, jac)
         return r, jac
 
@@ -199,6 +244,7 @@ class NestedSolver:
         self.forward_solves = 0
         self._states = [None] * len(self.problem.cases)
         self._memory = [None] * len(self.problem.cases)
+        self._pending = None
         z, success, status, nfev, elapsed = least_squares_fit(
             self.evaluate,
             self.problem.space,
@@ -207,6 +253,7 @@ class NestedSolver:
             self.method,
             self.tolerance,
             self.max_evaluations,
+            self.residual,
         )
         residual = self.evaluate(z)[0]
         if not np.all(np.isfinite(residual)):  # failures="shrink" and no equilibrium at z
@@ -216,19 +263,32 @@ class NestedSolver:
         return _result(self, z, residual, success, status, nfev, elapsed)
 
 
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same point z, to the last bits (x -> z -> x round trips move them)."""
+    return a.shape == np.shape(b) and np.allclose(a, b, rtol=1e-15, atol=0)
+
+
 def _loads(case) -> tuple:
     """(F_B, d) of a load case, as the residual takes them."""
     return case.force, case.prescribed
 
 
 def least_squares_fit(
-    evaluate, space, start, active=None, method="trf", tolerance=1e-12, max_evaluations=200
+    evaluate,
+    space,
+    start,
+    active=None,
+    method="trf",
+    tolerance=1e-12,
+    max_evaluations=200,
+    residual=None,
 ):
     """The outer loop shared by the exact nested solvers.
 
-    ``evaluate(z) -> (r, dr/dz)`` over every internal coordinate; parameters not in
-    ``active`` (mu and gamma at steady state) stay at their start values. A failed
-    forward solve ends the start with ``success = False``.
+    ``evaluate(z) -> (r, dr/dz)`` over every internal coordinate (``residual(z) -> r``,
+    if given, where only r is asked for); parameters not in ``active`` (mu and gamma at
+    steady state) stay at their start values. A failed forward solve ends the start
+    with ``success = False``.
 
     Returns
     -------
@@ -249,7 +309,7 @@ def least_squares_fit(
     kwargs = {} if method == "lm" else {"bounds": (lower, upper)}
     try:
         fit = least_squares(
-            lambda z: evaluate(full(z))[0],
+            lambda z: residual(full(z)) if residual else evaluate(full(z))[0],
             np.clip(z_full[active], lower, upper),
             jac=lambda z: evaluate(full(z))[1][:, active],
             method=method,

@@ -123,11 +123,12 @@ def prior_precision(grid: CellGrid, rms: float = PRIOR_RMS) -> np.ndarray:
 
 
 def estimate_map(
-    model, cases, names, x, bounds, grid: CellGrid, cells: CellTerms | None = None
+    model, cases, names, x, bounds, grid: CellGrid, cells: CellTerms | None = None, states=None
 ) -> CellMap:
-    """The map (R1) at the stage (names, x) of ``model`` (no second material)."""
+    """The map (R1) at the stage (names, x) of ``model`` (no second material; ``states``:
+    the equilibria at x, if known)."""
     cells = cells if cells is not None else CellTerms.build(model, grid)
-    r, columns = profiled_cell_columns(model, cases, names, x, bounds, cells)
+    r, columns = profiled_cell_columns(model, cases, names, x, bounds, cells, states)
     n = r.size
     sigma2 = float(r @ r) / max(n - len(names), 1)
     basis = scipy.linalg.null_space(np.ones((1, grid.n_cells)))  # Z: zero-mean maps
@@ -243,7 +244,9 @@ def map_report(setup, model, stage, bounds: dict, cells, path) -> dict:
     """
     from experiments.realskin.plots import plot_cell_map
 
-    found = estimate_map(model, setup.cases, stage.names, stage.x, bounds, setup.grid, cells)
+    found = estimate_map(
+        model, setup.cases, stage.names, stage.x, bounds, setup.grid, cells, stage.states
+    )
     frames = [f for f in setup.data.frames if f is not None]
     keloid = setup.case.geometry.keloid
     out = {

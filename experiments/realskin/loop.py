@@ -34,6 +34,7 @@ def _score_all(setup: Setup, fit: StageFit, names, settings) -> dict:
                 settings.bounds,
                 setup.grid,
                 setup.cells,
+                states=fit.states,
             )
         else:
             out[name] = score_test(
@@ -45,6 +46,7 @@ def _score_all(setup: Setup, fit: StageFit, names, settings) -> dict:
                 NULL[name],
                 settings.bounds,
                 ONE_SIDED[name],
+                fit.states,
             )
     return out
 

@@ -265,9 +265,10 @@ def cell_columns(model, problem: PlanarProblem, x: np.ndarray, states: list, cel
 
 
 def profiled_cell_columns(
-    model: SkinSlabModel, cases: list, names: tuple, x: np.ndarray, bounds: dict, cells: CellTerms
+    model, cases: list, names: tuple, x: np.ndarray, bounds: dict, cells, states=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The residual r and the cells' columns with the fitted parameters profiled out.
+    """The residual r and the cells' columns with the fitted parameters profiled out
+    (``states``: the equilibria at x, if known).
 
     Returns
     -------
@@ -280,6 +281,8 @@ def profiled_cell_columns(
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
     problem = PlanarProblem(model, cases, space)
     solver = stage_solver(problem)
+    if states is not None:
+        solver.seed(space.start, states)
     r, jac_x = solver.evaluate(space.to_internal(space.start))
     states = solver.states
     columns = cell_columns(model, problem, space.start, states, cells)
@@ -322,6 +325,7 @@ def scan(
     grid: CellGrid,
     cells: CellTerms | None = None,
     stiffer: bool = True,
+    states: list | None = None,
 ) -> ScanResult:
     """Score every rectangle of cells as the region of a second material at (names, x).
 
@@ -329,7 +333,7 @@ def scan(
     and a rectangle whose score asks for a softer one scores 0.
     """
     cells = cells if cells is not None else CellTerms.build(model, grid)
-    r, columns = profiled_cell_columns(model, cases, names, x, bounds, cells)
+    r, columns = profiled_cell_columns(model, cases, names, x, bounds, cells, states)
     gradient = columns.T @ r
     gram = columns.T @ columns
     sigma2 = float(r @ r) / max(r.size - len(names), 1)

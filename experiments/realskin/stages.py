@@ -157,8 +157,10 @@ def score_test(
     null: float,
     bounds: dict,
     one_sided: bool,
+    states: list | None = None,
 ) -> Score:
-    """Score test of ``candidate`` = ``null`` at the estimate x of ``names``.
+    """Score test of ``candidate`` = ``null`` at the estimate x of ``names`` (``states``:
+    the equilibria there, if known: the fitted stage's).
 
     With J = [J_x, J_c] = dr/d(z_x, z_c) at (x, null) and r the residual,
     J_c' = (I - Q Q^T) J_c (Q an orthonormal basis of J_x: x profiled out),
@@ -167,6 +169,8 @@ def score_test(
     start = {**dict(zip(names, x)), candidate: null}
     space = SkinParameterSpace.build(tuple(names) + (candidate,), start, bounds)
     solver = stage_solver(PlanarProblem(model, cases, space))
+    if states is not None:
+        solver.seed(space.start, states)
     r, jac = solver.evaluate(space.to_internal(space.start))
     basis, _ = np.linalg.qr(jac[:, :-1])
     column = jac[:, -1] - basis @ (basis.T @ jac[:, -1])
