@@ -22,6 +22,7 @@ import scipy.sparse as sp
 
 from solvers.noise import rest_noise_map
 from symbolic.model import PARAMETERS, TissueModel
+from symbolic.skin_slab import LOG_EXTRA
 
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
     "mu": (1e-8, 1.0),
@@ -424,3 +425,26 @@ class PlanarProblem(InverseProblem):
     two-pad extensometer of docs/realskin.md): a marker gives two residuals."""
 
     observed: tuple[int, ...] = PLANAR
+
+
+class SkinParameterSpace(ParameterSpace):
+    """``ParameterSpace`` that also knows ``symbolic.skin_slab``'s extra parameters (some
+    estimated in log space); start values and bounds must all be given."""
+
+    @classmethod
+    def build(cls, names, start: dict, bounds: dict) -> SkinParameterSpace:
+        """Names with start values and (lower, upper) bounds in natural units."""
+        names = tuple(names)
+        missing = [n for n in names if n not in start or n not in bounds]
+        if missing:
+            raise ValueError(f"give a start value and bounds for {missing}")
+        x0 = np.array([float(start[n]) for n in names])
+        lower = np.array([float(bounds[n][0]) for n in names])
+        upper = np.array([float(bounds[n][1]) for n in names])
+        if np.any(lower >= upper) or np.any(x0 < lower) or np.any(x0 > upper):
+            raise ValueError(f"start values must lie within lower < upper bounds for {names}")
+        return cls(names, x0, lower, upper)
+
+    @property
+    def log_scaled(self) -> np.ndarray:
+        return np.array([n in LOG_PARAMETERS or n in LOG_EXTRA for n in self.names])

@@ -14,7 +14,6 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.realskin.geometry import Rect
-from experiments.realskin.model import POISSON, REGION_RATIO, SkinSlabModel
 from experiments.realskin.slab import (
     Pads,
     polygon_distance,
@@ -25,6 +24,7 @@ from experiments.realskin.slab import (
 from experiments.realskin.stages import standard_errors
 from solvers.problem import LoadCase, ParameterSpace, PlanarProblem
 from symbolic.model import BoundaryConditions
+from symbolic.skin_slab import POISSON, REGION_RATIO, SkinSlabModel
 from symbolic.stiffening import exponential_stiffening
 
 REGION = Rect(0.0, -5.0, 100.0, 45.0)
@@ -209,7 +209,7 @@ def _case(model, pads, names, x):
         POISSON: (0.0, 20.0),
         REGION_RATIO: (0.1, 100.0),
     }
-    from experiments.realskin.model import SkinParameterSpace
+    from solvers.problem import SkinParameterSpace
 
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
     return case, space, bounds
@@ -244,8 +244,8 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
     from types import SimpleNamespace
 
     import experiments.realskin.loop as realskin
-    from experiments.realskin.model import SkinParameterSpace
     from solvers.equilibrium import EquilibriumError
+    from solvers.problem import SkinParameterSpace
 
     model, pads = small_model(BoundaryConditions(fix_inner=True))
     names = ("alpha_u", "k0")
@@ -283,7 +283,6 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
 def test_scan_cell_columns_equal_the_models_own_sensitivity():
     """The scan's column of one cell equals d(residual)/d(log ratio) of a model whose
     second material is that cell (stiffened springs and Poisson coupling included)."""
-    from experiments.realskin.model import SkinParameterSpace
     from experiments.realskin.scan import (
         CellGrid,
         CellTerms,
@@ -292,6 +291,7 @@ def test_scan_cell_columns_equal_the_models_own_sensitivity():
         with_region,
     )
     from experiments.realskin.stages import stage_solver
+    from solvers.problem import SkinParameterSpace
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     model = SkinSlabModel(

@@ -57,10 +57,10 @@ def test_map_of_the_keloid_twin(shared_data):
     a stiffer material (ratio 3.5) inside the outline: the map's one linearised step
     takes the cost down to within 10 % of the homogeneous twin's (the noise's)."""
     from experiments.realskin.cellmap import estimate_map, significant_cells
-    from experiments.realskin.model import SkinParameterSpace
     from experiments.realskin.setup import RealSkinSettings, build
     from experiments.realskin.stages import fit_stage
     from experiments.realskin.twin import base_parameters, make_twin, truth_model
+    from solvers.problem import SkinParameterSpace
 
     settings = RealSkinSettings()
     real = build("keloid", settings)

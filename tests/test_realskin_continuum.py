@@ -97,11 +97,10 @@ def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
     from test_realskin import FIXED, MOVING, REGION, _marker_case
 
     from experiments.realskin.continuum_cells import ContinuumCells
-    from experiments.realskin.model import SkinParameterSpace
     from experiments.realskin.scan import CellGrid, cell_columns
     from experiments.realskin.slab import Pads, slab_volume
     from experiments.realskin.stages import stage_solver
-    from solvers.problem import PlanarProblem
+    from solvers.problem import PlanarProblem, SkinParameterSpace
     from symbolic.continuum_model import ENERGIES
     from symbolic.model import BoundaryConditions
 

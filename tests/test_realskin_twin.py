@@ -35,7 +35,6 @@ def test_bad_command_line_is_one_line_and_exit_2(argv, capsys):
 
 @pytest.mark.slow
 def test_keloid_twin_is_consistent(shared_data):
-    from experiments.realskin.model import SkinParameterSpace
     from experiments.realskin.setup import RealSkinSettings, build
     from experiments.realskin.stages import fit_stage
     from experiments.realskin.twin import (
@@ -46,6 +45,7 @@ def test_keloid_twin_is_consistent(shared_data):
         run_twin,
         truth_model,
     )
+    from solvers.problem import SkinParameterSpace
 
     settings = RealSkinSettings()
     real = build("keloid", settings)

@@ -16,9 +16,9 @@ import scipy.sparse as sp
 
 from experiments.realskin.data import SkinCase, force_at_travel
 from experiments.realskin.geometry import Rect
-from experiments.realskin.model import SkinSlabModel
 from experiments.realskin.slab import Pads, surface_uv
 from solvers.problem import LoadCase
+from symbolic.skin_slab import SkinSlabModel
 
 
 @dataclass(frozen=True)

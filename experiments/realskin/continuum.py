@@ -37,11 +37,11 @@ from experiments.realskin.cases import load_cases
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.continuum_cells import ContinuumCells
 from experiments.realskin.loop import close_the_loop, likelihood_ratio
-from experiments.realskin.model import SkinParameterSpace
 from experiments.realskin.report import map_table
 from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.study import AUTHORS
+from solvers.problem import SkinParameterSpace
 from symbolic.continuum import KPA
 from symbolic.continuum_model import ENERGIES
 from symbolic.model import BoundaryConditions

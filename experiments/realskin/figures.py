@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from experiments.realskin.model import POISSON, REGION_RATIO
 from experiments.realskin.plots import (
     plot_force_curves,
     plot_residual_maps,
@@ -15,6 +14,7 @@ from experiments.realskin.plots import (
     plot_stiffness_map,
 )
 from experiments.realskin.stages import LABELS, StageFit, force_curve
+from symbolic.skin_slab import POISSON, REGION_RATIO
 
 if TYPE_CHECKING:
     from experiments.realskin.setup import Setup

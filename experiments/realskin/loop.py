@@ -8,11 +8,12 @@ is added while its score test is significant and its predicted cost decrease is 
 
 from __future__ import annotations
 
-from experiments.realskin.model import REGION_RATIO, SkinParameterSpace
 from experiments.realskin.scan import SCAN, CellTerms, ScanResult, rect_indicator, scan, with_region
 from experiments.realskin.setup import RealSkinSettings, Setup
 from experiments.realskin.stages import LABELS, NULL, ONE_SIDED, StageFit, fit_stage, score_test
 from solvers.equilibrium import EquilibriumError
+from solvers.problem import SkinParameterSpace
+from symbolic.skin_slab import REGION_RATIO
 
 
 def parameter_space(names, start, settings: RealSkinSettings) -> SkinParameterSpace:

@@ -30,16 +30,12 @@ import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
 from scipy import stats
 
 from experiments.realskin.geometry import Rect, points_in_polygon
-from experiments.realskin.model import (
-    ALPHA_TERMS,
-    SkinParameterSpace,
-    SkinSlabModel,
-)
 from experiments.realskin.stages import Score, stage_solver
 from solvers.equilibrium import EquilibriumSolver
-from solvers.problem import PlanarProblem
+from solvers.problem import PlanarProblem, SkinParameterSpace
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.energy import quadrature
+from symbolic.skin_slab import ALPHA_TERMS, SkinSlabModel
 
 SCAN = "region_scan"
 """Name of the scanned-heterogeneity candidate in the loop (its parameter is the ratio)."""

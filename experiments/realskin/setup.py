@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 from experiments.realskin.cases import FrameData, force_weight, frame_data, load_cases
 from experiments.realskin.data import SkinCase, dic_noise_mm, load_case
 from experiments.realskin.geometry import Rect
-from experiments.realskin.model import ANISOTROPY, POISSON, REGION_RATIO, SkinSlabModel
 from experiments.realskin.scan import SCAN, CellGrid, CellTerms
 from experiments.realskin.slab import Pads, region_indicator, slab_volume
 from symbolic.model import BoundaryConditions
+from symbolic.skin_slab import ANISOTROPY, POISSON, REGION_RATIO, SkinSlabModel
 from symbolic.stiffening import exponential_stiffening, quadratic_stiffening
 
 STIFFENING = {"exponential": exponential_stiffening, "quadratic": quadratic_stiffening}

@@ -8,9 +8,9 @@ Geometry (model frame of ``geometry.geo``, units mm, N):
 - each pad is a k x k grid of prescribed skin points covering its 8 x 8 mm square: the
   fixed pad's displacement is 0, the moving pad's the measured pad displacement;
 - a second material's region is a smoothed indicator chi(x, y) of a polygon (the
-  keloid outline); ``coupling_matrix`` is the in-plane volumetric term (div u)^2.
+  keloid outline); the in-plane volumetric term (div u)^2 is ``symbolic.skin_slab.coupling_matrix``.
 
-The model built on them is ``experiments.realskin.model.SkinSlabModel``.
+The model built on them is ``symbolic.skin_slab.SkinSlabModel``.
 """
 
 from __future__ import annotations
@@ -18,10 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from experiments.realskin.geometry import Rect, points_in_polygon
-from symbolic.energy import Field, quadrature
+from symbolic.energy import Field
 from symbolic.loads import PrescribedDisplacement
 from symbolic.volume import VolumeSpline
 
@@ -138,22 +137,3 @@ def region_indicator(region: Rect, polygon: np.ndarray, smoothing_mm: float = 1.
         return 0.5 * (1.0 + np.tanh(2.0 * polygon_distance(xy, polygon) / smoothing_mm))
 
     return chi
-
-
-def coupling_matrix(
-    basis, lengths: tuple[float, float], weight: Field | None = None, extra_points: int = 0
-) -> sp.csr_matrix:
-    """integral chi D^T D over [0, 1]^3 with D vec(Delta) = du_x/dx + du_y/dy, (3n, 3n).
-
-    D = [J_u / L_x, J_v / L_y, 0] (the map (u, v) -> (x, y) is linear); chi = 1 by
-    default, else a field such as the region's indicator.
-    """
-    points, weights = quadrature(basis, extra_points)
-    if weight is not None:
-        weights = weights * np.asarray(weight(points), dtype=float).reshape(-1)
-    d_x = basis.collocation(points, (1, 0, 0)) / lengths[0]
-    d_y = basis.collocation(points, (0, 1, 0)) / lengths[1]
-    n = d_x.shape[1]
-    d = sp.hstack([d_x, d_y, sp.csr_matrix((len(points), n))]).tocsr()
-    gram = (d.T @ sp.diags(weights) @ d).tocsr()
-    return (0.5 * (gram + gram.T)).tocsr()

@@ -20,17 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from experiments.realskin.model import (
-    ANISOTROPY,
-    POISSON,
-    REGION_RATIO,
-    SkinParameterSpace,
-    SkinSlabModel,
-)
 from solvers.equilibrium import EquilibriumSolver, NewtonSettings
 from solvers.nested import NestedSolver
-from solvers.problem import LoadCase, PlanarProblem
+from solvers.problem import LoadCase, PlanarProblem, SkinParameterSpace
 from symbolic.model import PARAMETERS
+from symbolic.skin_slab import ANISOTROPY, POISSON, REGION_RATIO, SkinSlabModel
 
 NULL = {
     "k0": 0.0,

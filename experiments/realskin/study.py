@@ -35,7 +35,6 @@ from experiments.realskin.loop import (
     likelihood_ratio,
     parameter_space,
 )
-from experiments.realskin.model import REGION_RATIO
 from experiments.realskin.report import report
 from experiments.realskin.scan import (
     SCAN,
@@ -48,6 +47,7 @@ from experiments.realskin.scan import (
 from experiments.realskin.setup import STIFFENING, RealSkinSettings, Setup, build
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.strain import figure as strain_figure
+from symbolic.skin_slab import REGION_RATIO
 
 AUTHORS = {
     "healthy": {"E": (0.027, 0.031), "nu": (0.14, 0.22)},

@@ -30,13 +30,13 @@ from experiments.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
 from experiments.realskin.geometry import points_in_polygon
 from experiments.realskin.loop import close_the_loop
-from experiments.realskin.model import REGION_RATIO, SkinParameterSpace, SkinSlabModel
 from experiments.realskin.scan import SCAN, CellGrid, overlap
 from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.slab import region_indicator
 from experiments.realskin.stages import fit_stage, score_test, stage_solver
 from solvers.equilibrium import EquilibriumSolver
-from solvers.problem import PlanarProblem
+from solvers.problem import PlanarProblem, SkinParameterSpace
+from symbolic.skin_slab import REGION_RATIO, SkinSlabModel
 
 FORCE_NOISE_N = 0.02
 """Force noise [N] per frame: the real keloid's RMS force residual after the loop."""

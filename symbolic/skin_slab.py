@@ -1,6 +1,7 @@
-"""The two-pad extensometer as a volume spline model: a flat skin slab with glued pads.
+"""A flat skin slab with glued pads as a volume spline model (the two-pad extensometer).
 
-The slab, its pads and the region indicator chi are in ``experiments.realskin.slab``.
+The slab's volume, its pads and the region indicator chi are set up in
+``experiments.realskin.slab`` (docs/realskin.md).
 A second material (``region``): every tension coefficient alpha_i is multiplied by
 1 + theta chi(x, y), and ``region_ratio`` = 1 + theta is a parameter that the inverse
 can estimate.
@@ -20,10 +21,8 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from experiments.realskin.slab import coupling_matrix
-from solvers.problem import LOG_PARAMETERS, ParameterSpace
 from symbolic.basis import FIRST_DERIVATIVES
-from symbolic.energy import Field, weighted_gram
+from symbolic.energy import Field, quadrature, weighted_gram
 from symbolic.model import PARAMETERS, TissueModel, check_parameters, term_parameter
 from symbolic.sparse import to_casadi_sparse
 
@@ -378,23 +377,20 @@ class SkinSlabModel(TissueModel):
         ]
 
 
-class SkinParameterSpace(ParameterSpace):
-    """``ParameterSpace`` that also knows the extra parameters (estimated in log space)."""
+def coupling_matrix(
+    basis, lengths: tuple[float, float], weight: Field | None = None, extra_points: int = 0
+) -> sp.csr_matrix:
+    """integral chi D^T D over [0, 1]^3 with D vec(Delta) = du_x/dx + du_y/dy, (3n, 3n).
 
-    @classmethod
-    def build(cls, names, start: dict, bounds: dict) -> SkinParameterSpace:
-        """Names with start values and (lower, upper) bounds in natural units."""
-        names = tuple(names)
-        missing = [n for n in names if n not in start or n not in bounds]
-        if missing:
-            raise ValueError(f"give a start value and bounds for {missing}")
-        x0 = np.array([float(start[n]) for n in names])
-        lower = np.array([float(bounds[n][0]) for n in names])
-        upper = np.array([float(bounds[n][1]) for n in names])
-        if np.any(lower >= upper) or np.any(x0 < lower) or np.any(x0 > upper):
-            raise ValueError(f"start values must lie within lower < upper bounds for {names}")
-        return cls(names, x0, lower, upper)
-
-    @property
-    def log_scaled(self) -> np.ndarray:
-        return np.array([n in LOG_PARAMETERS or n in LOG_EXTRA for n in self.names])
+    D = [J_u / L_x, J_v / L_y, 0] (the map (u, v) -> (x, y) is linear); chi = 1 by
+    default, else a field such as the region's indicator.
+    """
+    points, weights = quadrature(basis, extra_points)
+    if weight is not None:
+        weights = weights * np.asarray(weight(points), dtype=float).reshape(-1)
+    d_x = basis.collocation(points, (1, 0, 0)) / lengths[0]
+    d_y = basis.collocation(points, (0, 1, 0)) / lengths[1]
+    n = d_x.shape[1]
+    d = sp.hstack([d_x, d_y, sp.csr_matrix((len(points), n))]).tocsr()
+    gram = (d.T @ sp.diags(weights) @ d).tocsr()
+    return (0.5 * (gram + gram.T)).tocsr()
