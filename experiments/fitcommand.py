@@ -18,11 +18,13 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
     from experiments.options import UsageError
 
     paper = {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"}
+    fibres = {"kf1", "kf2", "fibre_angle"}
     foreign = {
-        "dnurbs": {"E", "nu", "k1", "k2"},
-        "linear-elastic": paper | {"k1", "k2"},
-        "neo-hookean": paper | {"k1", "k2"},
-        "exponential": paper,
+        "dnurbs": {"E", "nu", "k1", "k2"} | fibres,
+        "linear-elastic": paper | {"k1", "k2"} | fibres,
+        "neo-hookean": paper | {"k1", "k2"} | fibres,
+        "exponential": paper | fibres,
+        "fibres": paper,
     }
     wrong = [n for n in names if n in foreign[energy]]
     if wrong:
@@ -51,14 +53,15 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
         default="auto",
         help="base model: auto (step 0 of dvs diagnose chooses between the paper's eq. 18 and "
         "isotropic linear elasticity with its surroundings, docs/continuum.md), dnurbs, "
-        "linear-elastic, neo-hookean or exponential (neo-Hookean with strain stiffening "
-        "k1, k2; docs/continuum.md)",
+        "linear-elastic, neo-hookean, exponential (neo-Hookean with strain stiffening "
+        "k1, k2; docs/continuum.md) or fibres (exponential with a fibre family kf1, kf2, "
+        "fibre_angle)",
     )
     parser.add_argument(
         "--params",
         default=None,
         help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for the continua; "
-        "E,nu,k1 for exponential)",
+        "E,nu,k1 for exponential; E,nu,kf1,fibre_angle for fibres)",
     )
     parser.add_argument(
         "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"

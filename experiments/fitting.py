@@ -39,6 +39,7 @@ ENERGY_NAMES = {
     "linear-elastic": ("E", "nu"),
     "neo-hookean": ("E", "nu"),
     "exponential": ("E", "nu", "k1"),
+    "fibres": ("E", "nu", "kf1", "fibre_angle"),
 }
 """What ``dvs fit`` estimates by default for each ``--energy``."""
 
@@ -64,10 +65,11 @@ class FitSettings:
         Also fix the lateral ring of control points.
     fixed : dict
         Values of parameters that are not estimated.
-    energy : {"dnurbs", "linear-elastic", "neo-hookean", "exponential"}
+    energy : {"dnurbs", "linear-elastic", "neo-hookean", "exponential", "fibres"}
         The base model: the paper's eq. (18), isotropic linear elasticity, the
         compressible neo-Hookean energy (``symbolic.continuum_model``, parameters E
-        and nu) or the neo-Hookean with strain stiffening (also k1 and k2, eq. C10).
+        and nu), the neo-Hookean with strain stiffening (also k1 and k2, eq. C10) or that
+        with a fibre family (also kf1, kf2 and fibre_angle, eq. C13).
     margin : float
         Width [mm] of the band of tissue beyond the markers that the volume also
         covers (``experiments.surroundings``); 0, the default, ends the volume at the

@@ -36,10 +36,13 @@ DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
     "nu": (0.0, 0.49),
     "k1": (0.0, 1e4),
     "k2": (1e-2, 1e4),
+    "kf1": (0.0, 1e4),
+    "kf2": (1e-2, 1e4),
+    "fibre_angle": (-90.0, 90.0),
 }
 """Default bounds [natural units]; alpha spans four decades around the paper's values."""
 
-LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w", "E", "k2"})
+LOG_PARAMETERS = frozenset({"mu", "gamma", "alpha_u", "alpha_v", "alpha_w", "E", "k2", "kf2"})
 DYNAMIC_ONLY = frozenset({"mu", "gamma"})
 """Parameters that drop out of the steady state (eq. 22)."""
 

@@ -31,6 +31,7 @@ CONTINUUM_TERMS = ("shear", "volumetric")
 
 CONTINUUM_PARAMETERS = frozenset({"E", "nu"})
 EXPONENTIAL_PARAMETERS = CONTINUUM_PARAMETERS | {"k1", "k2"}
+FIBRE_PARAMETERS = EXPONENTIAL_PARAMETERS | {"kf1", "kf2", "fibre_angle"}
 
 
 class ContinuumModel(TissueModel):
@@ -155,6 +156,7 @@ class NeoHookeanModel(ContinuumModel):
             [p[:, self.free] for p in self.gradient.operators],
             self.gradient.volume,
             exponential=self.exponential,
+            fibres=self.fibres,
         )
         self._tangent: NeoHookeanTangent | None = None
         self._support = None  # the foundation on u_z of the free points [N/mm]
@@ -230,10 +232,34 @@ class ExponentialModel(NeoHookeanModel):
         return (*self.coefficients(values), KPA * values["k1"], values["k2"])
 
 
+class FibreModel(ExponentialModel):
+    """The exponential energy plus one fibre family in the skin's plane, eq. (C13).
+
+    Parameters E [kPa], nu, k1 [kPa], k2 [1], kf1 [kPa], kf2 [1] and fibre_angle [deg,
+    from x]. The fibres resist only stretch, and their term, stress and tangent vanish
+    at rest, so at kf1 = 0 the model is ``ExponentialModel`` (and at k1 = kf1 = 0 the
+    neo-Hookean one): kf1 is the loop's anisotropic stiffening effect with null value 0.
+    """
+
+    energy = "fibres"
+    fibres = True
+
+    def influential(self, names: tuple[str, ...]) -> np.ndarray:
+        """Every parameter of the energy enters the equilibrium."""
+        return np.array([n in FIBRE_PARAMETERS for n in names])
+
+    def _energy_coefficients(self, values: dict) -> tuple:
+        """(mu_L, lambda, k1) [N/mm^2], k2 [1], kf1 [N/mm^2], kf2 [1], phi [rad]: the
+        stress (C7) + (C11) + (C14)."""
+        angle = values["fibre_angle"] * (np.pi / 180.0)
+        return (*super()._energy_coefficients(values), KPA * values["kf1"], values["kf2"], angle)
+
+
 ENERGIES = {
     "dnurbs": TissueModel,
     "linear-elastic": ContinuumModel,
     "neo-hookean": NeoHookeanModel,
     "exponential": ExponentialModel,
+    "fibres": FibreModel,
 }
 """Base models by the name ``dvs fit --energy`` takes."""

@@ -39,6 +39,20 @@ W11 = k1 e (1 + 2 k2 s^2) and g = dIbar1/dF = J^(-2/3) (2 F - 2/3 tr(F^T F) a),
     A_exp = W11 g (x) g + 2 W1 J^(-2/3) [ d_ik d_jl - 2/3 (F_ij a_kl + a_ij F_kl)
             + 2/9 I1 a_ij a_kl + 1/3 I1 a_il a_kj ],         I1 = tr(F^T F).          (C12)
 
+**A fibre family** (``fibres``: collagen along Langer's lines). One family of fibres in
+the skin's plane, a0 = (cos phi, sin phi, 0), that resists only stretch (the
+Gasser-Ogden-Holzapfel form):
+
+    W_f = kf1 / (2 kf2) (exp(kf2 e^2) - 1),   e = <I4 - 1>,   I4 = |F a0|^2,            (C13)
+
+<.> the positive part (fibres buckle in compression). With W1 = kf1 e exp(kf2 e^2) and
+W11 = kf1 exp(kf2 e^2) (1 + 2 kf2 e^2) where e > 0 (both 0 elsewhere),
+
+    P_f = 2 W1 (F a0) a0^T,    A_f = 4 W11 (F a0)_i a0_j (F a0)_k a0_l + 2 W1 d_ik a0_j a0_l.  (C14)
+
+Zero at rest with its stress and tangent, like eq. (C10): the small-strain E and nu stay
+those of eq. (C6), and kf1 = 0 is the model without fibres.
+
 The pointwise stress is a CasADi SX Function mapped over the quadrature points; the
 gradients are sparse operators on the control points, so the whole force is one MX
 expression that both inverse methods differentiate.
@@ -65,9 +79,10 @@ def _cofactor(f: list[list]) -> list[list]:
     ]
 
 
-def piola_stress(exponential: bool = False) -> ca.Function:
-    """P(H, mu_L, lambda[, k1, k2]) of eq. (C7) [+ C11] for one point: H = grad u
-    row-major (9,), P (9,) [N/mm^2]; ``exponential`` adds the inputs k1 [N/mm^2], k2.
+def piola_stress(exponential: bool = False, fibres: bool = False) -> ca.Function:
+    """P(H, mu_L, lambda[, k1, k2][, kf1, kf2, phi]) of eq. (C7) [+ C11] [+ C14] for one
+    point: H = grad u row-major (9,), P (9,) [N/mm^2]; ``exponential`` adds the inputs k1
+    [N/mm^2], k2; ``fibres`` kf1 [N/mm^2], kf2 and the fibre angle phi [rad].
 
     J <= 0 (an inverted element) gives NaN, which the Newton line search rejects.
     """
@@ -95,6 +110,14 @@ def piola_stress(exponential: bool = False) -> ca.Function:
             for j in range(3)
         ]
         inputs, names = inputs + [k1, k2], names + ["k1", "k2"]
+    if fibres:
+        kf1, kf2, phi = ca.SX.sym("kf1"), ca.SX.sym("kf2"), ca.SX.sym("phi")
+        a0 = [ca.cos(phi), ca.sin(phi), 0.0]
+        fa = [sum(f[i][j] * a0[j] for j in range(3)) for i in range(3)]  # F a0
+        e = ca.fmax(sum(v**2 for v in fa) - 1.0, 0.0)
+        w1 = kf1 * e * ca.exp(kf2 * e**2)
+        stress = [stress[3 * i + j] + 2.0 * w1 * fa[i] * a0[j] for i in range(3) for j in range(3)]
+        inputs, names = inputs + [kf1, kf2, phi], names + ["kf1", "kf2", "phi"]
     return ca.Function("P", inputs, [ca.vertcat(*stress)], names, ["P"])
 
 
@@ -119,6 +142,17 @@ def exponential_energy_density(gradient: np.ndarray, k1: float, k2: float) -> np
     return 0.5 * k1 / k2 * np.expm1(k2 * s**2)
 
 
+def fibre_energy_density(gradient: np.ndarray, kf1: float, kf2: float, phi: float) -> np.ndarray:
+    """W_f of eq. (C13) [N/mm^2] for displacement gradients (n_q, 3, 3), numpy; kf1
+    [N/mm^2], kf2 [1] (0: the limit kf1/2 e^2), phi [rad]."""
+    f = np.eye(3) + np.asarray(gradient, dtype=float)
+    a0 = np.array([np.cos(phi), np.sin(phi), 0.0])
+    e = np.maximum(np.sum((f @ a0) ** 2, axis=-1) - 1.0, 0.0)
+    if kf2 == 0.0:
+        return 0.5 * kf1 * e**2
+    return 0.5 * kf1 / kf2 * np.expm1(kf2 * e**2)
+
+
 class NeoHookeanForce:
     """The internal force of eq. (C8) on a set of control points, as a CasADi expression.
 
@@ -131,24 +165,34 @@ class NeoHookeanForce:
         Quadrature weight times |det G| at each point [mm^3].
     exponential : bool
         Add the stiffening stress of eq. (C11); ``__call__`` then takes k1 and k2.
+    fibres : bool
+        Add the fibre family's stress of eq. (C14) (with ``exponential``); ``__call__``
+        then also takes kf1, kf2 and phi.
     """
 
-    def __init__(self, operators, volume: np.ndarray, exponential: bool = False):
+    def __init__(
+        self, operators, volume: np.ndarray, exponential: bool = False, fibres: bool = False
+    ):
+        if fibres and not exponential:
+            raise ValueError("the fibre family comes with the exponential energy")
         self.n_points = int(operators[0].shape[0])
         self.exponential = exponential
+        self.fibres = fibres
         self._operators = [to_casadi_sparse(sp.csr_matrix(p)) for p in operators]
         self._volume = ca.DM(np.asarray(volume, dtype=float))
-        self._stress = piola_stress(exponential).map(self.n_points)
+        self._stress = piola_stress(exponential, fibres).map(self.n_points)
 
     def gradient(self, delta: ca.MX) -> ca.MX:
         """grad u at the points, (9, n_q) with rows (i, j) -> 3 i + j, i the component."""
         columns = [ca.mtimes(p, delta) for p in self._operators]  # columns[j][q, i] = du_i/dx_j
         return ca.vertcat(*[columns[j][:, i].T for i in range(3) for j in range(3)])
 
-    def __call__(self, delta: ca.MX, mu_l, lam, k1=0.0, k2=0.0) -> ca.MX:
+    def __call__(self, delta: ca.MX, mu_l, lam, k1=0.0, k2=0.0, *fibres) -> ca.MX:
         """f (n, 3) [N] of eq. (C8) for displacements delta (n, 3) [mm], Lame pair and k1
-        [N/mm^2], k2 [1] (k1 and k2 only with ``exponential``)."""
+        [N/mm^2], k2 [1] (k1 and k2 only with ``exponential``), then kf1 [N/mm^2], kf2 [1]
+        and phi [rad] with ``fibres``."""
         arguments = (k1, k2) if self.exponential else ()
+        arguments += tuple(fibres) if self.fibres else ()
         stress = self._stress(self.gradient(delta), mu_l, lam, *arguments)  # (9, n_q)
         force = 0
         for j, operator in enumerate(self._operators):
@@ -232,10 +276,19 @@ class NeoHookeanTangent:
         self._laplace = pattern_entries(pattern, laplace)
 
     def __call__(
-        self, delta: np.ndarray, mu_l: float, lam: float, k1: float = 0.0, k2: float = 0.0
+        self,
+        delta: np.ndarray,
+        mu_l: float,
+        lam: float,
+        k1: float = 0.0,
+        k2: float = 0.0,
+        kf1: float = 0.0,
+        kf2: float = 0.0,
+        phi: float = 0.0,
     ) -> sp.csc_matrix:
         """K_T at displacements delta (n, 3) [mm] on every control point, (3 m, 3 m) [N/mm];
-        Lame pair and k1 [N/mm^2], k2 [1] of eq. (C12) (k1 = 0: the neo-Hookean tangent)."""
+        Lame pair and k1 [N/mm^2], k2 [1] of eq. (C12) (k1 = 0: the neo-Hookean tangent);
+        kf1 [N/mm^2], kf2 [1] and phi [rad] of the fibre family, eq. (C14)."""
         local_delta = np.asarray(delta, dtype=float)[self._support]  # (n_q, k, 3): [q, a, i]
         f = np.eye(3) + np.einsum("qai,qaj->qij", local_delta, self._g)
         det = np.linalg.det(f)
@@ -249,6 +302,8 @@ class NeoHookeanTangent:
         if k1 != 0.0:
             extra, extra_swapped = self._exponential(f, det, d, k1, k2)
             first, swapped = first + extra, swapped + extra_swapped
+        if kf1 != 0.0:
+            first = first + self._fibres(f, kf1, kf2, phi, d.shape)
         local = first + self._swap(swapped)
         data = np.bincount(
             self._position,
@@ -266,6 +321,25 @@ class NeoHookeanTangent:
         """[(a, k), (b, i)] -> [(a, i), (b, k)]: the a_il a_kj terms of (C9) and (C12)."""
         k = self.k
         return matrix.reshape(-1, k, 3, k, 3).transpose(0, 1, 4, 3, 2).reshape(matrix.shape)
+
+    def _fibres(self, f, kf1: float, kf2: float, phi: float, shape) -> np.ndarray:
+        """The element matrices of A_f, eq. (C14), at [(a, i), (b, k)]."""
+        a0 = np.array([np.cos(phi), np.sin(phi), 0.0])
+        fa = f @ a0  # (n_q, 3): F a0
+        e = np.maximum(np.sum(fa**2, axis=1) - 1.0, 0.0)
+        growth = np.exp(kf2 * e * e)
+        w1 = kf1 * e * growth
+        w11 = np.where(e > 0.0, kf1 * growth * (1.0 + 2.0 * kf2 * e * e), 0.0)
+        ga = self._g @ a0  # (n_q, k): dN_a/dx . a0
+        v = (ga[:, :, None] * fa[:, None, :]).reshape(shape)  # (F a0)_i (g_a . a0)
+        matrix = self._outer(v, v, 4.0 * self._w * w11)
+        c = (2.0 * self._w * w1).reshape(self.n_elements, -1, 1)
+        gram = np.einsum(
+            "eqa,eqb->eab",
+            ga.reshape(self.n_elements, -1, self.k) * c,
+            ga.reshape(self.n_elements, -1, self.k),
+        )
+        return matrix + np.einsum("eab,ik->eaibk", gram, np.eye(3)).reshape(matrix.shape)
 
     def _exponential(self, f, det, d, k1: float, k2: float) -> tuple[np.ndarray, np.ndarray]:
         """The element matrices of A_exp, eq. (C12): (unswapped part, part to swap)."""

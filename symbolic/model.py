@@ -99,6 +99,11 @@ class TissueModel:
                 f"the {self.energy} model has no exponential stiffening k1; leave k1 at 0 "
                 "or use the exponential energy (--energy exponential)"
             )
+        if self.parameters["kf1"] != 0.0 and not self.fibres:
+            raise ValueError(
+                f"the {self.energy} model has no fibre family kf1; leave kf1 at 0 "
+                "or use the energy with fibres (--energy fibres)"
+            )
         fields = dict(self.fields or {})
         self._terms: dict | None = None
         self._unit_mass = mass_matrix(self.volume.basis, fields.get("mu", 1.0), self.extra_points)
@@ -207,6 +212,9 @@ class TissueModel:
 
     exponential = False
     """True when the energy has the strain-stiffening term of eq. (C10) (k1, k2)."""
+
+    fibres = False
+    """True when the energy has the fibre family of eq. (C13) (kf1, kf2, fibre_angle)."""
 
     componentwise = True
     """The linear K acts as I3 (x) A on the free points (``solvers.componentwise``);

@@ -1,9 +1,9 @@
 """The named parameters every model shares: defaults, units, meaning and their checks.
 
 ``PARAMETERS`` lists what the inverse can estimate (the paper's eq. 13, 16, 18 and 1;
-the continua's E and nu, eq. C1; the exponential stiffening's k1 and k2, eq. C10, all
-in docs/); ``check_parameters`` merges values over the defaults and refuses unknown
-names and bad numbers with one line.
+the continua's E and nu, eq. C1; the exponential stiffening's k1 and k2, eq. C10; the
+fibre family's kf1, kf2 and angle, eq. C13, all in docs/); ``check_parameters`` merges
+values over the defaults and refuses unknown names and bad numbers with one line.
 """
 
 from __future__ import annotations
@@ -34,8 +34,13 @@ PARAMETERS: dict[str, ParameterInfo] = {
     "nu": ParameterInfo(0.45, "1", "Poisson's ratio of the linear-elastic model (eq. C1)"),
     "k1": ParameterInfo(0.0, "kPa", "strain stiffening of the exponential energy (eq. C10)"),
     "k2": ParameterInfo(10.0, "1", "exponent of the exponential energy (eq. C10)"),
+    "kf1": ParameterInfo(0.0, "kPa", "stiffness of the fibre family (eq. C13)"),
+    "kf2": ParameterInfo(10.0, "1", "exponent of the fibre family (eq. C13)"),
+    "fibre_angle": ParameterInfo(0.0, "deg", "fibre direction from x in the x-y plane (eq. C13)"),
 }
 """Every parameter the inverse can estimate, with the paper's start values."""
+SIGNED = frozenset({"k0", "fibre_angle"})
+"""Parameters that may be negative."""
 
 
 def check_parameters(values: dict[str, float]) -> dict[str, float]:
@@ -48,7 +53,7 @@ def check_parameters(values: dict[str, float]) -> dict[str, float]:
     for name, value in merged.items():
         if not np.isfinite(value):
             raise ValueError(f"parameter {name} must be finite, got {value}")
-        if name != "k0" and value < 0:
+        if name not in SIGNED and value < 0:
             raise ValueError(f"parameter {name} must be >= 0, got {value}")
     if merged["nu"] >= 0.5:
         raise ValueError(f"Poisson's ratio nu must be < 0.5, got {merged['nu']}")

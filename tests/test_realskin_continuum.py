@@ -80,7 +80,10 @@ def _membrane_with_cell_scaled(model, points: np.ndarray, factor: float):
     gradient = model.gradient
     volume = np.where(points, factor, 1.0) * gradient.volume
     scaled.force = NeoHookeanForce(
-        [p[:, model.free] for p in gradient.operators], volume, exponential=model.exponential
+        [p[:, model.free] for p in gradient.operators],
+        volume,
+        exponential=model.exponential,
+        fibres=model.fibres,
     )
     scaled._tangent = NeoHookeanTangent(
         model.volume.collocation(gradient.points), gradient.operators, volume, model.free
@@ -88,7 +91,8 @@ def _membrane_with_cell_scaled(model, points: np.ndarray, factor: float):
     return scaled
 
 
-def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
+@pytest.mark.parametrize("energy", ["exponential", "fibres"])
+def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell(energy):
     """The continuum map's column of a cell (eq. M2 of ``continuum_cells``) equals the
     central difference of the residual of a membrane whose energy in that cell is
     exp(+-h) times its own; and the cells' internal forces sum to the tissue's (the
@@ -106,9 +110,10 @@ def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     names, x = ("E", "nu", "k1"), np.array([6.0, 0.3, 20.0])
-    model = ENERGIES["exponential"](
+    fibres = {"kf1": 40.0, "fibre_angle": 20.0} if energy == "fibres" else {}
+    model = ENERGIES[energy](
         slab_volume(REGION, 2.0, (9, 5)),
-        dict(zip(names, x)),
+        {**dict(zip(names, x)), **fibres},
         BoundaryConditions(fix_inner=False, fix_lateral=True),
         prescribed=pads.prescribed,
         support=1e-2,
@@ -131,8 +136,8 @@ def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell():
     delta = np.zeros_like(model.rest)
     delta[model.free] = state[: 3 * model.n_free].reshape(3, -1).T
     parts = cells.force_columns(model, names, x, delta).sum(axis=1)
-    tissue = ENERGIES["exponential"](
-        model.volume, dict(zip(names, x)), model.boundary, prescribed=pads.prescribed
+    tissue = ENERGIES[energy](
+        model.volume, {**dict(zip(names, x)), **fibres}, model.boundary, prescribed=pads.prescribed
     )
     whole = tissue.force(ca.DM(delta[model.free]), *tissue._energy_coefficients(model.values({})))
     assert np.allclose(parts, np.asarray(whole).T.ravel(), rtol=1e-9, atol=1e-12 * abs(parts).max())

@@ -48,16 +48,25 @@ from symbolic.model import BoundaryConditions
 
 CONTINUUM_ENERGIES = ("linear-elastic",)
 """Fitted alone; the neo-Hookean membrane is the base of ``stiffening_loop``."""
-BOUNDS = {"E": (0.1, 1e4), "nu": (0.0, 0.49), "k1": (0.0, 1e4), "k2": (0.01, 1e5)}
-"""E [kPa], nu [1], k1 [kPa] and k2 [1]."""
+BOUNDS = {
+    "E": (0.1, 1e4),
+    "nu": (0.0, 0.49),
+    "k1": (0.0, 1e4),
+    "k2": (0.01, 1e5),
+    "kf1": (0.0, 1e4),
+    "fibre_angle": (-90.0, 90.0),
+}
+"""E [kPa], nu [1], k1 [kPa], k2 [1], kf1 [kPa] and the fibre angle [deg from x]."""
 SUPPORT_N_PER_MM3 = 1e-2
 """The membrane's foundation in z [N/mm^3] (**choice**): stiff enough to keep it in its
 plane, the authors' 2D assumption. Without it the membrane buckles out of its plane
 and Newton's branch depends on its start; a fat-like 2e-4 (E ~ 2 kPa over ~10 mm)
 removed the branches on healthy skin but not under the stiffer keloid (measured,
 docs/realskin.md)."""
-LOOP_CANDIDATES = ("k1", "k2")
-"""The continuum loop's effects: strain stiffening, then its exponent."""
+LOOP_CANDIDATES = ("k1", "k2", "kf1", "fibre_angle")
+"""The continuum loop's effects: isotropic strain stiffening (eq. C10) and a fibre family
+(eq. C13, kf2 at its default 10), each with what has no influence until it is in: the
+exponent k2, the fibre angle (null: along the pull)."""
 
 
 def start_values(name: str, thickness_mm: float) -> dict[str, float]:
@@ -82,10 +91,10 @@ def fit_energy(setup: Setup, energy: str, thickness_mm: float, log=print) -> Sta
 
 
 def continuum_setup(setup: Setup, thickness_mm: float, support: float = SUPPORT_N_PER_MM3) -> Setup:
-    """The case on the membrane with the exponential energy at k1 = 0 (the neo-Hookean)
+    """The case on the membrane with the fibre energy at k1 = kf1 = 0 (the neo-Hookean)
     on a foundation of ``support`` [N/mm^3] in z, started from the authors' E and nu."""
     start = start_values(setup.case.name, thickness_mm)
-    model = ENERGIES["exponential"](
+    model = ENERGIES["fibres"](
         setup.model.volume,
         dict(start),
         BoundaryConditions(fix_inner=False, fix_lateral=True),

@@ -7,7 +7,7 @@ tension terms (``scan.CellTerms``); on the large-strain continuum of
 
     W(X) -> exp(s_c) W(X)   for X in cell c,                                      (M1)
 
-neo-Hookean and exponential parts alike (eq. C6 + C10 of docs/continuum.md; the
+neo-Hookean, exponential and fibre parts alike (eq. C6, C10, C13 of docs/continuum.md; the
 foundation under the membrane is not tissue and is not scaled). The internal force of
 eq. (C8) is a sum over the Gauss points, so at s = 0
 
@@ -74,10 +74,9 @@ class ContinuumCells:
         """
         operators = model.gradient.operators
         coefficients = model._energy_coefficients(model.values(dict(zip(names, np.ravel(x)))))
-        exponential = len(coefficients) == 4
         # H_q, row-major: H[3 i + j, q] = d u_i / d x_j at point q
         h = np.array([operators[j] @ delta[:, i] for i in range(3) for j in range(3)])
-        stress = piola_stress(exponential).map(h.shape[1])
+        stress = piola_stress(model.exponential, model.fibres).map(h.shape[1])
         p = np.asarray(stress(h, *[float(c) for c in coefficients]).full())  # (9, n_q)
         blocks = []
         for i in range(3):

@@ -34,9 +34,12 @@ NULL = {
     "region_scan": 1.0,
     "k1": 0.0,
     "k2": PARAMETERS["k2"].default,
+    "kf1": 0.0,
+    "fibre_angle": 0.0,
 }
 """Null value of every candidate parameter: the model without the effect (k2: the
-exponent's default, tested once k1 is in; at k1 = 0 it has no influence)."""
+exponent's default, tested once k1 is in; at k1 = 0 it has no influence; the fibre
+angle: along the pull, x, tested once kf1 is in)."""
 ONE_SIDED = {
     "k0": True,
     REGION_RATIO: False,
@@ -44,6 +47,8 @@ ONE_SIDED = {
     POISSON: True,
     "k1": True,
     "k2": False,
+    "kf1": True,
+    "fibre_angle": False,
 }
 """Candidates that may only grow from their null value (k0 >= 0, c >= 0)."""
 LABELS = {
@@ -54,6 +59,8 @@ LABELS = {
     "region_scan": "second material (scanned region)",
     "k1": "strain stiffening k1 (exponential, continuum)",
     "k2": "stiffening exponent k2",
+    "kf1": "fibre family kf1 (continuum)",
+    "fibre_angle": "fibre angle",
 }
 """How reports name the effects."""
 FIT_TOLERANCE = 1e-10
