@@ -13,12 +13,11 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from test_hyperelastic import exponential_operators
 from volumes import curved_volume
 
-from symbolic.continuum import PhysicalGradient, box_volume, lame
+from symbolic.continuum import box_volume, lame
 from symbolic.hyperelastic import (
-    NeoHookeanForce,
-    NeoHookeanTangent,
     exponential_energy_density,
     fibre_energy_density,
     neo_hookean_energy_density,
@@ -34,15 +33,7 @@ KF1, KF2, PHI = 2e-2, 5.0, 0.6
 
 def fibre_operators(volume):
     """Force with stress (C7) + (C11) + (C14) and its tangent, on every control point."""
-    gradient = PhysicalGradient.of(volume)
-    force = NeoHookeanForce(gradient.operators, gradient.volume, exponential=True, fibres=True)
-    tangent = NeoHookeanTangent(
-        volume.collocation(gradient.points),
-        gradient.operators,
-        gradient.volume,
-        np.arange(volume.basis.size),
-    )
-    return gradient, force, tangent
+    return exponential_operators(volume, fibres=True)
 
 
 def random_state(volume, size: float, seed: int = 0) -> np.ndarray:

@@ -211,10 +211,11 @@ K1, K2 = 5e-3, 20.0
 """k1 [N/mm^2] (5 kPa) and k2 [1] of the exponential term in the checks below."""
 
 
-def exponential_operators(volume: VolumeSpline):
-    """Force (C8) with stress (C7) + (C11) and its tangent, on every control point."""
+def exponential_operators(volume: VolumeSpline, fibres: bool = False):
+    """Force (C8) with stress (C7) + (C11) (+ C14 with ``fibres``) and its tangent, on
+    every control point."""
     gradient = PhysicalGradient.of(volume)
-    force = NeoHookeanForce(gradient.operators, gradient.volume, exponential=True)
+    force = NeoHookeanForce(gradient.operators, gradient.volume, exponential=True, fibres=fibres)
     tangent = NeoHookeanTangent(
         volume.collocation(gradient.points),
         gradient.operators,
