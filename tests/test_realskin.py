@@ -448,3 +448,38 @@ def test_load_continuation_reaches_the_equilibrium_newton_misses(shared_data):
     np.testing.assert_allclose(
         solver.solve_by_continuation(*easy).state, solver.solve(*easy).state, rtol=1e-6, atol=1e-9
     )
+
+
+def test_lookahead_keeps_the_refit_that_ends_lowest(monkeypatch):
+    """``RealSkinSettings.lookahead``: the two worthy candidates with the largest
+    statistics are refitted and the lower cost wins, even when the score ranked it
+    second; an unworthy third is not refitted; lookahead 1 takes the largest statistic."""
+    from types import SimpleNamespace
+
+    import experiments.realskin.loop as realskin
+    from experiments.realskin.setup import RealSkinSettings
+    from experiments.realskin.stages import Score
+
+    costs = {"kf1": 90.0, "k2": 40.0, "fibre_angle": 10.0}
+    refitted = []
+
+    def fake_fit(setup, names, start, settings, label, log):
+        refitted.append(names[-1])
+        return SimpleNamespace(cost=costs[names[-1]], names=names)
+
+    monkeypatch.setattr(realskin, "fit_from_starts", fake_fit)
+    stage = SimpleNamespace(cost=100.0, names=("E",), as_dict=lambda: {"E": 1.0})
+    scores = {
+        "kf1": Score("kf1", 1020.0, 1e-200, 128.0, 1.0),
+        "k2": Score("k2", 718.0, 1e-150, 90.0, 1.0),
+        "fibre_angle": Score("fibre_angle", 5.0, 0.03, 1.0, 1.0),
+    }
+    setup = SimpleNamespace(model="membrane")
+    quiet = {"log": lambda *_: None}
+    best, refit = realskin._refit_best(
+        setup, stage, scores, {}, RealSkinSettings(lookahead=2), **quiet
+    )
+    assert (best.name, refit.cost, refitted, setup.model) == ("k2", 40.0, ["kf1", "k2"], "membrane")
+    refitted.clear()
+    best, _ = realskin._refit_best(setup, stage, scores, {}, RealSkinSettings(), **quiet)
+    assert (best.name, refitted) == ("kf1", ["kf1"])

@@ -137,14 +137,10 @@ def close_the_loop(
         )
         if not worth:
             break
-        parameter = REGION_RATIO if best.name == SCAN else best.name
+        best, refit = _refit_best(setup, stage, scores, entries, settings, log)
+        rounds[-1]["chosen"] = best.name
         if best.name == SCAN:
             found = entries[SCAN]
-            setup.model = with_region(setup.model, rect_indicator(setup.grid.region, found.rect))
-            log(f"  found region: {found.rect} (direction {found.score.direction:+.0f})")
-        names = stage.names + (parameter,)
-        start = {**stage.as_dict(), parameter: NULL[parameter]}
-        refit = fit_from_starts(setup, names, start, settings, f"+ {LABELS[best.name]}", log)
         if refit.cost > stage.cost:  # nested: the null value alone gives stage.cost
             log(
                 f"  {LABELS[best.name]}: the refit ends above the previous cost "
@@ -159,6 +155,44 @@ def close_the_loop(
         k: _score(v) for k, v in _score_all(setup, stage, settings.diagnostics, settings).items()
     }
     return {"stages": stages, "rounds": rounds, "diagnostics": diagnostics, "found": found}
+
+
+def _refit_best(setup: Setup, stage: StageFit, scores: dict, entries: dict, settings, log):
+    """Refit the ``settings.lookahead`` worthy candidates with the largest statistics
+    (each added alone to the stage) and return (score, refit) of the one that ends
+    lowest; the scanned region, when chosen, stays in ``setup.model``."""
+    ranked = sorted(scores.values(), key=lambda s: s.statistic, reverse=True)
+    worthy = [
+        s
+        for s in ranked
+        if s.p_value < settings.significance
+        and s.predicted_decrease >= settings.min_gain * stage.cost
+    ][: max(settings.lookahead, 1)]
+    base_model, tried = setup.model, []
+    for score in worthy:
+        setup.model = base_model
+        parameter = REGION_RATIO if score.name == SCAN else score.name
+        if score.name == SCAN:
+            found = entries[SCAN]
+            setup.model = with_region(base_model, rect_indicator(setup.grid.region, found.rect))
+            log(f"  found region: {found.rect} (direction {found.score.direction:+.0f})")
+        names = stage.names + (parameter,)
+        start = {**stage.as_dict(), parameter: NULL[parameter]}
+        label = f"+ {LABELS[score.name]}"
+        try:
+            refit = fit_from_starts(setup, names, start, settings, label, log)
+        except EquilibriumError as error:
+            if len(worthy) == 1:
+                raise
+            log(f"  {label}: no refit ({error})")
+            continue
+        tried.append((score, refit, setup.model))
+    if not tried:
+        raise EquilibriumError("no candidate's refit reached an equilibrium")
+    best, refit, setup.model = min(tried, key=lambda t: t[1].cost)
+    if len(worthy) > 1:
+        log(f"  lookahead: {best.name} ends lowest ({refit.cost:.6g})")
+    return best, refit
 
 
 def likelihood_ratio(before: StageFit, after: StageFit) -> float:

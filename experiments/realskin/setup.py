@@ -55,6 +55,11 @@ class RealSkinSettings:
         ...and its predicted cost decrease is at least this fraction of the cost.
     max_effects : int
         At most this many effects are added.
+    lookahead : int
+        Refit this many of the worthy candidates with the largest score statistics and add
+        the one whose refit ends lowest (1: the largest statistic alone). The score test
+        ranks by a local, first-order prediction; a candidate whose refit gains little can
+        outrank one that gains much (docs/realskin.md, the continuum loop).
     candidates : tuple of str
         The effects the loop may add.
     starts : dict
@@ -81,6 +86,7 @@ class RealSkinSettings:
     significance: float = 1e-3
     min_gain: float = 0.05
     max_effects: int = 4
+    lookahead: int = 1
     candidates: tuple[str, ...] = ("k0", POISSON, ANISOTROPY, SCAN)
     starts: dict = field(default_factory=dict)
     diagnostics: tuple[str, ...] = ()
