@@ -12,11 +12,12 @@ their E and nu directly if their E is per unit thickness (the README says "proba
 N/mm"); E [kPa] is the modulus of a 3D slab of thickness t.
 
 **The loop on the continuum base** (``stiffening_loop``): the neo-Hookean membrane is
-the exponential energy of eq. (C10) at k1 = 0 (docs/continuum.md), so strain stiffening
-is an effect like any other of the real-skin loop (``experiments.realskin.loop``): a
-score test of k1 at 0 (one-sided, k2 at its default 10), a refit when it is significant
-and worth it, then the same for the exponent k2 (two-sided in log space; it has no
-influence until k1 is in).
+the fibre energy of eq. (C13) at k1 = kf1 = 0 (docs/continuum.md), so strain stiffening
+and a fibre family are effects like any other of the real-skin loop
+(``experiments.realskin.loop``): score tests of k1 and kf1 at 0 (one-sided; k2 and kf2
+at their default 10, the fibres along the pull), refits of the two best when
+significant and worth it (``LOOKAHEAD``), then the same for the exponent k2 (two-sided
+in log space) and the fibre angle, which have no influence until their term is in.
 
 **The keloid as a field on the continuum** (``membrane_map``): the cell map of
 ``cellmap.py`` on the membrane at the loop's last stage, every cell's strain energy
