@@ -301,7 +301,6 @@ class EquilibriumSolver:
         state = np.zeros(self.n_state) if start is None else np.array(start, dtype=float)
         g = self._residual(state, args)
         history = [_norm(g) / scale]
-        exact = factor is None
         if self.linear:  # dg/ds is constant: its own LU at x, shared by the load cases
             factor = self._linear_factor(state, args)
         iterations = 0
@@ -324,16 +323,18 @@ class EquilibriumSolver:
             contracts = history[-1] <= CHORD_CONTRACTION * history[-2]
             if not self.linear and not (contracts and (self.settings.reuse_lu or not fresh)):
                 factor = None  # full Newton, or the LU no longer contracts: a fresh one
-        return self._equilibrium(state, args, factor, exact, iterations, history)
+        return self._equilibrium(state, args, factor, iterations, history)
 
-    def _equilibrium(self, state, args, factor, exact, iterations, history) -> Equilibrium:
+    def _equilibrium(self, state, args, factor, iterations, history) -> Equilibrium:
         """The converged state with dg/ds (and dg/dx if closed-form) at it and an LU:
         the linear model's own; else Newton's last, exact only if made here."""
-        derivatives = self._both(state, *args) if self._both is not None else None
-        if derivatives is not None:
-            jacobian, parameter_jacobian = derivatives
+        parameter_jacobian = None
+        if self._both is not None:
+            jacobian, parameter_jacobian = self._both(state, *args)
+        elif self.linear:  # constant: the one the LU was made of
+            jacobian = self._cache[1]
         else:
-            jacobian, parameter_jacobian = self._jacobian(state, *args), None
+            jacobian = self._jacobian(state, *args)
         if self.linear:
             exact = True
         elif factor is None:
@@ -426,18 +427,21 @@ class EquilibriumSolver:
 
     def _factorized(self, state: np.ndarray, args: tuple):
         """An LU of dg/ds at ``state``."""
+        return self._lu(self._jacobian_at(state, args))
+
+    def _jacobian_at(self, state: np.ndarray, args: tuple):
         try:
-            jacobian = self._jacobian(state, *args)
+            return self._jacobian(state, *args)
         except ValueError as error:  # e.g. an inverted element of the neo-Hookean model
             raise EquilibriumError(f"{error}; reduce the load or give a better start") from None
-        return self._lu(jacobian)
 
     def _linear_factor(self, state: np.ndarray, args: tuple):
-        """The linear model's LU, cached per x (shared by load cases)."""
+        """The linear model's dg/ds and LU, cached per x (shared by load cases)."""
         x = args[0]
         if self._cache is None or not np.array_equal(self._cache[0], x):
-            self._cache = (np.array(x), self._factorized(state, args))
-        return self._cache[1]
+            jacobian = self._jacobian_at(state, args)
+            self._cache = (np.array(x), jacobian, self._lu(jacobian))
+        return self._cache[2]
 
     def _line_search(self, state, step, g, args):
         """Full step, halved while the residual norm does not decrease."""

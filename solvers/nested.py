@@ -207,7 +207,6 @@ class NestedSolver:
                 for k, (case, result) in enumerate(zip(problem.cases, results))
             ]
         else:
-            r = None
             if self.scalar is not None:
                 factor = self.scalar.factor(x)
                 solved = [self.scalar.state(factor, c.force, c.prescribed) for c in problem.cases]
