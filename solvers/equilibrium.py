@@ -231,7 +231,6 @@ class EquilibriumSolver:
         self.settings = settings or NewtonSettings()
         self.linear = model.is_linear(self.names)
         self.scalar = None
-        self.factorizations = 0
         if model.componentwise and self.linear:
             model.symbolic_values(self.names)  # the names' checks, one message for all paths
             self.scalar = ScalarSystem(model, self.names)
@@ -338,7 +337,7 @@ class EquilibriumSolver:
         if self.linear:
             exact = True
         elif factor is None:
-            factor, exact = self._lu(jacobian), True
+            factor, exact = _lu(jacobian), True
         else:
             exact = False
         n_points = 3 * self.model.n_free
@@ -421,13 +420,9 @@ class EquilibriumSolver:
         """dg/ds at a state (the KKT matrix of the nonlinear model), scipy CSC."""
         return sp.csc_matrix(self._jacobian(state, x, force, prescribed))
 
-    def _lu(self, jacobian):
-        self.factorizations += 1
-        return _lu(jacobian)
-
     def _factorized(self, state: np.ndarray, args: tuple):
         """An LU of dg/ds at ``state``."""
-        return self._lu(self._jacobian_at(state, args))
+        return _lu(self._jacobian_at(state, args))
 
     def _jacobian_at(self, state: np.ndarray, args: tuple):
         try:
@@ -440,7 +435,7 @@ class EquilibriumSolver:
         x = args[0]
         if self._cache is None or not np.array_equal(self._cache[0], x):
             jacobian = self._jacobian_at(state, args)
-            self._cache = (np.array(x), jacobian, self._lu(jacobian))
+            self._cache = (np.array(x), jacobian, _lu(jacobian))
         return self._cache[2]
 
     def _line_search(self, state, step, g, args):
