@@ -20,6 +20,7 @@ CORE = {
     "fit": ("experiments.fitcommand", "estimate parameters from a dataset, with a verdict"),
     "compare": ("experiments.inverse.compare", "simultaneous vs nested vs paper-faithful"),
     "diagnose": ("experiments.diagnosis.diagnose", "find the effect the model lacks"),
+    "next": ("experiments.design.nextpress", "the next press of an experiment, from its data"),
     "transient": ("experiments.dynamics.transient", "transient from rest against equilibrium"),
     "reconstruct": ("experiments.stereo.reconstruct", "images of the marked skin -> dataset"),
 }

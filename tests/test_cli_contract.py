@@ -43,6 +43,7 @@ DIRECTORY_OUTPUT = {
     "image": ["{data}"],
     "imagebench": [],
     "design": ["{data}"],
+    "next": ["{data}", "--budget", "3"],
     "designbench": [],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
@@ -183,6 +184,9 @@ OUT_OF_RANGE = [
     (["design", "{data}", "--force-range", "0.1", "2", "--out", "o"], "--force-range"),
     (["design", "{data}", "--target", "rigid_motion", "--out", "o"], "rigid_motion"),
     (["design", "{data}", "--criterion", "d", "--target", "bending", "--out", "o"], "--criterion"),
+    (["next", "{data}", "--budget", "0", "--out", "o"], "--budget"),
+    (["next", "{data}", "--budget", "2", "--force-range", "0.2", "0.9", "--out", "o"], "range"),
+    (["next", "{data}", "--budget", "2", "--grid", "9x9x3", "--out", "o"], "--grid"),
     (["designbench", "--budget", "0"], "--budget"),
     (["imagebench", "--methods", "magic"], "--methods"),
     (["diagnose", "{data}", "--degrees", "9x9x9", "--out", "o"], "--degrees"),

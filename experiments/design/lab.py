@@ -6,7 +6,8 @@ marked area, 9 x 9 markers) with one scenario's hidden departure (``SCENARIOS``)
 Each press is filmed once: the markers under the true load, their own noise draw
 (seed ``1000 seed + k`` for the k-th press) and the probe's occlusion. The rest capture
 is drawn once, with the first press, and shared by every press after it, as in a
-session where the cameras film the skin before the first press.
+session where the cameras film the skin before the first press
+(``experiments.captures.merge_captures``, as ``dvs next`` appends a lab's presses).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from experiments.captures import merge_captures
 from experiments.dataset import Dataset
 from experiments.diagnosis.continuum import SCENARIOS, ContinuumStudy
 
@@ -85,11 +87,4 @@ class ContinuumLab:
         """Every press so far, with the first press's rest capture."""
         if not self.captures:
             raise ValueError("no press made yet")
-        first = self.captures[0]
-        return replace(
-            first,
-            forces=np.concatenate([c.forces for c in self.captures]),
-            contacts=np.concatenate([c.contacts for c in self.captures]),
-            outer_loaded=np.concatenate([c.outer_loaded for c in self.captures]),
-            probe_radius=np.concatenate([c.probe_radius for c in self.captures]),
-        )
+        return merge_captures(self.captures)

@@ -40,8 +40,6 @@ SCHEMA = "dvs-sequential/1"
 DIAGNOSIS = DiagnosisSettings()
 """The loop's settings (rival margin 3.84, the default library; the level is the
 candidates' ``level``)."""
-FAMILY = len(effect_library(DIAGNOSIS.candidates, "linear-elastic"))
-"""The Bonferroni family of one round of the loop on the linear-elastic base."""
 
 
 @dataclass(frozen=True)
@@ -88,13 +86,14 @@ class SequentialSettings:
             raise ValueError(f"the goal must lie in [0.5, 1), got {self.goal}")
 
 
-def in_play(diagnosis, settings: SequentialSettings) -> tuple[list[str], list]:
+def in_play(
+    diagnosis, settings: SequentialSettings, energy: str = "linear-elastic"
+) -> tuple[list[str], list]:
     """The named effects and the effects in play, each with its theta (named: fitted)
     or realistic magnitude: the named first, then the final round's score tests from
-    the highest, then the rest of the library (``settings.rivals`` of the unnamed)."""
-    from symbolic.effects.library import effect_library
-
-    library = effect_library(DIAGNOSIS.candidates, "linear-elastic")
+    the highest, then the rest of the library of the base ``energy`` (``settings.rivals``
+    of the unnamed)."""
+    library = effect_library(DIAGNOSIS.candidates, energy)
     # no press changes what one capture shows of a per-capture effect
     named = [n for n in diagnosis.selected if not library[n].per_case]
     ranked = [t.effect for t in sorted(final_scores(diagnosis), key=lambda t: t.log_p)]
@@ -106,20 +105,29 @@ def in_play(diagnosis, settings: SequentialSettings) -> tuple[list[str], list]:
     return named, effects
 
 
-def step(dataset, settings: SequentialSettings, remaining: int, log=print) -> dict:
+def step(
+    dataset, settings: SequentialSettings, remaining: int, log=print, base=None, progress=None
+) -> dict:
     """Diagnose ``dataset`` and choose the next press; the path's row (``press`` None when
-    the loop stops: ``stop`` says why)."""
+    the loop stops: ``stop`` says why).
+
+    ``base`` is the diagnosis's base model (``FitSettings``; default the linear-elastic
+    volume of ``settings.grid``, ``degrees`` and ``margin``); ``progress`` receives the
+    diagnosis's lines.
+    """
     from experiments.diagnosis.diagnose import base_settings, diagnose_dataset
 
     begin = time.perf_counter()
-    base = base_settings(settings.grid, "linear-elastic", settings.degrees, settings.margin)
+    if base is None:
+        base = base_settings(settings.grid, "linear-elastic", settings.degrees, settings.margin)
     loop = replace(DIAGNOSIS, level=settings.candidates.level)
-    diagnosis = diagnose_dataset(dataset, loop, base=base)
+    diagnosis = diagnose_dataset(dataset, loop, log=progress, base=base)
     document = diagnosis.document()
     diagnosed = time.perf_counter() - begin
     fit, sigma = diagnosis.steps[0].fit, float(dataset.noise_mm)
     model = fit.problem.model
-    named, effects = in_play(diagnosis, settings)
+    named, effects = in_play(diagnosis, settings, base.energy)
+    family = len(effect_library(DIAGNOSIS.candidates, base.energy))
     marker_uv, _ = model.volume.project_to_outer(dataset.outer_rest.reshape(-1, 3))
     pool = InformationPool(fit, marker_uv, effects)
     own, seen = dataset_presses(dataset, model)
@@ -129,7 +137,7 @@ def step(dataset, settings: SequentialSettings, remaining: int, log=print) -> di
     asked = questions(
         pool.layout,
         list(range(len(named))),
-        loop.level / FAMILY,
+        loop.level / family,
         settings.goal,
         loop.rival_margin,
     )

@@ -1,0 +1,160 @@
+"""``dvs next``: the next press of an experiment from its data, and appending captures.
+
+The proposal is one step of the sequential loop (``experiments.design.sequential``) on
+the data given; these tests check the command around it: the merge of a session's
+captures, the files it writes, that the proposal is a press ``dvs simulate --design``
+can make and that the same data give the same proposal, and the bad-input contract.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from experiments.captures import merge_captures
+from experiments.cli import main as dvs
+from experiments.dataset import load_dataset, save_dataset
+from experiments.validation import DatasetError
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """FE continuum data (scikit-fem) of the paper's two presses on a stiffness
+    gradient, one file per press and both together."""
+    pytest.importorskip("skfem")
+    from experiments.design.lab import ContinuumLab
+
+    folder = tmp_path_factory.mktemp("next")
+    lab = ContinuumLab("stiffness_gradient")
+    both = lab.start("paper")
+    save_dataset(folder / "both.npz", both)
+    for k, capture in enumerate(lab.captures):
+        save_dataset(folder / f"press{k}.npz", capture)
+    return folder, both, list(lab.captures)
+
+
+def _split(dataset, k):
+    """The dataset's load ``k`` alone, with its rest capture."""
+    return replace(
+        dataset,
+        forces=dataset.forces[k : k + 1],
+        contacts=dataset.contacts[k : k + 1],
+        outer_loaded=dataset.outer_loaded[k : k + 1],
+        probe_radius=dataset.probe_radius[k : k + 1],
+    )
+
+
+def test_merging_the_presses_of_a_dataset_gives_it_back():
+    from experiments.phantom.simulate import SimulationSettings, simulate
+
+    dataset = simulate(measurement=SimulationSettings(seed=3))
+    parts = [_split(dataset, k) for k in range(dataset.n_loads)]
+    merged = merge_captures(parts)
+    for key in ("outer_rest", "inner_rest", "forces", "contacts", "probe_radius"):
+        assert np.array_equal(getattr(merged, key), getattr(dataset, key)), key
+    assert np.array_equal(merged.outer_loaded, dataset.outer_loaded, equal_nan=True)
+    assert merged.noise_mm == dataset.noise_mm
+
+
+def test_a_merge_refuses_captures_it_cannot_put_in_one_frame():
+    from experiments.phantom.simulate import SimulationSettings, simulate
+
+    dataset = simulate(measurement=SimulationSettings(seed=3))
+    first, second = _split(dataset, 0), _split(dataset, 1)
+    shifted = replace(second, outer_rest=second.outer_rest + [0.5, 0.0, 0.0])
+    with pytest.raises(DatasetError, match="moved"):
+        merge_captures([first, shifted], ["a.npz", "b.npz"])
+    # within the noise: kept, on the first capture's rest
+    jitter = replace(second, outer_rest=second.outer_rest + 2 * dataset.noise_mm)
+    assert np.array_equal(merge_captures([first, jitter]).outer_rest, first.outer_rest)
+    other_grid = replace(
+        second,
+        outer_rest=second.outer_rest[:-1],
+        inner_rest=second.inner_rest[:-1],
+        outer_loaded=second.outer_loaded[:, :-1],
+    )
+    with pytest.raises(DatasetError, match="marker grid"):
+        merge_captures([first, other_grid])
+    with pytest.raises(DatasetError, match="probe_radius"):
+        merge_captures([first, replace(second, probe_radius=None)])
+
+
+def test_next_proposes_a_press_the_simulator_can_make(session, tmp_path, capsys):
+    """On FE data of the paper's two presses, with the defaults (step 0 chooses the
+    model): a press inside the marked area, within the safe range, with its reason."""
+    from experiments.design.files import read_presses
+
+    folder, both, _ = session
+    out = tmp_path / "n"
+    assert dvs(["next", str(folder / "both.npz"), "--budget", "8", "--out", str(out)]) == 0
+    document = json.loads((out / "next.json").read_text())
+    assert document["schema"] == "dvs-design/1" and document["kind"] == "next"
+    assert document["presses_so_far"] == 2 and document["stop"] is None
+    [(contact, force)] = read_presses(out / "next.json")
+    rest = both.outer_rest.reshape(-1, 3)
+    assert np.all(contact[:2] >= rest[:, :2].min(axis=0) - 1e-9)
+    assert np.all(contact[:2] <= rest[:, :2].max(axis=0) + 1e-9)
+    assert np.linalg.norm(force) == pytest.approx(0.25)
+    why = document["why"]
+    assert why["question"] in document["open"]
+    assert why["ratio_after"] > why["ratio_before"] and why["progress"] > 0
+    assert document["model"]["energy"] == "linear-elastic"  # step 0 on FE tissue
+    assert "base_choice" in document and document["wall_time_s"] > 0
+    assert (out / "next.png").stat().st_size > 0
+    assert why["question"] in (out / "report.md").read_text()
+    assert "next press at" in capsys.readouterr().out
+
+
+def test_the_same_captures_give_the_same_proposal_and_the_merged_dataset(session, tmp_path):
+    """One file, or the two presses as filmed, give the same press (the proposal is a
+    deterministic function of the data); the merge is written for the next round."""
+    folder, both, captures = session
+    common = ["--budget", "8", "--energy", "linear-elastic", "--grid", "11x11x3"]
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert dvs(["next", str(folder / "both.npz"), *common, "--out", str(one)]) == 0
+    parts = [str(folder / "press0.npz"), str(folder / "press1.npz")]
+    assert dvs(["next", *parts, *common, "--out", str(two)]) == 0
+    first, second = (json.loads((d / "next.json").read_text()) for d in (one, two))
+    assert first["presses"] == second["presses"] and first["why"] == second["why"]
+    assert first["questions"] == second["questions"]
+    merged = load_dataset(two / "dataset.npz")
+    assert np.array_equal(merged.outer_loaded, both.outer_loaded, equal_nan=True)
+    assert not (one / "dataset.npz").exists()
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--budget", "0"], "--budget"),
+        (["--budget", "2", "--force-range", "0.3", "0.8"], "safe range"),
+        (["--budget", "2", "--margin", "5"], "--energy linear-elastic"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, extra, message):
+    from experiments.phantom.simulate import SimulationSettings, simulate
+
+    data = tmp_path / "d.npz"
+    save_dataset(data, simulate(measurement=SimulationSettings(seed=1)))
+    out = tmp_path / "out"
+    code = dvs(["next", str(data), *extra, "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and message in err[0], err
+    assert not out.exists()
+
+
+def test_an_empty_dataset_exits_2(tmp_path, capsys):
+    from experiments.dataset import to_arrays
+    from experiments.phantom.simulate import SimulationSettings, simulate
+
+    arrays = to_arrays(simulate(measurement=SimulationSettings(seed=1)))
+    for key in ("forces", "contacts", "outer_loaded", "probe_radius"):
+        if key in arrays:
+            arrays[key] = arrays[key][:0]
+    np.savez(tmp_path / "empty.npz", **arrays)
+    code = dvs(["next", str(tmp_path / "empty.npz"), "--budget", "2", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "K >= 1" in err[0]
+    assert not (tmp_path / "o").exists()
