@@ -50,6 +50,20 @@ def run_step0(dataset, level: float = 0.01, log=print):
     return choice
 
 
+def chosen_base(dataset, level: float = 0.01, log=print):
+    """Step 0 on ``dataset`` (``run_step0``): the chosen model's ``FitSettings``, its fit,
+    the dataset with the probe radius and shape step 0 estimated, and the ``base_choice``
+    record. Step 0's other trials (their built volumes) are released before the
+    command's own work."""
+    import gc
+
+    choice = run_step0(dataset, level, log)
+    found = (choice.settings, choice.chosen.fit, choice.dataset(dataset), choice.record())
+    del choice
+    gc.collect()  # trials and their families refer to each other
+    return found
+
+
 def model_record(model, margin_mm: float, dataset) -> dict:
     """The volume a command used: {``energy``, ``grid``, ``degrees``, ``margin_mm``,
     ``support``, ``probe_radius_mm`` (the loads' radius, 0 for point forces)}."""

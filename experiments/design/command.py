@@ -3,8 +3,8 @@
     dvs design DATASET --budget N --target alpha|EFFECT[=MAG][,EFFECT...]
                [--criterion d|a|power|maximin] [--energy auto|E --grid G --degrees D
                --margin MM] --out DIR
-    dvs design --sequential SCENARIO [--budget N] [--grid G --degrees D --margin MM]
-               --out DIR
+    dvs design --sequential SCENARIO [--budget N] [--energy auto|linear-elastic --grid G
+               --degrees D --margin MM] --out DIR
 
 Writes ``design.json`` (schema ``dvs-design/1``, docs/formats.md), ``design_map.png``
 (the information one more press would add, per contact, with the chosen presses) and
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.design.plan import DesignSettings, plan, require_noise
-from experiments.stepzero import AUTO
+from experiments.stepzero import AUTO, chosen_base
 
 GAIN_LABELS = {
     "d": "gain in log det(F)^(1/p)",
@@ -207,14 +207,13 @@ def build_parser(prog: str = "python -m experiments.design.command"):
     parser.add_argument(
         "--grid",
         default="auto",
-        help="control grid MxNxL (with an --energy, or --sequential); auto: up to 9x9x2 "
-        "(15x15x3 with --sequential)",
+        help="control grid MxNxL (with an --energy); auto: up to 9x9x2 (15x15x3 with "
+        "--sequential --energy linear-elastic)",
     )
     parser.add_argument(
         "--degrees",
         default=None,
-        help="spline degrees PxQxR (with an --energy, or --sequential; default 3x3x1; 3x3x2 "
-        "with --sequential)",
+        help="spline degrees PxQxR (with an --energy; default 3x3x1; 3x3x2 with --sequential)",
     )
     parser.add_argument(
         "--energy",
@@ -222,14 +221,15 @@ def build_parser(prog: str = "python -m experiments.design.command"):
         default=AUTO,
         help="base model, as dvs diagnose: auto (step 0 chooses between the paper's energy "
         "and the linear-elastic continuum with its surroundings, docs/continuum.md), dnurbs, "
-        "linear-elastic or neo-hookean; --sequential diagnoses with linear-elastic only",
+        "linear-elastic or neo-hookean; --sequential takes auto (step 0 before every "
+        "diagnosis) or linear-elastic",
     )
     parser.add_argument(
         "--margin",
         type=float,
         default=None,
         help="width [mm] of tissue beyond the markers the volume also covers (with an "
-        "--energy, or --sequential; default 0; 10 with --sequential; e.g. 10 for the "
+        "--energy; default 0; 10 with --sequential --energy linear-elastic; e.g. 10 for the "
         "continua, docs/continuum.md)",
     )
     return parser
@@ -241,6 +241,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
     from experiments.dataset import load_dataset
     from experiments.design.report import report_text
     from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.stepzero import refuse_model_options
 
     args = build_parser(prog).parse_args(argv)
 
@@ -271,17 +272,25 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
         if sequential:
             if args.energy not in (AUTO, "linear-elastic"):
                 raise UsageError(
-                    f"--energy {args.energy}: --sequential diagnoses with the linear-elastic "
-                    "base only; drop --energy"
+                    f"--energy {args.energy}: --sequential diagnoses with the base step 0 "
+                    "chooses (auto) or with linear-elastic on --grid"
                 )
             model = model_options(args, SEQUENTIAL_MODEL)
+            if args.energy == AUTO:
+                degrees = None if args.degrees is None else model["degrees"]
+                refuse_model_options(
+                    model["grid"], degrees, args.margin or 0.0, "--energy linear-elastic"
+                )
+            model["energy"] = args.energy
             return run_sequential(args.sequential, settings, args.budget, model, args.out)
         base = base_model(args)
         out = check_output_dir(args.out)
         dataset = require_noise(load_dataset(args.dataset))
         fit, base_choice = None, None
         if base == AUTO:
-            base, fit, dataset, base_choice = step0_base(dataset, settings.level)
+            base, fit, dataset, base_choice = chosen_base(
+                dataset, settings.level, lambda line: print(line, flush=True)
+            )
         chosen = plan(dataset, settings, log=print, base=base, fit=fit)
         document = chosen.document
         document["dataset"] = str(args.dataset)
@@ -335,21 +344,6 @@ def base_model(args):
     return base_settings(model["grid"], args.energy, degrees, model["margin"])
 
 
-def step0_base(dataset, level: float):
-    """Step 0 on the dataset (its lines printed): the chosen model's ``FitSettings``, its
-    fit, the dataset with its probe radius and the ``base_choice`` record. Step 0's
-    other trials (their built volumes) are released before the design's own work."""
-    import gc
-
-    from experiments.stepzero import run_step0
-
-    choice = run_step0(dataset, level, lambda line: print(line, flush=True))
-    found = (choice.settings, choice.chosen.fit, choice.dataset(dataset), choice.record())
-    del choice
-    gc.collect()  # trials and their families refer to each other
-    return found
-
-
 def _given(value, default):
     """The option's value, or the mode's default when it was not given."""
     return default if value is None else value
@@ -372,7 +366,11 @@ def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Pat
             f"--sequential: unknown scenario {scenario!r}; choose from {', '.join(SCENARIOS)}"
         )
     settings = SequentialSettings(
-        budget=budget, candidates=candidates, degrees=model["degrees"], margin=model["margin"]
+        budget=budget,
+        energy=model["energy"],
+        candidates=candidates,
+        degrees=model["degrees"],
+        margin=model["margin"],
     )
     if model["grid"] is not None:
         settings = replace(settings, grid=model["grid"])

@@ -102,10 +102,9 @@ def work(args) -> int:
     from experiments.atomic import atomic_write_json, atomic_write_text
     from experiments.captures import merge_captures
     from experiments.dataset import load_dataset, save_dataset
-    from experiments.design.command import SEQUENTIAL_MODEL, model_options, step0_base
+    from experiments.design.command import SEQUENTIAL_MODEL, model_options
     from experiments.design.plan import DesignSettings, require_noise
     from experiments.design.sequential import SequentialSettings, step
-    from experiments.diagnosis.diagnose import base_settings
     from experiments.options import UsageError, check_output_dir
     from experiments.stepzero import refuse_model_options
 
@@ -127,30 +126,22 @@ def work(args) -> int:
         refuse_model_options(model["grid"], degrees, args.margin or 0.0, "--energy linear-elastic")
     out = check_output_dir(args.out)
     parts = [require_noise(load_dataset(path)) for path in args.datasets]
-    merged = dataset = merge_captures(parts, [str(p) for p in args.datasets])
-    settings = SequentialSettings(candidates=candidates, degrees=model["degrees"])
-    base_choice = None
-    print(f"{dataset.n_loads} presses so far, {args.budget} allowed from here", flush=True)
-    if args.energy == AUTO:
-        base, _, dataset, base_choice = step0_base(dataset, args.level)
-    else:
-        grid = model["grid"] or settings.grid
-        base = base_settings(grid, "linear-elastic", model["degrees"], model["margin"])
-    print("diagnosing the presses so far; the questions; the candidates ...", flush=True)
-    row = step(
-        dataset,
-        settings,
-        args.budget,
-        base=base,
-        progress=lambda line: print("  " + line, flush=True),
+    dataset = merge_captures(parts, [str(p) for p in args.datasets])
+    settings = SequentialSettings(
+        energy=args.energy,
+        grid=model["grid"] or SequentialSettings.grid,
+        degrees=model["degrees"],
+        margin=model["margin"],
+        candidates=candidates,
     )
-    document = next_document(row, base, candidates, args)
-    if base_choice is not None:
-        document["base_choice"] = base_choice
+    print(f"{dataset.n_loads} presses so far, {args.budget} allowed from here", flush=True)
+    print("diagnosing the presses so far; the questions; the candidates ...", flush=True)
+    row = step(dataset, settings, args.budget, progress=lambda line: print(line, flush=True))
+    document = next_document(row, candidates, args)
     document["wall_time_s"] = time.perf_counter() - begin
     out.mkdir(parents=True, exist_ok=True)
     if len(parts) > 1:
-        save_dataset(out / "dataset.npz", merged)
+        save_dataset(out / "dataset.npz", dataset)
     plot_next(out / "next.png", document, dataset)
     atomic_write_text(out / "report.md", report_text(document))
     atomic_write_json(out / "next.json", document)
@@ -158,7 +149,7 @@ def work(args) -> int:
     return 0
 
 
-def next_document(row: dict, base, candidates, args) -> dict:
+def next_document(row: dict, candidates, args) -> dict:
     """``next.json``: the ``dvs-design/1`` keys a design file has (``presses`` the proposal,
     or empty), the diagnosis of the data so far, every question and why this press."""
     from experiments.design.plan import SCHEMA
@@ -188,12 +179,8 @@ def next_document(row: dict, base, candidates, args) -> dict:
         "questions": row["questions"],
         "open": row["open"],
         "level": args.level,
-        "model": {
-            "energy": base.energy,
-            "grid": None if base.grid is None else list(base.grid),
-            "degrees": list(base.degrees),
-            "margin_mm": float(base.margin),
-        },
+        "model": row["model"],
+        "base_choice": row["base_choice"],
         "candidates": {
             "contacts": candidates.contacts,
             "tilt_deg": candidates.tilt_deg,

@@ -30,6 +30,7 @@ from experiments.design.plan import (
     dataset_presses,
     press_document,
 )
+from experiments.stepzero import AUTO
 from solvers.design.discrimination import Discrimination, questions, standings
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
@@ -52,10 +53,15 @@ class SequentialSettings:
         Presses in all, the starting design's included (the issue's 10).
     start : str
         The starting design (``experiments.phantom.fe.design_cases``: ``paper``).
+    energy : str
+        ``auto`` (the default): before each diagnosis step 0 chooses the base model, its
+        resolution and surroundings and the probe's radius from the data so far, as
+        ``dvs diagnose`` does (``experiments.stepzero``); ``linear-elastic``: the volume
+        of ``grid``, ``degrees`` and ``margin``.
     grid, degrees : tuple of int
-        The loop's control grid and spline degrees.
+        The control grid and spline degrees of ``energy="linear-elastic"``.
     margin : float
-        The model's tissue beyond the markers [mm].
+        That model's tissue beyond the markers [mm].
     goal : float
         The power, and the probability of separation (eq. D6'), that answer a question.
     rivals : int or None
@@ -69,6 +75,7 @@ class SequentialSettings:
 
     budget: int = 10
     start: str = "paper"
+    energy: str = AUTO
     grid: tuple[int, int, int] = (15, 15, 3)
     degrees: tuple[int, int, int] = (3, 3, 2)
     margin: float = 10.0
@@ -82,6 +89,8 @@ class SequentialSettings:
                 f"--budget must be at least 3 presses in all (the paper's 2 and one chosen), "
                 f"got {self.budget}"
             )
+        if self.energy not in (AUTO, "linear-elastic"):
+            raise ValueError(f"energy must be auto or linear-elastic, got {self.energy!r}")
         if not 0.5 <= self.goal < 1:
             raise ValueError(f"the goal must lie in [0.5, 1), got {self.goal}")
 
@@ -105,21 +114,29 @@ def in_play(
     return named, effects
 
 
-def step(
-    dataset, settings: SequentialSettings, remaining: int, log=print, base=None, progress=None
-) -> dict:
-    """Diagnose ``dataset`` and choose the next press; the path's row (``press`` None when
-    the loop stops: ``stop`` says why).
+def diagnosis_base(dataset, settings: SequentialSettings, log=None):
+    """The diagnosis's base model (``FitSettings``), the dataset as it reads it (step 0's
+    probe radius and shape) and step 0's record (None for the fixed volume)."""
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.stepzero import chosen_base
 
-    ``base`` is the diagnosis's base model (``FitSettings``; default the linear-elastic
-    volume of ``settings.grid``, ``degrees`` and ``margin``); ``progress`` receives the
-    diagnosis's lines.
-    """
-    from experiments.diagnosis.diagnose import base_settings, diagnose_dataset
+    if settings.energy == AUTO:
+        base, _, dataset, choice = chosen_base(
+            dataset, settings.candidates.level, log or (lambda _: None)
+        )
+        return base, dataset, choice
+    base = base_settings(settings.grid, "linear-elastic", settings.degrees, settings.margin)
+    return base, dataset, None
+
+
+def step(dataset, settings: SequentialSettings, remaining: int, log=print, progress=None) -> dict:
+    """Diagnose ``dataset`` and choose the next press; the path's row (``press`` None when
+    the loop stops: ``stop`` says why). ``progress`` receives step 0's and the
+    diagnosis's lines."""
+    from experiments.diagnosis.diagnose import diagnose_dataset
 
     begin = time.perf_counter()
-    if base is None:
-        base = base_settings(settings.grid, "linear-elastic", settings.degrees, settings.margin)
+    base, dataset, choice = diagnosis_base(dataset, settings, progress)
     loop = replace(DIAGNOSIS, level=settings.candidates.level)
     diagnosis = diagnose_dataset(dataset, loop, log=progress, base=base)
     document = diagnosis.document()
@@ -175,6 +192,17 @@ def step(
         "stop": stop,
         "press": None,
         "diagnosis_s": diagnosed,
+        "model": {
+            "energy": base.energy,
+            "grid": list(model.volume.shape),
+            "degrees": list(model.volume.basis.degrees),
+            "margin_mm": float(base.margin),
+            "support": "clamped" if base.fix_lateral else "free",
+            "probe_radius_mm": float(np.median(dataset.probe_radius))
+            if dataset.probe_radius is not None
+            else 0.0,
+        },
+        "base_choice": choice,
     }
     if stop is None:
         unanswered = tuple(s.question for s in standing if not s.answered)
@@ -217,8 +245,11 @@ def run(lab, settings: SequentialSettings | None = None, log=print) -> dict:
         row = step(dataset, settings, settings.budget - dataset.n_loads, log)
         path.append(row)
         named = ", ".join(row["selected"]) or "nothing"
+        model = row["model"]
         log(
-            f"{row['presses']} presses: {named} named, RMS {row['rms_um']:.1f} um "
+            f"{row['presses']} presses ({model['energy']} "
+            f"{'x'.join(map(str, model['grid']))}, {model['margin_mm']:g} mm {model['support']} "
+            f"band): {named} named, RMS {row['rms_um']:.1f} um "
             f"(noise {row['noise_rms_um']:.1f}), "
             f"{'unexplained' if row['unexplained'] else 'explained'}; "
             f"{len(row['open'])} open question(s) ({row['wall_s']:.0f} s)"
@@ -240,7 +271,8 @@ def run(lab, settings: SequentialSettings | None = None, log=print) -> dict:
         "hidden_effect": lab.hidden,
         "start": settings.start,
         "budget": settings.budget,
-        "grid": list(settings.grid),
+        "energy": settings.energy,
+        "grid": None if settings.energy == AUTO else list(settings.grid),
         "goal": settings.goal,
         "verdict": last["stop"],
         "presses": last["presses"],

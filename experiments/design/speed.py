@@ -67,7 +67,9 @@ def timed_step(scenario: str, study) -> dict:
     from experiments.diagnosis.diagnose import base_settings
     from experiments.fitting import build_problem
 
-    settings = SequentialSettings(grid=study.grid, degrees=study.degrees, margin=study.margin)
+    settings = SequentialSettings(
+        energy="linear-elastic", grid=study.grid, degrees=study.degrees, margin=study.margin
+    )
     dataset = ContinuumLab(scenario).start(settings.start)
     begin = time.perf_counter()
     row = step(dataset, settings, settings.budget - dataset.n_loads, log=lambda _: None)
