@@ -80,6 +80,19 @@ class Whitening:
         matrix = sp.identity(n, format="csr") - p_map @ sp.diags(shrink) @ p_map.T
         return cls(matrix.tocsr(), float(n + counts.sum()) / n)
 
+    @staticmethod
+    def root(p_map: sp.spmatrix | None, n: int) -> sp.csr_matrix:
+        """W^-1 = (I + P P^T)^1/2 = I + P diag(e) P^T, e_j = ((1 + N_jj)^1/2 - 1) / N_jj:
+        what undoes the whitening, so that the rows of some cases can be whitened on
+        their own (a subset of the load cases shares fewer rest-marker rows)."""
+        if p_map is None:
+            return sp.identity(n, format="csr")
+        counts = np.asarray(p_map.multiply(p_map).sum(axis=0)).ravel()
+        grow = np.zeros_like(counts)
+        seen = counts > 0
+        grow[seen] = (np.sqrt(1.0 + counts[seen]) - 1.0) / counts[seen]
+        return (sp.identity(n, format="csr") + p_map @ sp.diags(grow) @ p_map.T).tocsr()
+
     def noise_rms(self, sigma: float) -> float:
         """Expected RMS marker distance of a pure-noise residual: sigma sqrt(3 tr / n) [mm]."""
         return float(sigma * np.sqrt(3.0 * self.trace_factor))

@@ -134,9 +134,11 @@ def test_simultaneous_and_nested_give_the_same_map(field_problem):
     }
     assert all(m.success for m in maps.values()), {k: m.message for k, m in maps.items()}
     reference = maps["simultaneous"].coefficients
+    # measured 2026-11-27: Gauss-Newton (either Hessian) 2.5e-8 from IPOPT's map in log E,
+    # L-BFGS-B 1.1e-6 (it stops on its gradient tolerance); the bounds keep a 10-40x margin
+    tolerance = {"adjoint": 1e-6, "sensitivity": 1e-6, "l-bfgs-b": 1e-5, "simultaneous": 0.0}
     for name, estimate in maps.items():
-        # the stated tolerance: 1e-3 in log E, i.e. 0.1 % in E at every node
-        assert np.abs(estimate.coefficients - reference).max() <= 1e-3, name
+        assert np.abs(estimate.coefficients - reference).max() <= tolerance[name], name
     assert np.ptp(reference) > 0.1  # the map is not flat
 
 
