@@ -158,3 +158,43 @@ def test_an_empty_dataset_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "K >= 1" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture(scope="module")
+def inclusion_data(tmp_path_factory):
+    """FE data (scikit-fem) of a 10 mm disc twice as stiff at (6, -5) mm, 10 presses."""
+    pytest.importorskip("skfem")
+    from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
+    from experiments.phantom.simulate import SimulationSettings
+
+    slab = ReferenceSlab(elements=(12, 12, 2), inclusion=(6.0, -5.0, 10.0, 2.0))
+    forces, contacts = design_cases("diagnosis", slab)
+    data = reference_dataset(
+        slab, forces, contacts, 4.0, (7, 7), SimulationSettings(noise_mm=0.02, seed=3)
+    )
+    path = tmp_path_factory.mktemp("field") / "disc.npz"
+    save_dataset(path, data)
+    return path
+
+
+def test_next_for_the_stiffness_map_presses_where_the_inclusion_is_likely(inclusion_data, tmp_path):
+    """``--target field``: the posterior of the inclusion's place is a distribution, its
+    mode lies near the disc (the data's own model is step 0's, not the FE slab's), and
+    the proposed press raises the inclusion's signal there and lies near the mode."""
+    from experiments.design.files import read_presses
+
+    out = tmp_path / "field"
+    argv = ["next", str(inclusion_data), "--budget", "4", "--target", "field", "--out", str(out)]
+    assert dvs(argv) == 0
+    document = json.loads((out / "next.json").read_text())
+    assert document["target"] == "field" and document["stop"] is None
+    posterior = document["posterior"]
+    assert np.isclose(sum(posterior["probability"]) + posterior["no_inclusion"], 1.0)
+    assert np.linalg.norm(np.array(posterior["mode_mm"]) - [6.0, -5.0]) <= 5.0
+    [(contact, force)] = read_presses(out / "next.json")
+    assert np.linalg.norm(contact[:2] - posterior["mode_mm"]) <= 10.0
+    assert np.linalg.norm(force) == pytest.approx(0.25)
+    why = document["why"]
+    assert why["information_after"] > why["information_before"] and why["progress"] > 0
+    assert (out / "next.png").stat().st_size > 0
+    assert "most probable place" in (out / "report.md").read_text()

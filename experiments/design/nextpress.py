@@ -72,7 +72,23 @@ def build_parser(prog: str = "python -m experiments.design.nextpress"):
         help="tissue beyond the markers [mm] (with --energy linear-elastic; default 10)",
     )
     parser.add_argument(
-        "--contacts", type=int, default=3, help="candidate contacts per side (2-15)"
+        "--target",
+        choices=("effects", "field"),
+        default="effects",
+        help="effects: the questions the diagnosis leaves (docs/design.md); field: an "
+        "inclusion anywhere over the marked area, for the stiffness map (docs/imaging.md)",
+    )
+    parser.add_argument(
+        "--inclusion", type=float, default=8.0, help="with --target field: its diameter [mm]"
+    )
+    parser.add_argument(
+        "--ratio", type=float, default=2.0, help="with --target field: its stiffness ratio"
+    )
+    parser.add_argument(
+        "--contacts",
+        type=int,
+        default=None,
+        help="candidate contacts per side (2-15; default 3, 7 with --target field)",
     )
     parser.add_argument("--tilt", type=float, default=20.0, help="tilt of the candidates [deg]")
     parser.add_argument("--azimuths", type=int, default=4, help="tilt directions (0-12)")
@@ -111,9 +127,11 @@ def work(args) -> int:
     begin = time.perf_counter()
     if args.budget < 1:
         raise UsageError(f"--budget must be at least 1 (the proposed press), got {args.budget}")
+    field = args.target == "field"
+    contacts = args.contacts or (7 if field else 3)
     candidates = DesignSettings(
         budget=1,
-        contacts=args.contacts,
+        contacts=contacts,
         tilt_deg=args.tilt,
         azimuths=args.azimuths,
         force_range=tuple(args.force_range),
@@ -124,28 +142,47 @@ def work(args) -> int:
     if args.energy == AUTO:
         degrees = None if args.degrees is None else model["degrees"]
         refuse_model_options(model["grid"], degrees, args.margin or 0.0, "--energy linear-elastic")
+    if field:
+        from experiments.imaging import nextfield
+
+        if args.energy != AUTO:
+            raise UsageError(
+                "--target field maps on the continuum step 0 chooses, as dvs image: drop --energy"
+            )
+        target = nextfield.FieldTarget(
+            args.inclusion, args.ratio, contacts=contacts, force_n=args.force_range[1]
+        )
     out = check_output_dir(args.out)
     parts = [require_noise(load_dataset(path)) for path in args.datasets]
     dataset = merge_captures(parts, [str(p) for p in args.datasets])
-    settings = SequentialSettings(
-        energy=args.energy,
-        grid=model["grid"] or SequentialSettings.grid,
-        degrees=model["degrees"],
-        margin=model["margin"],
-        candidates=candidates,
-    )
     print(f"{dataset.n_loads} presses so far, {args.budget} allowed from here", flush=True)
-    print("diagnosing the presses so far; the questions; the candidates ...", flush=True)
-    row = step(dataset, settings, args.budget, progress=lambda line: print(line, flush=True))
-    document = next_document(row, candidates, args)
+    if field:
+        row = nextfield.field_step(dataset, target, args.budget, log=print)
+        document = nextfield.field_document(row, target, args)
+        plot = lambda path, headline: nextfield.plot_field(path, document, dataset, headline)  # noqa: E731
+        report = lambda headline: nextfield.field_report(document, headline)  # noqa: E731
+    else:
+        settings = SequentialSettings(
+            energy=args.energy,
+            grid=model["grid"] or SequentialSettings.grid,
+            degrees=model["degrees"],
+            margin=model["margin"],
+            candidates=candidates,
+        )
+        print("diagnosing the presses so far; the questions; the candidates ...", flush=True)
+        row = step(dataset, settings, args.budget, progress=lambda line: print(line, flush=True))
+        document = next_document(row, candidates, args)
+        plot = lambda path, _: plot_next(path, document, dataset)  # noqa: E731
+        report = lambda _: report_text(document)  # noqa: E731
     document["wall_time_s"] = time.perf_counter() - begin
+    headline = summary(document)
     out.mkdir(parents=True, exist_ok=True)
     if len(parts) > 1:
         save_dataset(out / "dataset.npz", dataset)
-    plot_next(out / "next.png", document, dataset)
-    atomic_write_text(out / "report.md", report_text(document))
+    plot(out / "next.png", headline)
+    atomic_write_text(out / "report.md", report(headline))
     atomic_write_json(out / "next.json", document)
-    print(summary(document) + f" -> {out / 'next.json'}", flush=True)
+    print(headline + f" -> {out / 'next.json'}", flush=True)
     return 0
 
 

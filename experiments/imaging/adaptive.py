@@ -64,7 +64,7 @@ def candidate_contacts() -> np.ndarray:
     return np.array([(x, y) for x in side for y in side])
 
 
-def place_rows(seed: int, grid, log=print) -> dict:
+def place_rows(seed: int, grid, log=print, shape=(16, 16)) -> dict:
     """The FE slab with and without the seed's disc, pressed by the 10-load design and by
     every candidate (one dataset of each, the same noise draw), linearised at the
     disc-free fit: the rows per press, the disc's exact signal per press, the field's L
@@ -99,7 +99,7 @@ def place_rows(seed: int, grid, log=print) -> dict:
     )
     problem = build_problem(none, fit)
     young, poisson = (float(v) for v in solve(problem, "nested").x)
-    field = StiffnessField((16, 16), "surface")
+    field = StiffnessField(tuple(shape), "surface")
     zero = np.zeros(field.size)
     plain = FieldProblem(problem, field, young, poisson)
     with_disc = FieldProblem(build_problem(disc, fit), field, young, poisson)
@@ -198,11 +198,11 @@ def fresh_draw(place: dict, rng, with_disc: bool = True) -> list:
     ]
 
 
-def study_place(seed: int, grid, draws: int, log=print) -> dict:
+def study_place(seed: int, grid, draws: int, log=print, shape=(16, 16)) -> dict:
     """One place: the loop on the FE data's own noise, with and without the disc, and
     over ``draws`` fresh noise draws (rates)."""
     begin = time.perf_counter()
-    place = place_rows(seed, grid, log)
+    place = place_rows(seed, grid, log, shape)
     centre = place["centre"]
     log(f"seed {seed}: disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm")
     own = adaptive_run(place, log=log)
@@ -277,7 +277,8 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
         "--seeds", default="17,18,19,20,21,22,23,24,25,26", help="the places' draws"
     )
     parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
-    parser.add_argument("--draws", type=int, default=50, help="fresh noise draws per place")
+    parser.add_argument("--draws", type=int, default=20, help="fresh noise draws per place")
+    parser.add_argument("--field", default="16x16", help="nodes of the surface field MxN")
     parser.add_argument("--out", required=True, help="output directory")
     args = parser.parse_args(argv)
 
@@ -288,11 +289,14 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
         if args.draws < 0:
             raise UsageError(f"--draws must be at least 0, got {args.draws}")
         grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
+        shape = tuple(int(v) for v in args.field.lower().split("x"))
+        if len(shape) != 2 or min(shape) < 2:
+            raise UsageError(f"--field takes MxN nodes, e.g. 16x16, got {args.field!r}")
         out = check_output_dir(Path(args.out))
         results = []
         for seed in seeds:
             results.append(
-                study_place(seed, grid, args.draws, log=lambda line: print(line, flush=True))
+                study_place(seed, grid, args.draws, lambda line: print(line, flush=True), shape)
             )
             print(table(results[-1:]).splitlines()[-1], flush=True)
         out.mkdir(parents=True, exist_ok=True)
