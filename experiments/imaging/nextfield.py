@@ -211,19 +211,12 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
 def field_document(row: dict, target: FieldTarget, args) -> dict:
     """``next.json`` of ``--target field`` (docs/formats.md): a ``dvs-design/1`` file whose
     ``presses`` hold the proposal, with the posterior of the inclusion's place."""
-    from experiments.design.plan import SCHEMA
+    from experiments.design.nextpress import header
 
     press = row["press"]
     posterior = row["posterior"]
     return {
-        "schema": SCHEMA,
-        "kind": "next",
-        "target": "field",
-        "dataset": [str(p) for p in args.datasets],
-        "presses_so_far": row["presses"],
-        "budget": args.budget,
-        "stop": row["stop"],
-        "presses": [] if press is None else [press],
+        **header(row, args, "field"),
         "why": None
         if press is None
         else {
