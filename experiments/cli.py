@@ -41,6 +41,7 @@ RESEARCH = {
     "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
     "imagebench": ("experiments.imaging.bench", "stiffness imaging: fit time against N"),
     "imageweights": ("experiments.imaging.weightstudy", "which weight rule sees a small inclusion"),
+    "imageadaptive": ("experiments.imaging.adaptive", "adaptive imaging at random places"),
     "realskin": ("experiments.realskin.study", "real in vivo skin: fit and close the loop"),
     "realskin-twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
     "realskin-checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),

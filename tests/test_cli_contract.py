@@ -42,6 +42,7 @@ DIRECTORY_OUTPUT = {
     "realskin-authors": [],
     "image": ["{data}"],
     "imagebench": [],
+    "imageadaptive": [],
     "design": ["{data}"],
     "next": ["{data}", "--budget", "3"],
     "designbench": [],
@@ -70,6 +71,7 @@ EXPENSIVE = (
     "realskin-continuum",
     "realskin-authors",
     "imagebench",
+    "imageadaptive",
     "designbench",
 )
 
@@ -200,6 +202,7 @@ OUT_OF_RANGE = [
     (["realskin-authors", "--mesh-size", "0", "--out", "o"], "--mesh-size"),
     (["realskin-data", "--case", "nope"], "--case"),
     (["imageweights", "--draws", "0"], "--draws"),
+    (["imageadaptive", "--field", "1x1", "--out", "o"], "--field"),
     (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
     (["render", "run", "--scale", "100"], "--scale"),
     (["boardbench", "--full-size-images", "0"], "--full-size-images"),

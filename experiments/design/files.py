@@ -1,4 +1,5 @@
-"""Reading ``design.json`` (schema ``dvs-design/1``, docs/formats.md): the presses it asks for."""
+"""Design files (schema ``dvs-design/1``, docs/formats.md): reading the presses a file asks
+for, and the keys every ``next.json`` of ``dvs next`` starts with."""
 
 from __future__ import annotations
 
@@ -61,3 +62,19 @@ def read_presses(path) -> list[tuple[np.ndarray, np.ndarray]]:
             )
         out.append((contact, force))
     return out
+
+
+def next_header(row: dict, args, target: str) -> dict:
+    """The keys every ``next.json`` starts with: a ``dvs-design/1`` file whose ``presses``
+    hold the proposal (or are empty), what was asked and from which data."""
+    press = row["press"]
+    return {
+        "schema": SCHEMA,
+        "kind": "next",  # beside dvs design's files of the same schema
+        "target": target,
+        "dataset": [str(p) for p in args.datasets],
+        "presses_so_far": row["presses"],
+        "budget": args.budget,
+        "stop": row["stop"],
+        "presses": [] if press is None else [press],
+    }

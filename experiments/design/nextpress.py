@@ -29,9 +29,6 @@ import numpy as np
 
 from experiments.stepzero import AUTO
 
-KIND = "next"
-"""``kind`` of ``next.json``, beside ``dvs design``'s files of the same schema."""
-
 
 def build_parser(prog: str = "python -m experiments.design.nextpress"):
     """The options of ``dvs next``."""
@@ -186,30 +183,14 @@ def work(args) -> int:
     return 0
 
 
-def header(row: dict, args, target: str) -> dict:
-    """The keys every ``next.json`` starts with: a ``dvs-design/1`` file whose ``presses``
-    hold the proposal (or are empty), what was asked and from which data."""
-    from experiments.design.plan import SCHEMA
-
-    press = row["press"]
-    return {
-        "schema": SCHEMA,
-        "kind": KIND,
-        "target": target,
-        "dataset": [str(p) for p in args.datasets],
-        "presses_so_far": row["presses"],
-        "budget": args.budget,
-        "stop": row["stop"],
-        "presses": [] if press is None else [press],
-    }
-
-
 def next_document(row: dict, candidates, args) -> dict:
     """``next.json``: the ``dvs-design/1`` keys a design file has (``presses`` the proposal,
     or empty), the diagnosis of the data so far, every question and why this press."""
+    from experiments.design.files import next_header
+
     press = row["press"]
     return {
-        **header(row, args, "effects"),
+        **next_header(row, args, "effects"),
         "why": None
         if press is None
         else {

@@ -26,7 +26,6 @@ Usage: ``python -m experiments.imaging.adaptive --seeds 17,18,...,26 --out DIR``
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -258,19 +257,9 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int:
-    """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
-    from experiments.atomic import atomic_write_json, atomic_write_text
-    from experiments.options import (
-        UsageError,
-        check_grid,
-        check_output_dir,
-        check_seed,
-        make_parser,
-        parse_grid,
-        parse_numbers,
-        run_guarded,
-    )
+def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
+    """The options of ``dvs imageadaptive``."""
+    from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Adaptive stiffness imaging at random places (a study).")
     parser.add_argument(
@@ -279,8 +268,25 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
     parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
     parser.add_argument("--draws", type=int, default=20, help="fresh noise draws per place")
     parser.add_argument("--field", default="16x16", help="nodes of the surface field MxN")
-    parser.add_argument("--out", required=True, help="output directory")
-    args = parser.parse_args(argv)
+    parser.add_argument("--out", type=path_argument, required=True, help="output directory")
+    return parser
+
+
+def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int:
+    """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
+    from experiments.atomic import atomic_write_json, atomic_write_text
+    from experiments.imaging.command import parse_field
+    from experiments.options import (
+        UsageError,
+        check_grid,
+        check_output_dir,
+        check_seed,
+        parse_grid,
+        parse_numbers,
+        run_guarded,
+    )
+
+    args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
         seeds = [check_seed(s) for s in parse_numbers(args.seeds, "--seeds", int)]
@@ -289,10 +295,8 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
         if args.draws < 0:
             raise UsageError(f"--draws must be at least 0, got {args.draws}")
         grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
-        shape = tuple(int(v) for v in args.field.lower().split("x"))
-        if len(shape) != 2 or min(shape) < 2:
-            raise UsageError(f"--field takes MxN nodes, e.g. 16x16, got {args.field!r}")
-        out = check_output_dir(Path(args.out))
+        shape = parse_field(args.field, "surface")
+        out = check_output_dir(args.out)
         results = []
         for seed in seeds:
             results.append(
@@ -300,9 +304,8 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
             )
             print(table(results[-1:]).splitlines()[-1], flush=True)
         out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(
-            out / "adaptive.json", {"schema": "dvs-adaptive-imaging/1", "places": results}
-        )
+        document = {"schema": "dvs-adaptive-imaging/1", "field": list(shape), "places": results}
+        atomic_write_json(out / "adaptive.json", document)
         atomic_write_text(out / "adaptive.md", table(results) + "\n")
         print(table(results))
         return 0

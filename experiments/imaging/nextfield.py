@@ -211,12 +211,12 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
 def field_document(row: dict, target: FieldTarget, args) -> dict:
     """``next.json`` of ``--target field`` (docs/formats.md): a ``dvs-design/1`` file whose
     ``presses`` hold the proposal, with the posterior of the inclusion's place."""
-    from experiments.design.nextpress import header
+    from experiments.design.files import next_header
 
     press = row["press"]
     posterior = row["posterior"]
     return {
-        **header(row, args, "field"),
+        **next_header(row, args, "field"),
         "why": None
         if press is None
         else {
