@@ -1,5 +1,6 @@
 """The design rows of ``make bench`` (the loop-speed issue): ``dvs design`` over 250
-candidates and one step of ``dvs design --sequential``, at 27 x 27 x 4.
+candidates and one step of ``dvs design --sequential``, at 27 x 27 x 4; and ``dvs next``
+with its defaults (step 0 chooses the model) on a 10-load dataset.
 
 The model is the continuum study's (``experiments.diagnosis.continuum.ContinuumStudy``:
 the linear-elastic volume spline, degrees 3 x 3 x 2, 10 mm of tissue beyond the
@@ -29,6 +30,9 @@ RUN_TARGET_S = 900.0
 
 STEP_TARGET_S = RUN_TARGET_S / 9
 """A step's share of the run: 9 steps from the paper's 2 presses to 10 [s]."""
+
+NEXT_TARGET_S = 60.0
+"""``dvs next`` on a 10-load dataset, step 0 included [s] (the adaptive-experiments issue)."""
 
 
 def timed_search(path: str, study) -> dict:
@@ -122,5 +126,59 @@ def sequential_step_benchmark(scenario: str = "stiffness_gradient", log=print) -
         f"{_verdict(row['wall_s'], STEP_TARGET_S)}), one factorisation "
         f"{row['factorisation_s']:.2f} s, x floor {row['wall_s'] / row['factorisation_s']:.0f}, "
         f"peak {row['peak_mb']:.0f} MB; {chosen}"
+    )
+    return row
+
+
+def timed_next(path: str, study) -> dict:
+    """The work of ``dvs next PATH --budget 5`` with its defaults (step 0, the diagnosis,
+    the questions, 45 candidates), timed, with one factorisation of the K of the volume
+    step 0 chose and the peak memory. Meant for a fresh process."""
+    import contextlib
+    import io
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from experiments.dataset import load_dataset
+    from experiments.design.nextpress import main
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.fitting import build_problem
+
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "next"
+        begin = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = main([path, "--budget", "5", "--out", str(out)])
+        wall = time.perf_counter() - begin
+        if code != 0:
+            raise RuntimeError(f"dvs next exited {code}")
+        document = json.loads((out / "next.json").read_text())
+    model = document["model"]
+    settings = base_settings(model["grid"], "linear-elastic", model["degrees"], model["margin_mm"])
+    stiffness = build_problem(load_dataset(path), settings).model.stiffness_matrix()
+    return {
+        "wall_s": wall,
+        "factorisation_s": factorisation_seconds(stiffness),
+        "peak_mb": peak_mb(),
+        "model": model,
+        "stop": document["stop"],
+        "presses": document["presses"],
+    }
+
+
+def next_benchmark(scenario: str = "none", log=print) -> dict:
+    """The "dvs next" row: ``timed_next`` on the 10-load scikit-fem dataset of ``scenario``."""
+    from experiments.diagnosis.continuum import ContinuumStudy, timed_on_scenario
+
+    row = timed_on_scenario(timed_next, scenario, ContinuumStudy())
+    grid = "x".join(map(str, row["model"]["grid"]))
+    answer = f"stop: {row['stop']}" if row["stop"] else "a press proposed"
+    log(
+        f"dvs next, 10 presses of the scikit-fem slab ({scenario}), defaults (step 0 chose "
+        f"{grid}): {row['wall_s']:.1f} s (target {NEXT_TARGET_S:.0f} s, "
+        f"{_verdict(row['wall_s'], NEXT_TARGET_S)}), one factorisation of its K "
+        f"{row['factorisation_s']:.2f} s, x floor {row['wall_s'] / row['factorisation_s']:.0f}, "
+        f"peak {row['peak_mb']:.0f} MB; {answer}"
     )
     return row

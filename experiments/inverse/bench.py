@@ -363,7 +363,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
         if not methods or set(methods) - {"simultaneous", "nested", "paper"}:
             raise UsageError(f"--methods takes simultaneous,nested,paper; got {args.methods!r}")
         if args.diagnose:
-            from experiments.design.speed import design_search_benchmark, sequential_step_benchmark
+            from experiments.design.speed import (
+                design_search_benchmark,
+                next_benchmark,
+                sequential_step_benchmark,
+            )
             from experiments.diagnosis.continuum import diagnosis_benchmark
             from experiments.diagnosis.defaults import defaults_benchmark
             from experiments.diagnosis.study import diagnosis_timings
@@ -377,6 +381,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
             imaging_benchmark()
             design_search_benchmark()
             sequential_step_benchmark()
+            next_benchmark()
             return 0
         print("Forward model (build = TissueModel + residual and Jacobian Functions)", flush=True)
         forward = [isolated(_forward_job, grid, args.k0) for grid in GRIDS]
