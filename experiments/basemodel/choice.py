@@ -321,11 +321,17 @@ def checked_shape(trial: Trial, level: float, log) -> tuple[Trial, list[dict]]:
             best = full if full.chi2 < best.chi2 - limit else best
     log(
         f"probe shape on {'x'.join(map(str, trial.settings.grid))}: "
-        + ", ".join(f"{r['shape']} r {r['probe_radius_mm'] or 0:.2f} mm chi2 {r['chi2']:.0f} "
+        + ", ".join(f"{r['shape']} {_radius_text(r['probe_radius_mm'])} chi2 {r['chi2']:.0f} "
                     f"({r['method']})" for r in records)
         + f": {best.surroundings.shape} kept"
     )  # fmt: skip
     return best, records
+
+
+def _radius_text(radius) -> str:
+    """A trial's probe radius in a log line: the estimate, or "r declared" (None: the
+    dataset's own radius is used, not estimated)."""
+    return "r declared" if radius is None else f"r {radius:.2f} mm"
 
 
 def _shape_record(trial: Trial, method: str) -> dict:
