@@ -20,7 +20,7 @@ the candidate of eq. (I13) and map again. Each map is scored by the issue's crit
 (peak within 3 mm, contrast 2 +- 30 %, 90 % of the nodes over the markers within 2 std)
 and, on the disc-free data, by the strongest departure (no node beyond 2 std).
 
-Usage: ``python -m experiments.imaging.adaptive --seeds 17,18,...,26 --out DIR``.
+Usage: ``dvs imageadaptive --out DIR`` (seeds 17-26, the 27x27x4 model, 20 fresh draws).
 """
 
 from __future__ import annotations
@@ -265,7 +265,11 @@ def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
     parser.add_argument(
         "--seeds", default="17,18,19,20,21,22,23,24,25,26", help="the places' draws"
     )
-    parser.add_argument("--grid", default="23x23x4", help="control grid MxNxL of the model")
+    parser.add_argument(
+        "--grid",
+        default="27x27x4",
+        help="control grid MxNxL of the model (27x27x4: where the continuum reaches the noise)",
+    )
     parser.add_argument("--draws", type=int, default=20, help="fresh noise draws per place")
     parser.add_argument("--field", default="16x16", help="nodes of the surface field MxN")
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
