@@ -73,17 +73,9 @@ class PressRows:
         p_map = problem.problem.rest_noise_map()
         n = J_w.shape[0]
         root = Whitening.root(p_map, n)
-        raw = [root @ J_w, root @ nu_w, root @ y_w]
-        sizes = [len(b) for b in problem.b]
-        edges = np.concatenate([[0], np.cumsum(sizes)])
-        spans = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+        J, nu, y = (_in_spans(problem, root @ v) for v in (J_w, nu_w, y_w))
         p_map = sp.csr_matrix((n, 0)) if p_map is None else p_map.tocsr()
-        return cls(
-            [raw[0][s] for s in spans],
-            [raw[1][s] for s in spans],
-            [raw[2][s] for s in spans],
-            [p_map[s] for s in spans],
-        )
+        return cls(J, nu, y, _in_spans(problem, p_map))
 
     def __len__(self) -> int:
         return len(self.J)
@@ -102,6 +94,19 @@ class PressRows:
         y_s = whiten @ np.concatenate([data[k] for k in presses])
         q = nu / np.linalg.norm(nu)
         return J - np.outer(q, q @ J), y_s - q * (q @ y_s), q
+
+
+def _in_spans(problem, rows) -> list:
+    """``rows`` (stacked over a ``FieldProblem``'s load cases) cut per load case."""
+    edges = np.concatenate([[0], np.cumsum([len(b) for b in problem.b])])
+    return [rows[a:b] for a, b in zip(edges[:-1], edges[1:])]
+
+
+def per_press(problem, whitened: np.ndarray) -> list:
+    """A ``FieldProblem``'s whitened rows (a vector, or a matrix by rows), unwhitened
+    (``Whitening.root``, over sigma) and cut per load case."""
+    root = Whitening.root(problem.problem.rest_noise_map(), whitened.shape[0])
+    return _in_spans(problem, root @ whitened)
 
 
 def inclusion_templates(xy, places, radius_mm: float, log_ratio: float) -> np.ndarray:

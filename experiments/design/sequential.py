@@ -30,7 +30,7 @@ from experiments.design.plan import (
     dataset_presses,
     press_document,
 )
-from experiments.stepzero import AUTO
+from experiments.stepzero import AUTO, model_record
 from solvers.design.discrimination import Discrimination, questions, standings
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
@@ -115,18 +115,16 @@ def in_play(
 
 
 def diagnosis_base(dataset, settings: SequentialSettings, log=None):
-    """The diagnosis's base model (``FitSettings``), the dataset as it reads it (step 0's
-    probe radius and shape) and step 0's record (None for the fixed volume)."""
+    """The diagnosis's base model (``FitSettings``), its fit when step 0 made one (the
+    diagnosis starts from it), the dataset as it reads it (step 0's probe radius and
+    shape) and step 0's record (None for the fixed volume)."""
     from experiments.diagnosis.diagnose import base_settings
     from experiments.stepzero import chosen_base
 
     if settings.energy == AUTO:
-        base, _, dataset, choice = chosen_base(
-            dataset, settings.candidates.level, log or (lambda _: None)
-        )
-        return base, dataset, choice
+        return chosen_base(dataset, settings.candidates.level, log or (lambda _: None))
     base = base_settings(settings.grid, "linear-elastic", settings.degrees, settings.margin)
-    return base, dataset, None
+    return base, None, dataset, None
 
 
 def step(dataset, settings: SequentialSettings, remaining: int, log=print, progress=None) -> dict:
@@ -134,11 +132,16 @@ def step(dataset, settings: SequentialSettings, remaining: int, log=print, progr
     the loop stops: ``stop`` says why). ``progress`` receives step 0's and the
     diagnosis's lines."""
     from experiments.diagnosis.diagnose import diagnose_dataset
+    from solvers.diagnosis.loop import diagnose
 
     begin = time.perf_counter()
-    base, dataset, choice = diagnosis_base(dataset, settings, progress)
+    base, fitted, dataset, choice = diagnosis_base(dataset, settings, progress)
     loop = replace(DIAGNOSIS, level=settings.candidates.level)
-    diagnosis = diagnose_dataset(dataset, loop, log=progress, base=base)
+    if fitted is None:
+        diagnosis = diagnose_dataset(dataset, loop, log=progress, base=base)
+    else:  # step 0's fit of the base model is the loop's start
+        problem = fitted.problem
+        diagnosis = diagnose(problem.base, problem.loads, loop, progress, fitted)
     document = diagnosis.document()
     diagnosed = time.perf_counter() - begin
     fit, sigma = diagnosis.steps[0].fit, float(dataset.noise_mm)
@@ -192,16 +195,7 @@ def step(dataset, settings: SequentialSettings, remaining: int, log=print, progr
         "stop": stop,
         "press": None,
         "diagnosis_s": diagnosed,
-        "model": {
-            "energy": base.energy,
-            "grid": list(model.volume.shape),
-            "degrees": list(model.volume.basis.degrees),
-            "margin_mm": float(base.margin),
-            "support": "clamped" if base.fix_lateral else "free",
-            "probe_radius_mm": float(np.median(dataset.probe_radius))
-            if dataset.probe_radius is not None
-            else 0.0,
-        },
+        "model": model_record(model, base.margin, dataset),
         "base_choice": choice,
     }
     if stop is None:

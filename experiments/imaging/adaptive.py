@@ -37,7 +37,13 @@ from experiments.imaging.weightstudy import (
     passes,
     study_cases,
 )
-from solvers.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores
+from solvers.fielddesign import (
+    PlacePosterior,
+    PressRows,
+    inclusion_templates,
+    per_press,
+    press_scores,
+)
 
 CANDIDATE_SIDE = 7
 """Candidate contacts per side of the grid over the disc's range."""
@@ -104,7 +110,7 @@ def place_rows(seed: int, grid, log=print, shape=(16, 16)) -> dict:
     with_disc = FieldProblem(build_problem(disc, fit), field, young, poisson)
     J, nu = plain.sensitivities(zero), plain.poisson_sensitivity(zero)
     rows = PressRows.split(plain, J, nu, with_disc.residual(zero))
-    noise = PressRows.split(plain, J, nu, plain.residual(zero)).y
+    noise = per_press(plain, plain.residual(zero))
     model = problem.model
     log(
         f"  disc-free fit E {young:.3f} kPa, nu {poisson:.4f}; sensitivities of "

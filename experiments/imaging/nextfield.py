@@ -118,6 +118,7 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
     from experiments.design.plan import press_document
     from experiments.fitting import build_problem, solve
     from experiments.imaging.model import imaging_model
+    from experiments.stepzero import model_record
     from solvers.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores
     from solvers.fieldproblem import FieldProblem
     from symbolic.field import StiffnessField
@@ -173,14 +174,7 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
         "stop": None,
         "press": None,
         "model": {
-            "energy": "linear-elastic",
-            "grid": list(settings.grid),
-            "degrees": list(settings.degrees),
-            "margin_mm": float(settings.margin),
-            "support": "clamped" if settings.fix_lateral else "free",
-            "probe_radius_mm": 0.0
-            if dataset.probe_radius is None
-            else float(np.median(dataset.probe_radius)),
+            **model_record(model, settings.margin, dataset),
             "E_ref_kPa": young,
             "nu": poisson,
             "source": chosen_model.source,
