@@ -23,7 +23,7 @@ from symbolic.effects.library import make_effect
 @pytest.fixture(scope="module")
 def presses():
     """A linear-elastic base fit on 6x6x3 and 30 presses at 3 contacts, as the pool
-    poses them (the markers a press hides are dropped)."""
+    poses them (the markers a press hides are dropped), and the markers' (u, v)."""
     dataset = phantom_dataset({}, 1, "diagnosis", NOISE_MM)
     fit = base_fit(dataset, base=base_settings((6, 6, 3), "linear-elastic", (3, 3, 2), 5.0))
     model = fit.problem.model
@@ -41,11 +41,11 @@ def presses():
     problem = ExtendedProblem(
         InverseProblem(model, cases, base.space, base.noise_mm, base.rest_noise), loads, []
     )
-    return fit, chosen, problem, own
+    return fit, chosen, problem, own, uv
 
 
 def test_known_loads_are_the_presses_loads(presses):
-    fit, chosen, problem, own = presses
+    fit, chosen, problem, own, _ = presses
     volume = fit.problem.model.volume
     for press, load in zip(chosen + own, press_loads(chosen + own, volume)):
         expected = press.load().generalized(volume)
@@ -53,7 +53,7 @@ def test_known_loads_are_the_presses_loads(presses):
 
 
 def test_the_fast_evaluation_is_the_linear_path(presses):
-    fit, _, problem, _ = presses
+    fit, _, problem, _, _ = presses
     x = fit.p
     assert problem.linear_state
     r, jacobian, states, _ = problem.evaluate_full(x)
@@ -72,7 +72,7 @@ def test_the_effect_columns_and_signal_are_the_linear_path(presses, name):
     """A candidate's columns at theta = 0 (only its own, on the linear path) and the
     residual at its magnitude, with extra state (base_compliance: K is not symmetric,
     the forward path serves) and without."""
-    fit, _, problem, _ = presses
+    fit, _, problem, _, _ = presses
     effect = make_effect(name)
     extended = problem.with_effects([effect])
     p = np.concatenate([fit.p, np.zeros(len(extended.labels) - fit.p.size)])
@@ -116,3 +116,27 @@ def test_the_sequential_loop_takes_no_other_energy(tmp_path, capsys):
     code = dvs(["design", "--sequential", "none", "--energy", "dnurbs", "--out", str(tmp_path)])
     error = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in error and "step 0 chooses (auto)" in error
+
+
+@pytest.mark.parametrize(
+    "names, expected",
+    [(("force_direction",), 0), (("heterogeneity", "force_direction", "contact_offset"), 1)],
+)
+def test_the_pool_factorises_only_where_an_effect_changes_k(presses, monkeypatch, names, expected):
+    """The pool solves every press on the fit's factorisation of K(x); an effect's signal
+    at its magnitude needs one more only where it changes K (heterogeneity), not where
+    it moves the load (force_direction, contact_offset), whatever effect came before."""
+    from solvers.design.pool import InformationPool
+    from tests.test_linear_path import _count_factorisations
+
+    fit, chosen, _, _, uv = presses
+    effects = [(make_effect(n), make_effect(n).default_magnitude) for n in names]
+    seen = [np.ones(len(uv), dtype=bool)] * len(chosen)
+    reference = InformationPool(fit, uv, effects)
+    reference.add(chosen, seen)  # warms the fit's factorisation and the functions
+    calls = _count_factorisations(monkeypatch)
+    pool = InformationPool(fit, uv, effects)
+    pool.add(chosen, seen)
+    assert len(calls) == expected
+    total, again = pool.totals(range(len(chosen))), reference.totals(range(len(chosen)))
+    assert np.allclose(total.matrix(), again.matrix(), rtol=1e-12, atol=0.0)

@@ -202,6 +202,9 @@ class InformationPool:
         value = np.asarray(magnitude, dtype=float)
         p[block] = value if value.ndim else effect.true_parameters(float(value), 1)
         if extended.linear_state:
+            if same:  # K(theta_1) equal to K(x) entry by entry (a load, an observation
+                # effect) reuses its factors (``ExtendedProblem.stiffness_factor``)
+                extended.cache["last_state_jacobian"] = factor
             return jacobian[:, block], shared.residual(extended, p)
         return jacobian[:, block], extended.residual(p, starts)
 
