@@ -44,8 +44,8 @@ slow: $(STAMP)
 bench: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
 	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench --diagnose
-	$(BIN)/dvs boardbench
-	$(BIN)/dvs imagebench
+	$(BIN)/dvs bench board
+	$(BIN)/dvs bench image
 
 lint: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests

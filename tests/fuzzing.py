@@ -241,7 +241,7 @@ def any_command_argv(draw, commands: dict, out: str) -> list[str]:
     name = draw(st.sampled_from(sorted(commands)))
     parser = command_parser(name)
     options = [a for a in parser._actions if a.option_strings and a.option_strings[0] != "-h"]
-    argv = [name, *commands[name]]
+    argv = [*name.split(), *commands[name]]
     for action in draw(st.lists(st.sampled_from(options), max_size=3)) if options else []:
         argv.append(action.option_strings[-1])
         if action.nargs != 0:

@@ -16,63 +16,63 @@ from pathlib import Path
 
 import pytest
 
-from experiments.cli import COMMANDS
+from experiments.cli import COMMANDS, FORMER, GROUPS, VERBS, build_parser, resolve
 
 ROOT = Path(__file__).resolve().parents[1]
 
 DIRECTORY_OUTPUT = {
     "demo": [],
     "fit": ["{data}"],
-    "compare": [],
+    "study compare": [],
     "diagnose": ["{data}"],
     "transient": [],
-    "paper": [],
-    "bench": [],
-    "batch": [],
-    "forward": [],
-    "dynamic": [],
-    "study": [],
-    "detection": [],
-    "realskin": [],
-    "realskin-twin": [],
-    "realskin-checks": [],
-    "realcheck": ["--data", "{tmp}"],
-    "continuum-loop": [],
-    "realskin-continuum": [],
-    "realskin-authors": [],
+    "study paper": [],
+    "bench inverse": [],
+    "study batch": [],
+    "study forward": [],
+    "study dynamic": [],
+    "study diagnosis": [],
+    "study detection": [],
+    "realskin fit": [],
+    "realskin twin": [],
+    "realskin checks": [],
+    "study realcheck": ["--data", "{tmp}"],
+    "study continuum": [],
+    "realskin continuum": [],
+    "realskin authors": [],
     "image": ["{data}"],
-    "imagebench": [],
-    "imageadaptive": [],
+    "bench image": [],
+    "study imageadaptive": [],
     "design": ["{data}"],
     "next": ["{data}", "--budget", "3"],
-    "designbench": [],
+    "bench design": [],
 }
 """Commands whose ``--out`` is a directory, with the other arguments they need."""
 
 FILE_OUTPUT = {
     "simulate": ("--out", ".npz", []),
     "reconstruct": ("--out", ".npz", ["{tmp}"]),
-    "outoflibrary": ("--out", ".npz", []),
-    "realskin-strain": ("--figure", ".png", []),
+    "study outoflibrary": ("--out", ".npz", []),
+    "realskin strain": ("--figure", ".png", []),
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
-NO_OUTPUT = {"realskin-data", "boardbench", "imageweights"}
+NO_OUTPUT = {"realskin data", "bench board", "study imageweights"}
 """Commands that only print."""
 
 EXPENSIVE = (
     "demo",
-    "compare",
-    "study",
-    "detection",
-    "realskin",
-    "bench",
-    "continuum-loop",
-    "realskin-continuum",
-    "realskin-authors",
-    "imagebench",
-    "imageadaptive",
-    "designbench",
+    "study compare",
+    "study diagnosis",
+    "study detection",
+    "realskin fit",
+    "bench inverse",
+    "study continuum",
+    "realskin continuum",
+    "realskin authors",
+    "bench image",
+    "study imageadaptive",
+    "bench design",
 )
 
 
@@ -131,21 +131,21 @@ def places(tmp_path_factory):
 def _bad_path_cases(tmp: Path, data: Path, locked: Path) -> list[tuple[str, list[str]]]:
     cases = []
     for name, args in DIRECTORY_OUTPUT.items():
-        base = [name, *_fill(args, data, tmp), "--out"]
+        base = [*name.split(), *_fill(args, data, tmp), "--out"]
         cases += [
             (f"{name}: existing file", [*base, str(tmp / "afile")]),
             (f"{name}: file as parent", [*base, str(tmp / "afile" / "sub")]),
             (f"{name}: unwritable", [*base, str(locked / "dvs-out")]),
         ]
     for name, (option, suffix, args) in FILE_OUTPUT.items():
-        base = [name, *_fill(args, data, tmp), option]
+        base = [*name.split(), *_fill(args, data, tmp), option]
         cases += [
             (f"{name}: a directory", [*base, str(tmp)]),
             (f"{name}: file as parent", [*base, str(tmp / "afile" / f"x{suffix}")]),
             (f"{name}: unwritable", [*base, str(locked / f"x{suffix}")]),
         ]
-    cases.append(("render: file as parent", ["render", str(tmp / "afile" / "run")]))
-    cases.append(("render: unwritable", ["render", str(locked / "run")]))
+    cases.append(("render: file as parent", ["study", "render", str(tmp / "afile" / "run")]))
+    cases.append(("render: unwritable", ["study", "render", str(locked / "run")]))
     return cases
 
 
@@ -162,25 +162,25 @@ OUT_OF_RANGE = [
     (["fit", "{data}", "--margin", "-1", "--out", "o"], "--margin"),
     (["fit", "{data}", "--margin", "5", "--method", "paper", "--out", "o"], "--margin"),
     (["diagnose", "{data}", "--margin", "nan", "--out", "o"], "--margin"),
-    (["continuum-loop", "--margin", "500", "--out", "o"], "--margin"),
-    (["compare", "--starts", "100000", "--out", "o"], "--starts"),
+    (["study continuum", "--margin", "500", "--out", "o"], "--margin"),
+    (["study compare", "--starts", "100000", "--out", "o"], "--starts"),
     (["diagnose", "{data}", "--level", "2", "--out", "o"], "--level"),
     (["transient", "--k0", "-1", "--out", "o"], "--k0"),
-    (["paper", "--noise", "-1", "--out", "o"], "--noise"),
-    (["bench", "--grids", "2x2x2"], "--grids"),
-    (["bench", "--methods", "magic"], "--methods"),
-    (["batch", "--count", "0"], "--count"),
-    (["forward", "--force", "100", "--out", "o"], "--force"),
-    (["dynamic", "--substeps", "0", "--out", "o"], "--substeps"),
-    (["study", "--seeds", "-1", "--out", "o"], "--seeds"),
-    (["detection", "--factors", "0", "--out", "o"], "--factors"),
-    (["outoflibrary", "--noise", "5", "--out", "x.npz"], "--noise"),
-    (["continuum-loop", "--scenarios", "gravity", "--out", "o"], "--scenarios"),
+    (["study paper", "--noise", "-1", "--out", "o"], "--noise"),
+    (["bench inverse", "--grids", "2x2x2"], "--grids"),
+    (["bench inverse", "--methods", "magic"], "--methods"),
+    (["study batch", "--count", "0"], "--count"),
+    (["study forward", "--force", "100", "--out", "o"], "--force"),
+    (["study dynamic", "--substeps", "0", "--out", "o"], "--substeps"),
+    (["study diagnosis", "--seeds", "-1", "--out", "o"], "--seeds"),
+    (["study detection", "--factors", "0", "--out", "o"], "--factors"),
+    (["study outoflibrary", "--noise", "5", "--out", "x.npz"], "--noise"),
+    (["study continuum", "--scenarios", "gravity", "--out", "o"], "--scenarios"),
     (["image", "{data}", "--field", "1x1", "--out", "o"], "--field"),
     (["image", "{data}", "--weight", "-3", "--out", "o"], "--weight"),
     (["image", "{data}", "--field", "5x5", "--over", "layers", "--out", "o"], "--field"),
     (["image", "{data}", "--noise", "0", "--out", "o"], "--noise"),
-    (["imagebench", "--sizes", "15"], "--sizes"),
+    (["bench image", "--sizes", "15"], "--sizes"),
     (["design", "{data}", "--budget", "0", "--out", "o"], "--budget"),
     (["design", "{data}", "--target", "gravity", "--out", "o"], "--target"),
     (["design", "{data}", "--force-range", "0.1", "2", "--out", "o"], "--force-range"),
@@ -189,23 +189,23 @@ OUT_OF_RANGE = [
     (["next", "{data}", "--budget", "0", "--out", "o"], "--budget"),
     (["next", "{data}", "--budget", "2", "--force-range", "0.2", "0.9", "--out", "o"], "range"),
     (["next", "{data}", "--budget", "2", "--grid", "9x9x3", "--out", "o"], "--grid"),
-    (["designbench", "--budget", "0"], "--budget"),
-    (["imagebench", "--methods", "magic"], "--methods"),
+    (["bench design", "--budget", "0"], "--budget"),
+    (["bench image", "--methods", "magic"], "--methods"),
     (["diagnose", "{data}", "--degrees", "9x9x9", "--out", "o"], "--degrees"),
-    (["realskin", "--grid", "1x1", "--out", "o"], "--grid"),
-    (["realskin", "--grid", "21x11x2", "--out", "o"], "--grid"),
-    (["realskin-twin", "--ratios", "-1"], "--ratios"),
-    (["realskin-checks", "--check", "nope"], "--check"),
-    (["realskin-strain", "--frames", "x"], "--frames"),
-    (["realskin-continuum", "--cases", "nope", "--out", "o"], "--cases"),
-    (["realskin-continuum", "--thickness", "0", "--out", "o"], "--thickness"),
-    (["realskin-authors", "--mesh-size", "0", "--out", "o"], "--mesh-size"),
-    (["realskin-data", "--case", "nope"], "--case"),
-    (["imageweights", "--draws", "0"], "--draws"),
-    (["imageadaptive", "--field", "1x1", "--out", "o"], "--field"),
-    (["realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
-    (["render", "run", "--scale", "100"], "--scale"),
-    (["boardbench", "--full-size-images", "0"], "--full-size-images"),
+    (["realskin fit", "--grid", "1x1", "--out", "o"], "--grid"),
+    (["realskin fit", "--grid", "21x11x2", "--out", "o"], "--grid"),
+    (["realskin twin", "--ratios", "-1"], "--ratios"),
+    (["realskin checks", "--check", "nope"], "--check"),
+    (["realskin strain", "--frames", "x"], "--frames"),
+    (["realskin continuum", "--cases", "nope", "--out", "o"], "--cases"),
+    (["realskin continuum", "--thickness", "0", "--out", "o"], "--thickness"),
+    (["realskin authors", "--mesh-size", "0", "--out", "o"], "--mesh-size"),
+    (["realskin data", "--case", "nope"], "--case"),
+    (["study imageweights", "--draws", "0"], "--draws"),
+    (["study imageadaptive", "--field", "1x1", "--out", "o"], "--field"),
+    (["study realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
+    (["study render", "run", "--scale", "100"], "--scale"),
+    (["bench board", "--full-size-images", "0"], "--full-size-images"),
     (["demo", "--out", ""], "--out"),
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
@@ -224,9 +224,32 @@ def _listing(tmp: Path) -> set:
 
 
 def test_every_command_is_covered():
-    covered = set(DIRECTORY_OUTPUT) | set(FILE_OUTPUT) | NO_OUTPUT | {"render"}
+    covered = set(DIRECTORY_OUTPUT) | set(FILE_OUTPUT) | NO_OUTPUT | {"study render"}
     assert covered == set(COMMANDS)
     assert {argv[0] for argv, _ in OUT_OF_RANGE} == set(COMMANDS)
+
+
+def test_the_top_level_lists_verbs_and_groups_alone(capsys):
+    """``dvs --help`` shows at most 12 entries: the verbs, then the groups."""
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["--help"])
+    lines = capsys.readouterr().out.splitlines()
+    listed = [line.split()[0] for line in lines if line.startswith("    ") and line.strip()]
+    listed = [word for word in listed if word in VERBS or word in GROUPS]
+    assert listed == [*VERBS, *GROUPS]
+    assert len(listed) <= 12
+
+
+def test_every_former_name_runs_its_command_in_a_group():
+    """The flat names of before the groups (and a group given an option where its
+    command goes) reach the same modules, with the arguments as given."""
+    for old, new in FORMER.items():
+        assert resolve([old, "--out", "x"]) == (new, ["--out", "x"])
+        assert new in COMMANDS
+    for group, (_, table, default) in GROUPS.items():
+        assert default in table
+        assert resolve([group, "--out", "x"]) == (f"{group} {default}", ["--out", "x"])
+        assert resolve([group]) is None and resolve([group, "--help"]) is None
 
 
 def test_bad_output_paths_exit_2_with_one_line_and_write_nothing(places):
@@ -243,7 +266,10 @@ def test_bad_output_paths_exit_2_with_one_line_and_write_nothing(places):
 def test_out_of_range_options_exit_2_naming_the_option(places):
     tmp, data, _ = places
     before = _listing(tmp)
-    cases = [(_fill(argv, data, tmp), fragment) for argv, fragment in OUT_OF_RANGE]
+    cases = [
+        (_fill([*argv[0].split(), *argv[1:]], data, tmp), fragment)
+        for argv, fragment in OUT_OF_RANGE
+    ]
     with ThreadPoolExecutor(max_workers=4) as pool:
         results = list(pool.map(lambda case: _run(case[0], tmp), cases))
     for (argv, fragment), (code, err, _) in zip(cases, results):
@@ -257,8 +283,8 @@ def test_an_expensive_command_fails_before_any_work(name, places):
     """Bad output path: no more CPU time than the command's own --help plus a second
     (each the faster of two runs, one child at a time)."""
     tmp, data, _ = places
-    help_time = min(_run([name, "--help"], tmp)[2] for _ in range(2))
-    argv = [name, *_fill(DIRECTORY_OUTPUT[name], data, tmp), "--out", str(tmp / "afile")]
+    help_time = min(_run([*name.split(), "--help"], tmp)[2] for _ in range(2))
+    argv = [*name.split(), *_fill(DIRECTORY_OUTPUT[name], data, tmp), "--out", str(tmp / "afile")]
     runs = [_run(argv, tmp) for _ in range(2)]
     assert all(code == 2 for code, _, _ in runs)
     elapsed = min(t for _, _, t in runs)

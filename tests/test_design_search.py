@@ -158,7 +158,7 @@ def test_power_inverts(setting):
 def test_the_d_design_beats_the_ten_load_design(setting):
     """Acceptance: with the same budget of 10 presses, det(F)^(1/p) of the D-design is
     at least that of the hand-chosen 10-load design (small candidate grid here;
-    ``dvs designbench`` has the default one)."""
+    ``dvs bench design`` has the default one)."""
     dataset = setting[0]
     chosen = plan(dataset, DesignSettings(budget=10, contacts=3), log=lambda _: None)
     document = chosen.document

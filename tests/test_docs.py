@@ -6,6 +6,7 @@ code without a line in docs/formats.md fails here.
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 from pathlib import Path
@@ -47,9 +48,13 @@ def written(tmp_path_factory):
 
 
 def _sections(text: str) -> dict[str, str]:
-    """'### `dvs NAME`' headings of docs/cli.md -> the text of each section."""
-    parts = text.split("\n### `dvs ")[1:]
-    return {part.split("`", 1)[0].split()[0]: part for part in parts}
+    """'### `dvs NAME [SUBCOMMAND]`' headings of docs/cli.md -> the text of each section."""
+    sections: dict[str, str] = {}
+    for part in text.split("\n### `dvs ")[1:]:
+        words = part.split("`", 1)[0].split()
+        name = " ".join(itertools.takewhile(lambda w: re.fullmatch(r"[a-z][a-z-]*", w), words))
+        sections[name] = sections.get(name, "") + part
+    return sections
 
 
 def test_every_command_and_option_is_in_the_cli_reference():

@@ -144,15 +144,15 @@ def _commands(data, experiment, locked) -> dict:
     """Every command with its positional arguments, and the unwritable output it gets."""
     from experiments.cli import COMMANDS
 
-    files = {"simulate": ".npz", "reconstruct": ".npz", "outoflibrary": ".npz"}
+    files = {"simulate": ".npz", "reconstruct": ".npz", "study outoflibrary": ".npz"}
     positional = {"fit": [str(data)], "diagnose": [str(data)], "reconstruct": [str(experiment)]}
     table = {}
     for name in COMMANDS:
-        if name == "render":
+        if name == "study render":
             out = str(locked / "run")
-        elif name == "realskin-strain":
+        elif name == "realskin strain":
             out = f"--figure {locked / 'x.png'}"
-        elif name == "realskin-data":
+        elif name == "realskin data":
             out = ""
         else:
             out = f"--out {locked / ('x' + files.get(name, ''))}"

@@ -1,4 +1,4 @@
-"""``dvs designbench``: the design search's speed, its gap to exhaustive search, and its
+"""``dvs bench design``: the design search's speed, its gap to exhaustive search, and its
 designs against the hand-chosen 10-load design, measured side by side in one run.
 
 On the phantom's diagnosis dataset (9x9 markers, 9x9x2 model, noise 0.02 mm):
@@ -139,7 +139,7 @@ def run(budget: int = 10, gap_budget: int = 3, log=print) -> dict:
 
 
 def build_parser(prog: str = "python -m experiments.design.bench"):
-    """The options of ``dvs designbench``."""
+    """The options of ``dvs bench design``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(
@@ -156,7 +156,7 @@ def build_parser(prog: str = "python -m experiments.design.bench"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.bench") -> int:
-    """``dvs designbench [--out DIR]``."""
+    """``dvs bench design [--out DIR]``."""
     from experiments.atomic import atomic_write_json
     from experiments.options import UsageError, check_output_dir, run_guarded
 

@@ -1,7 +1,7 @@
 """Closing the loop on data: the diagnosis command and its studies (docs/diagnosis.md).
 
 - ``diagnose``: a dataset's diagnosis, ``diagnosis.json`` and figures (``dvs diagnose``);
-- ``study``: every effect alone over several seeds (``dvs study``);
-- ``detection``: how large each effect must be to meet the criteria (``dvs detection``);
-- ``outoflibrary``: data from physics outside the library, an FE slab (``dvs outoflibrary``).
+- ``study``: every effect alone over several seeds (``dvs study diagnosis``);
+- ``detection``: how large each effect must be to meet the criteria (``dvs study detection``);
+- ``outoflibrary``: data from physics outside the library, an FE slab (``dvs study outoflibrary``).
 """

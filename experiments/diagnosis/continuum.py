@@ -1,4 +1,4 @@
-"""The loop on continuum data (``dvs continuum-loop``): scikit-fem slabs with one hidden effect.
+"""The loop on continuum data (``dvs study continuum``): scikit-fem slabs with one hidden effect.
 
 Data: ``experiments.phantom.fe``, quadratic tetrahedra on a 60 x 60 x 5 mm slab (the
 tissue goes on 10 mm beyond the 40 x 40 mm marked area, fixed at its base and far
@@ -284,7 +284,7 @@ def table(rows: list[dict]) -> str:
 
 
 def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
-    """The options of ``dvs continuum-loop``."""
+    """The options of ``dvs study continuum``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -307,7 +307,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.continuum"):
-    """``dvs continuum-loop --out DIR``: rows.json and table.md."""
+    """``dvs study continuum --out DIR``: rows.json and table.md."""
     from experiments.atomic import atomic_write_json, atomic_write_text
     from experiments.options import (
         UsageError,

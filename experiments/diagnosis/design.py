@@ -4,8 +4,8 @@ The diagnosis can only find what the experiment lets it see. On the paper's desi
 (loads at one contact, along the normal) the cases are nearly proportional and a
 refit of alpha absorbs four physical effects; on the diagnosis design (five contacts,
 a tilted load) only ``base_compliance`` stays hidden (docs/diagnosis.md, "The
-experiment design of the diagnosis" and "Measured results"; ``dvs study --design
-paper`` and ``dvs study``). ``design_note`` reads a dataset's contacts and force
+experiment design of the diagnosis" and "Measured results"; ``dvs study diagnosis --design
+paper`` and ``dvs study diagnosis``). ``design_note`` reads a dataset's contacts and force
 directions and says which of these limits applies.
 """
 

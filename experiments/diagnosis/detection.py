@@ -135,7 +135,7 @@ def print_table(results: list[dict], log=print) -> None:
 
 
 def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
-    """The options of ``dvs detection``."""
+    """The options of ``dvs study detection``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -152,7 +152,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.detection"):
-    """``dvs detection [--effects a,b] [--factors 1,2,4] --out DIR``: detection.json."""
+    """``dvs study detection [--effects a,b] [--factors 1,2,4] --out DIR``: detection.json."""
     from experiments.atomic import atomic_write_json
     from experiments.options import (
         UsageError,

@@ -4,7 +4,7 @@
 the discrepancy loop of ``solvers.diagnosis.loop`` and writes ``diagnosis.json``,
 ``report.md`` and residual maps before and after. Synthetic data with hidden effects
 come from ``experiments.phantom.simulate``; the study of every effect over seeds is
-``experiments.diagnosis.study`` (``dvs study``).
+``experiments.diagnosis.study`` (``dvs study diagnosis``).
 """
 
 from __future__ import annotations

@@ -224,7 +224,7 @@ def simulate_slab(
 
 
 def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
-    """The options of ``dvs outoflibrary``."""
+    """The options of ``dvs study outoflibrary``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -235,7 +235,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
-    """``dvs outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
+    """``dvs study outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
     from experiments.options import (
         check_noise,
         check_output_file,

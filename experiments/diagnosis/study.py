@@ -1,4 +1,4 @@
-"""The diagnosis study (``dvs study``): every effect alone, over several seeds.
+"""The diagnosis study (``dvs study diagnosis``): every effect alone, over several seeds.
 
 - ``study(seeds)`` hides each effect of the library at its realistic magnitude in
   synthetic data (and none, the negative control), runs the diagnosis and reports
@@ -159,7 +159,7 @@ def diagnosis_timings(log=print) -> list[dict]:
 
 
 def build_parser(prog: str = "python -m experiments.diagnosis.study"):
-    """The options of ``dvs study``."""
+    """The options of ``dvs study diagnosis``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Every effect alone over several seeds, diagnosed.")
@@ -174,7 +174,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.study"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.study"):
-    """``dvs study --out DIR``: study.json (or benchmark.json with ``--benchmark``)."""
+    """``dvs study diagnosis --out DIR``: study.json (or benchmark.json with ``--benchmark``)."""
     from experiments.atomic import atomic_write_json
     from experiments.options import (
         UsageError,

@@ -228,7 +228,7 @@ def coverage_study(seeds=range(20), noise_mm=0.02, log=print) -> dict:
 
 
 def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
-    """The options of ``dvs dynamic``."""
+    """The options of ``dvs study dynamic``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -247,7 +247,7 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.inverse"):
-    """``dvs dynamic --out DIR``: dynamic.json and dynamic.png."""
+    """``dvs study dynamic --out DIR``: dynamic.json and dynamic.png."""
 
     from experiments.options import (
         UsageError,

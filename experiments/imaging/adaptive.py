@@ -20,7 +20,7 @@ the candidate of eq. (I13) and map again. Each map is scored by the issue's crit
 (peak within 3 mm, contrast 2 +- 30 %, 90 % of the nodes over the markers within 2 std)
 and, on the disc-free data, by the strongest departure (no node beyond 2 std).
 
-Usage: ``dvs imageadaptive --out DIR`` (seeds 17-26, the 27x27x4 model, 20 fresh draws).
+Usage: ``dvs study imageadaptive --out DIR`` (seeds 17-26, the 27x27x4 model, 20 fresh draws).
 """
 
 from __future__ import annotations
@@ -264,7 +264,7 @@ def table(results: list[dict]) -> str:
 
 
 def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
-    """The options of ``dvs imageadaptive``."""
+    """The options of ``dvs study imageadaptive``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Adaptive stiffness imaging at random places (a study).")

@@ -1,4 +1,4 @@
-"""``dvs imagebench``: fit time of stiffness imaging against the field size N, three methods.
+"""``dvs bench image``: fit time of stiffness imaging against the field size N, three methods.
 
 One run, side by side: for each model grid and each N (a square field over the skin,
 sqrt(N) nodes a side), the same regularised problem (eq. I8, H1, one fixed weight) is
@@ -190,7 +190,7 @@ def table(rows: list[dict]) -> str:
 
 
 def build_parser(prog: str = "python -m experiments.imaging.bench"):
-    """The options of ``dvs imagebench`` (docs/cli.md)."""
+    """The options of ``dvs bench image`` (docs/cli.md)."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Stiffness imaging: fit time against N for three methods.")
@@ -203,7 +203,7 @@ def build_parser(prog: str = "python -m experiments.imaging.bench"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.imaging.bench") -> int:
-    """``dvs imagebench``: exit 0, or 2 with one line for bad input."""
+    """``dvs bench image``: exit 0, or 2 with one line for bad input."""
     from experiments.options import (
         UsageError,
         check_output_dir,

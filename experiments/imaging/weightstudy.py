@@ -17,7 +17,7 @@ criteria: the peak within 3 mm, the contrast within 30 % of 2, and 90 % of the n
 over the markers within 2 std of the truth. Linear, without model error: a rule that
 fails here fails on the full problem too.
 
-Usage: ``dvs imageweights --seed 7 --grid 23x23x4 --draws 200``; with a comma list of
+Usage: ``dvs study imageweights --seed 7 --grid 23x23x4 --draws 200``; with a comma list of
 seeds (``--seed 7,8,9``) it ends with the places table (docs/imaging.md, "At a random
 place"), and ``--oracle-press MM`` adds one press near the disc.
 """
@@ -287,7 +287,7 @@ def monte_carlo(study: LinearStudy, draws: int, seed: int = 0) -> dict:
 
 
 def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
-    """The options of ``dvs imageweights``."""
+    """The options of ``dvs study imageweights``."""
     from experiments.options import make_parser
 
     parser = make_parser(
@@ -358,7 +358,7 @@ def places_table(rows: list[dict]) -> str:
 
 
 def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> int:
-    """Print the rules' rates and the fixed weights' (``dvs imageweights``), for each
+    """Print the rules' rates and the fixed weights' (``dvs study imageweights``), for each
     seed; for several, the places table at the end."""
     from experiments.options import (
         UsageError,

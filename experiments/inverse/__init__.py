@@ -1,7 +1,7 @@
 """Studies of the static inverse methods on the phantom.
 
-- ``paper``: the paper's Table 1, two data sets separately and jointly (``dvs paper``);
-- ``compare``: simultaneous vs nested vs paper-faithful, multi-start (``dvs compare``);
-- ``bench``: build and solve times, memory and scaling (``dvs bench``, ``make bench``);
-- ``batch``: multi-start and coverage studies on dask.distributed (``dvs batch``).
+- ``paper``: the paper's Table 1, two data sets separately and jointly (``dvs study paper``);
+- ``compare``: simultaneous vs nested vs paper-faithful, multi-start (``dvs study compare``);
+- ``bench``: build and solve times, memory and scaling (``dvs bench inverse``, ``make bench``);
+- ``batch``: multi-start and coverage studies on dask.distributed (``dvs study batch``).
 """

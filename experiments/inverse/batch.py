@@ -99,7 +99,7 @@ def coverage_summary(results: list[dict], truth: dict) -> dict:
 
 
 def build_parser(prog: str = "python -m experiments.inverse.batch"):
-    """The options of ``dvs batch``."""
+    """The options of ``dvs study batch``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Batch studies on dask.distributed.")

@@ -310,7 +310,7 @@ def print_targets(forward: list[ForwardTiming], results: dict) -> None:
 
 
 def build_parser(prog: str = "python -m experiments.inverse.bench"):
-    """The options of ``dvs bench``."""
+    """The options of ``dvs bench inverse``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])

@@ -1,4 +1,4 @@
-"""Simultaneous vs nested exact vs nested paper-faithful, on one problem (``dvs compare``).
+"""Simultaneous vs nested exact vs nested paper-faithful, on one problem (``dvs study compare``).
 
 For each method: iterations, forward solves, build and solve wall time, final
 cost, parameter error (when the truth is known), and the success rate over a
@@ -177,7 +177,7 @@ def run(dataset, out: Path, starts: int = 20, paper_starts: int = 5, truth=None,
 
 
 def build_parser(prog: str = "python -m experiments.inverse.compare"):
-    """The options of ``dvs compare``."""
+    """The options of ``dvs study compare``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Simultaneous vs nested vs paper-faithful, multi-start.")
@@ -202,7 +202,7 @@ def build_parser(prog: str = "python -m experiments.inverse.compare"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
-    """``dvs compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
+    """``dvs study compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
 
     from experiments.options import UsageError, check_output_dir, not_converged, run_guarded
     from experiments.phantom.forehead import TRUE_PARAMETERS

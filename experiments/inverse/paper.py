@@ -130,7 +130,7 @@ def run(out: Path, noise_mm: float = 0.02, seed: int = 0, log=print, dataset=Non
 
 
 def build_parser(prog: str = "python -m experiments.inverse.paper"):
-    """The options of ``dvs paper``."""
+    """The options of ``dvs study paper``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "The paper's Table 1: two data sets, separately and jointly.")
@@ -141,7 +141,7 @@ def build_parser(prog: str = "python -m experiments.inverse.paper"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.paper"):
-    """``dvs paper --out DIR``: table1.md and paper.json."""
+    """``dvs study paper --out DIR``: table1.md and paper.json."""
     from experiments.options import check_noise, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)

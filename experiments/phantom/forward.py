@@ -56,7 +56,7 @@ def run(out: Path, force: float = 0.25, k0: float = 0.0, log=print) -> dict:
 
 
 def build_parser(prog: str = "python -m experiments.phantom.forward"):
-    """The options of ``dvs forward``."""
+    """The options of ``dvs study forward``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Forward solve of the forehead phantom under a probe force.")
@@ -69,7 +69,7 @@ def build_parser(prog: str = "python -m experiments.phantom.forward"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.forward"):
-    """``dvs forward --out DIR [--force N] [--k0 K]``."""
+    """``dvs study forward --out DIR [--force N] [--k0 K]``."""
     from experiments.options import UsageError, check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)

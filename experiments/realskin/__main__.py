@@ -1,4 +1,4 @@
-"""``python -m experiments.realskin``: the real-skin study (``dvs realskin``)."""
+"""``python -m experiments.realskin``: the real-skin study (``dvs realskin fit``)."""
 
 from experiments.realskin.study import main
 

@@ -152,7 +152,7 @@ def line(result: dict) -> str:
 
 
 def build_parser(prog: str = "python -m experiments.realskin.checks"):
-    """The options of ``dvs realskin-checks``."""
+    """The options of ``dvs realskin checks``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -165,7 +165,7 @@ def build_parser(prog: str = "python -m experiments.realskin.checks"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.checks") -> int:
-    """``dvs realskin-checks [--check a,b]``; one line and exit 2 on bad input."""
+    """``dvs realskin checks [--check a,b]``; one line and exit 2 on bad input."""
     from experiments.atomic import atomic_write_json
     from experiments.options import UsageError, check_output_dir, run_guarded
 

@@ -1,9 +1,9 @@
 """Real skin with the continuum energies: E and nu of both extensometer cases.
 
-``dvs realskin-continuum --out DIR`` fits the two-pad extensometer (``skin-extensometer``)
+``dvs realskin continuum --out DIR`` fits the two-pad extensometer (``skin-extensometer``)
 with the paper's energy (before) and with isotropic linear elasticity and the
 compressible neo-Hookean energy of ``symbolic.continuum_model`` (after), on the same
-slab, pads, DIC frames and forces as ``dvs realskin`` (``experiments.realskin.setup``).
+slab, pads, DIC frames and forces as ``dvs realskin fit`` (``experiments.realskin.setup``).
 
 **Choice**: the continuum slab is a membrane, its edge ring fixed and its inner face
 free (``boundary="lateral"``), linear through its thickness t. A thin plate loaded in

@@ -392,7 +392,7 @@ def summary(case: SkinCase) -> str:
 
 
 def build_parser(prog: str = "python -m experiments.realskin.data"):
-    """The options of ``dvs realskin-data``."""
+    """The options of ``dvs realskin data``."""
     from experiments.options import make_parser
 
     parser = make_parser(prog, "Summary of the extensometer measurements (docs/realskin-data.md).")
@@ -401,7 +401,7 @@ def build_parser(prog: str = "python -m experiments.realskin.data"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.data") -> int:
-    """Print :func:`summary` for the cases (``dvs realskin-data``)."""
+    """Print :func:`summary` for the cases (``dvs realskin data``)."""
     from experiments.options import run_guarded
 
     args = build_parser(prog).parse_args(argv)

@@ -160,7 +160,7 @@ def report(summary: dict) -> str:
     parts = [
         "# Real skin: fitted parameters and errors",
         "",
-        "Written by `dvs realskin`; see docs/realskin.md.",
+        "Written by `dvs realskin fit`; see docs/realskin.md.",
         "",
         "## Errors before and after",
         "",

@@ -1,6 +1,6 @@
 """The original authors' fit of the extensometer, reproduced, then one assumption at a time.
 
-``dvs realskin-authors --out DIR`` fits (E, nu) of the plane-strain neo-Hookean model on
+``dvs realskin authors --out DIR`` fits (E, nu) of the plane-strain neo-Hookean model on
 the authors' assumptions (``experiments.realskin.authors``: free outer edges, the .geo
 pads as holes, their frame rule and force, their cost) on our own mesh of
 ``geometry.geo`` (``experiments.realskin.mesh2d``), then changes one assumption at a time

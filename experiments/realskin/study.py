@@ -215,7 +215,7 @@ def run(
 
 
 def build_parser(prog: str = "python -m experiments.realskin"):
-    """The options of ``dvs realskin``."""
+    """The options of ``dvs realskin fit``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -241,7 +241,7 @@ def build_parser(prog: str = "python -m experiments.realskin"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin") -> int:
-    """``dvs realskin --out DIR [--boundary lateral] [--case keloid]``."""
+    """``dvs realskin fit --out DIR [--boundary lateral] [--case keloid]``."""
     from experiments.options import (
         UsageError,
         check_output_dir,

@@ -286,7 +286,7 @@ def _numbers(text: str, kind, what: str) -> list:
 
 
 def build_parser(prog: str = "python -m experiments.realskin.twin"):
-    """The options of ``dvs realskin-twin``."""
+    """The options of ``dvs realskin twin``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -308,7 +308,7 @@ def build_parser(prog: str = "python -m experiments.realskin.twin"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.twin") -> int:
-    """``dvs realskin-twin [--ratios 3.5,23] [--seeds 0,1,2]``; one line and exit 2 on bad input."""
+    """``dvs realskin twin [--ratios 3.5,23] [--seeds 0,1,2]``; one line and exit 2 on bad input."""
     from experiments.atomic import atomic_write_json
     from experiments.options import UsageError, check_output_dir, run_guarded
 

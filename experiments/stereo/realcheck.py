@@ -262,7 +262,7 @@ def make_figure(artefacts: dict, path: Path, scale: float = 0.25) -> None:
 
 
 def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
-    """The options of ``dvs realcheck``."""
+    """The options of ``dvs study realcheck``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
@@ -272,7 +272,7 @@ def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.realcheck"):
-    """``dvs realcheck --out DIR``: realcheck.json and realcheck.png."""
+    """``dvs study realcheck --out DIR``: realcheck.json and realcheck.png."""
     from experiments.options import UsageError, check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)

@@ -401,7 +401,7 @@ def write_synthetic_experiment(
 
 
 def build_parser(prog: str = "python -m experiments.stereo.render"):
-    """The options of ``dvs render``."""
+    """The options of ``dvs study render``."""
     from experiments.options import make_parser, path_argument
 
     parser = make_parser(prog, "Render a synthetic forehead experiment for dvs reconstruct.")
@@ -413,7 +413,7 @@ def build_parser(prog: str = "python -m experiments.stereo.render"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.render"):
-    """``dvs render FOLDER [--scale S] [--boards N] [--seed N]``."""
+    """``dvs study render FOLDER [--scale S] [--boards N] [--seed N]``."""
     from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
