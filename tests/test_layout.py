@@ -7,6 +7,7 @@ inside functions too), so a cycle hidden behind a local import is still one.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -15,7 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("symbolic", "solvers", "experiments")
 LAYER = {name: rank for rank, name in enumerate(PACKAGES)}
 MAX_LINES = 450
-"""Largest module: lines of code, not counting the module docstring (STYLE.md: ~400)."""
+"""Largest module: lines of code, not counting the module docstring (docs/contributing.md
+asks for 400)."""
 
 
 def _module_name(path: Path) -> str:
@@ -128,3 +130,23 @@ def test_module_size(name):
         docstring = first.end_lineno - first.lineno + 1
     lines = len(source.splitlines()) - docstring
     assert lines <= MAX_LINES, f"{path.relative_to(ROOT)}: {lines} lines; split it at a seam"
+
+
+OUTSIDE = re.compile(r"\b(?:MODEL|DESIGN|STYLE)\.md\b|shared/paper|shared/(?:MODEL|DESIGN|STYLE)")
+"""A document outside the repository (the brief's files, the paper's text beside it)."""
+
+
+def test_docstrings_cite_the_repository():
+    """No module, test or doc cites a document outside the repository
+    (docs/contributing.md); the checker itself sees one."""
+    assert OUTSIDE.search("see MODEL.md, eq. (3)") and not OUTSIDE.search("docs/model.md")
+    paths = [*(ROOT / p for p in PACKAGES), ROOT / "tests", ROOT / "docs"]
+    files = [f for base in paths for f in base.rglob("*") if f.suffix in (".py", ".md", ".ipynb")]
+    cited = [
+        f"{f.relative_to(ROOT)}: {match.group(0)}"
+        for f in files
+        if f.name != "test_layout.py"
+        for match in [OUTSIDE.search(f.read_text())]
+        if match
+    ]
+    assert not cited, f"documents outside the repository cited: {cited}"

@@ -17,7 +17,7 @@ from experiments.atomic import atomic_write_json
 
 PAPER = (
     "Estimation of parameters for dynamic volume spline models. Special Issue Papers, "
-    "pp. 499-519, published online 6 April 2010 (text in ../shared/paper)."
+    "pp. 499-519, published online 6 April 2010."
 )
 NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")
 
