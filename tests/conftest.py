@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from experiments.paths import shared_data_dir
+from experiments.data.paths import shared_data_dir
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from hypothesis import strategies as st
 
-from experiments.cli import main
+from experiments.command.cli import main
 
 KEYS = (
     "schema",
@@ -236,7 +236,7 @@ def any_command_argv(draw, commands: dict, out: str) -> list[str]:
 
     Valid options then stop at the output check, so no command starts its work.
     """
-    from experiments.cli import command_parser
+    from experiments.command.cli import command_parser
 
     name = draw(st.sampled_from(sorted(commands)))
     parser = command_parser(name)

@@ -17,9 +17,9 @@ import pytest
 from conftest import exit_code_and_stderr
 from fuzzing import forged_header, time_limit
 
-from experiments import archive
-from experiments.cli import main
-from experiments.dataset import DatasetError, load_dataset, save_dataset, to_arrays
+from experiments.command.cli import main
+from experiments.data import archive
+from experiments.data.dataset import DatasetError, load_dataset, save_dataset, to_arrays
 from experiments.phantom.forehead import PhantomSettings
 from experiments.phantom.simulate import simulate
 

@@ -78,7 +78,7 @@ def test_the_linearised_refit_agrees_with_the_full_refit(patch_data, patch_choic
     """The check's refit is one Gauss-Newton step from the coarse estimate; the distance
     it gives (how far the finer volume moves the predicted markers) is the full refit's
     to a tenth, where the rule compares it with the 1-dof quantile."""
-    from experiments.fitting import build_model, dataset_loads, problem_on
+    from experiments.fit.fitting import build_model, dataset_loads, problem_on
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
 
@@ -126,8 +126,8 @@ def test_the_record_holds_the_choice_and_a_line_names_it(patch_choice):
 def test_volume_options_without_an_energy_exit_2(tmp_path, capsys, command, option):
     """--grid, --margin and --degrees set the volume of a chosen --energy; with the
     default (auto) step 0 chooses it: exit 2, one line naming the option."""
-    from experiments.cli import main
-    from experiments.dataset import save_dataset
+    from experiments.command.cli import main
+    from experiments.data.dataset import save_dataset
     from experiments.phantom.simulate import simulate_with_effects
 
     path = tmp_path / "d.npz"

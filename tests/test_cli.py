@@ -7,7 +7,7 @@ import pytest
 from conftest import exit_code_and_stderr
 from test_dataset import make_dataset, malformed_corpus
 
-from experiments.cli import main
+from experiments.command.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -173,9 +173,9 @@ def test_fit_that_does_not_converge_exits_3_with_success_false(
 def test_the_verdict_statistic_is_the_diagnosis_residual_test(dataset_file):
     """Two code paths, one statistic: at the same parameters, the verdict's chi^2 equals
     the diagnosis's residual test (the same whitening of the rest-marker noise)."""
-    from experiments.dataset import load_dataset
+    from experiments.data.dataset import load_dataset
     from experiments.diagnosis.diagnose import BASE_NAMES
-    from experiments.fitting import FitSettings, build_problem, dataset_loads
+    from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
     from solvers.diagnosis.stats import residual_test
@@ -208,7 +208,7 @@ def test_simulated_stiffening_on_the_diagnosis_design_is_diagnosed(tmp_path, cap
 
 
 def test_the_papers_design_is_noted_as_unable_to_separate_four_effects(dataset_file):
-    from experiments.dataset import load_dataset
+    from experiments.data.dataset import load_dataset
     from experiments.diagnosis.design import design_note
 
     note = design_note(load_dataset(dataset_file))

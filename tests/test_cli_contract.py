@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.cli import COMMANDS, FORMER, GROUPS, VERBS, build_parser, resolve
+from experiments.command.cli import COMMANDS, FORMER, GROUPS, VERBS, build_parser, resolve
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,7 +97,7 @@ def _run(argv: list[str], cwd: Path) -> tuple[int, str, float]:
     stretches wall time, not the work done; only valid for one child at a time)."""
     begin = _child_cpu()
     done = subprocess.run(
-        [sys.executable, "-m", "experiments.cli", *argv],
+        [sys.executable, "-m", "experiments.command.cli", *argv],
         cwd=cwd,
         capture_output=True,
         text=True,
@@ -119,7 +119,7 @@ def places(tmp_path_factory):
     (tmp / "afile").write_text("not a directory")
     data = tmp / "data.npz"
     subprocess.run(
-        [sys.executable, "-m", "experiments.cli", "simulate", "--out", str(data)],
+        [sys.executable, "-m", "experiments.command.cli", "simulate", "--out", str(data)],
         cwd=tmp,
         check=True,
         capture_output=True,

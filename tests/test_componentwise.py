@@ -14,7 +14,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from experiments.fitting import FitSettings, build_problem
+from experiments.fit.fitting import FitSettings, build_problem
 from experiments.phantom.forehead import forehead_model, probe_loads
 from experiments.phantom.simulate import simulate
 from solvers.componentwise import ScalarSystem
@@ -72,7 +72,7 @@ def test_the_nested_fit_builds_no_casadi_residual_and_matches_the_newton_path():
 
 
 def test_auto_chooses_and_says_why(tmp_path):
-    from experiments.cli import main
+    from experiments.command.cli import main
 
     path = tmp_path / "data.npz"
     assert main(["simulate", "--out", str(path)]) == 0

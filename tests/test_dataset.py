@@ -9,8 +9,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from experiments import atomic
-from experiments.dataset import (
+from experiments.data.dataset import (
     SCHEMA,
     Dataset,
     DatasetError,
@@ -20,6 +19,7 @@ from experiments.dataset import (
     to_arrays,
     validate,
 )
+from experiments.output import atomic
 
 CURVATURE_RADIUS_MM = 100.0
 THICKNESS_MM = 5.0
@@ -335,7 +335,7 @@ def test_unreadable_file_gives_one_line_error(tmp_path, make_file, problem):
 
 
 def test_formats_doc_example_runs(tmp_path, monkeypatch):
-    from experiments.paths import PROJECT_ROOT
+    from experiments.data.paths import PROJECT_ROOT
 
     text = (PROJECT_ROOT / "docs" / "formats.md").read_text()
     example = text.split("```python\n", 1)[1].split("```", 1)[0]

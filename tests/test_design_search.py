@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from experiments.cli import main as dvs
+from experiments.command.cli import main as dvs
 from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
 from experiments.design.files import read_presses
 from experiments.design.plan import DesignSettings, dataset_presses, plan
@@ -171,7 +171,7 @@ def test_the_d_design_beats_the_ten_load_design(setting):
 
 def test_design_command_and_simulate_from_its_file(setting, tmp_path, capsys):
     dataset = setting[0]
-    from experiments.dataset import load_dataset, save_dataset
+    from experiments.data.dataset import load_dataset, save_dataset
 
     data = tmp_path / "data.npz"
     save_dataset(data, dataset)
@@ -216,7 +216,7 @@ def test_design_command_and_simulate_from_its_file(setting, tmp_path, capsys):
     ],
 )
 def test_design_bad_input_exits_2_with_one_line(setting, tmp_path, capsys, argv, fragment):
-    from experiments.dataset import save_dataset
+    from experiments.data.dataset import save_dataset
 
     data = tmp_path / "data.npz"
     save_dataset(data, setting[0])
@@ -227,7 +227,7 @@ def test_design_bad_input_exits_2_with_one_line(setting, tmp_path, capsys, argv,
 
 
 def test_a_dataset_without_geometry_exits_2(tmp_path, capsys):
-    from experiments.dataset import save_dataset, to_arrays
+    from experiments.data.dataset import save_dataset, to_arrays
 
     data = tmp_path / "data.npz"
     save_dataset(data, phantom_dataset({}, 1, "paper", NOISE_MM))

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from experiments.cli import main as dvs
+from experiments.command.cli import main as dvs
 from solvers.design.discrimination import (
     DETECT,
     SEPARATE,

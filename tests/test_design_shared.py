@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.cli import main as dvs
+from experiments.command.cli import main as dvs
 from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
 from experiments.design.plan import dataset_presses
 from experiments.diagnosis.diagnose import base_settings

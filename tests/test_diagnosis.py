@@ -35,7 +35,7 @@ from experiments.diagnosis.diagnose import (
     main,
     run,
 )
-from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
 from solvers.diagnosis.fit import fit

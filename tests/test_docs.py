@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.cli import COMMANDS, command_parser, main
+from experiments.command.cli import COMMANDS, command_parser, main
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
@@ -83,7 +83,7 @@ def test_every_script_is_a_dvs_command():
         if 'if __name__ == "__main__"' in path.read_text()
     }
     assert "experiments.inverse.paper" in scripts  # the scan itself works
-    assert not scripts - modules - {"experiments.cli"}, sorted(scripts - modules)
+    assert not scripts - modules - {"experiments.command.cli"}, sorted(scripts - modules)
     pattern = r"python -m (experiments(?:\.\w+)+)"
     assert re.findall(pattern, "run python -m experiments.inverse.paper --out x")
     text = " ".join(path.read_text() for path in DOCS.rglob("*.md"))

@@ -13,7 +13,7 @@ from experiments.dynamics.trajectories import (
     simulate_dynamic,
     truth_trajectories,
 )
-from experiments.fitting import FitSettings, build_problem
+from experiments.fit.fitting import FitSettings, build_problem
 from experiments.phantom.forehead import forehead_model, marker_uv, probe_loads
 from experiments.phantom.simulate import simulate
 from solvers.dynamic.identifiability import analyse_dynamic

@@ -7,7 +7,7 @@ import pytest
 from effectchecks import check_derivatives, check_theta_zero
 
 from experiments.diagnosis.diagnose import BASE_NAMES
-from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
 from experiments.phantom.simulate import (
     SimulationSettings,
     parse_effect_specs,

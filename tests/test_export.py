@@ -5,7 +5,7 @@ import builtins
 import numpy as np
 import pytest
 
-from experiments.export import write_vtu
+from experiments.output.export import write_vtu
 from experiments.phantom.forehead import forehead_model, probe_loads
 from solvers.equilibrium import EquilibriumSolver
 

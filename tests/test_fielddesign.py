@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fitting import build_problem
+from experiments.fit.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
 from solvers.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores

@@ -30,7 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_dataset import make_dataset
 
-from experiments.dataset import DatasetError, load_dataset, save_dataset, to_arrays, validate
+from experiments.data.dataset import DatasetError, load_dataset, save_dataset, to_arrays, validate
 from experiments.phantom.simulate import simulate
 
 FAST = settings(
@@ -142,7 +142,7 @@ def places(tmp_path_factory):
 
 def _commands(data, experiment, locked) -> dict:
     """Every command with its positional arguments, and the unwritable output it gets."""
-    from experiments.cli import COMMANDS
+    from experiments.command.cli import COMMANDS
 
     files = {"simulate": ".npz", "reconstruct": ".npz", "study outoflibrary": ".npz"}
     positional = {"fit": [str(data)], "diagnose": [str(data)], "reconstruct": [str(experiment)]}

@@ -184,7 +184,7 @@ def test_inverse_recovers_young_and_poisson_at_large_strain(large_strain_data):
     """A coarser model (9 x 9 x 3 over the marked area only, free sides) recovers E and
     nu of the finer neo-Hookean truth at the noise level; linear elasticity, fitted to
     the same data, is biased (measured: E 20.7 against 23.1 kPa)."""
-    from experiments.fitting import FitSettings, build_problem, solve
+    from experiments.fit.fitting import FitSettings, build_problem, solve
 
     estimates, levels = {}, {}
     for energy in ("neo-hookean", "linear-elastic"):
@@ -336,7 +336,7 @@ def test_stiffening_is_found_when_present_and_only_then():
     distance against its noise: |S B - Y|^2 / (2 sigma^2) per component pair (rest and
     loaded positions both noisy). k1 itself is weakly determined by probe data
     (measured 27 here, 45 on the truth's own grid), so only the detection is asserted."""
-    from experiments.fitting import FitSettings, build_problem, solve
+    from experiments.fit.fitting import FitSettings, build_problem, solve
     from symbolic.continuum_model import ExponentialModel
 
     volume = box_volume((40.0, 40.0, 5.0), (15, 15, 4), (3, 3, 2), origin=(-20.0, -20.0, 0.0))

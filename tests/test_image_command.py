@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from experiments.dataset import save_dataset
+from experiments.data.dataset import save_dataset
 from experiments.imaging.command import main
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
@@ -66,7 +66,7 @@ def test_image_writes_the_map_its_uncertainty_and_a_consistent_record(fe_dataset
     assert "strongest departure" in capsys.readouterr().out
     # image.json keys (docs/formats.md): the peak lies over the markers and is the map's
     # largest E there
-    from experiments.dataset import load_dataset
+    from experiments.data.dataset import load_dataset
 
     markers = load_dataset(path).outer_rest.reshape(-1, 3)
     low, high = markers[:, :2].min(axis=0), markers[:, :2].max(axis=0)

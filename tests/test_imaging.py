@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fitting import build_problem
+from experiments.fit.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
 from solvers.fieldproblem import FieldProblem

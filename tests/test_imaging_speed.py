@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 import solvers.nested as nested
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fitting import build_problem
+from experiments.fit.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
 from solvers.fieldproblem import Factor, FieldProblem

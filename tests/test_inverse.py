@@ -4,7 +4,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from experiments.fitting import FitSettings, build_problem
+from experiments.fit.fitting import FitSettings, build_problem
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -63,7 +63,7 @@ def test_noise_free_data_recover_the_truth_from_the_paper_start(solver):
 
 
 def test_control_point_objective_recovers_the_truth_too():
-    from experiments.fitting import loaded_control_points
+    from experiments.fit.fitting import loaded_control_points
     from solvers.problem import control_point_case
 
     base = phantom_problem()

@@ -15,7 +15,7 @@ import scipy.sparse.linalg as spla
 
 import solvers.diagnosis.linear as linear
 from experiments.diagnosis.diagnose import BASE_NAMES, base_settings
-from experiments.fitting import FitSettings, build_problem, dataset_loads
+from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.fe import ReferenceSlab, SlabSolution, design_cases, reference_dataset
 from experiments.phantom.simulate import simulate_with_effects

@@ -14,10 +14,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from experiments.captures import merge_captures
-from experiments.cli import main as dvs
-from experiments.dataset import load_dataset, save_dataset
-from experiments.validation import DatasetError
+from experiments.command.cli import main as dvs
+from experiments.data.captures import merge_captures
+from experiments.data.dataset import load_dataset, save_dataset
+from experiments.data.validation import DatasetError
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +146,7 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, ex
 
 
 def test_an_empty_dataset_exits_2(tmp_path, capsys):
-    from experiments.dataset import to_arrays
+    from experiments.data.dataset import to_arrays
     from experiments.phantom.simulate import SimulationSettings, simulate
 
     arrays = to_arrays(simulate(measurement=SimulationSettings(seed=1)))

@@ -20,8 +20,8 @@ import json
 import numpy as np
 import pytest
 
-from experiments.cli import main as dvs
-from experiments.dataset import save_dataset, to_arrays
+from experiments.command.cli import main as dvs
+from experiments.data.dataset import save_dataset, to_arrays
 
 
 def _patch_dataset():
@@ -217,7 +217,7 @@ def test_when_step_0_keeps_the_papers_energy_the_map_says_whose_continuum(tissue
     from dataclasses import replace
 
     import experiments.basemodel as basemodel
-    from experiments.dataset import load_dataset
+    from experiments.data.dataset import load_dataset
     from experiments.imaging.model import SOURCES, ImagingModel, fallback_note
 
     dataset = load_dataset(tissue)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from experiments.fitting import FitSettings, build_problem
+from experiments.fit.fitting import FitSettings, build_problem
 from experiments.inverse import compare, paper
 from experiments.phantom import forward
 from experiments.phantom.simulate import simulate

@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 import pytest
 
-from experiments.dataset import load_dataset
-from experiments.fitting import FitSettings, build_problem
+from experiments.data.dataset import load_dataset
+from experiments.fit.fitting import FitSettings, build_problem
 from experiments.stereo.cameras import Camera
 from experiments.stereo.reconstruct import ReconstructSettings, main, reconstruct
 from experiments.stereo.render import (

@@ -14,7 +14,7 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.diagnosis.diagnose import BASE_NAMES
-from experiments.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
+from experiments.fit.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
 from solvers.diagnosis.fit import fit

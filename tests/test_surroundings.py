@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.surroundings import extend_grid, margin_rows
+from experiments.fit.surroundings import extend_grid, margin_rows
 
 
 def _plane(u=9, v=7, spacing=5.0):
@@ -56,7 +56,7 @@ def test_on_a_curved_skin_the_band_departs_by_the_predicted_distance():
 
 
 def test_the_markers_project_inside_the_extended_volume():
-    from experiments.fitting import FitSettings, model_grid, rest_geometry
+    from experiments.fit.fitting import FitSettings, model_grid, rest_geometry
     from experiments.phantom.simulate import simulate
 
     dataset = simulate()
@@ -81,7 +81,7 @@ def test_tissue_beyond_the_markers_halves_the_model_error_on_another_codes_slab(
     truth's 20 mm, halves it on the same grid and recovers nu.
     """
     pytest.importorskip("skfem")
-    from experiments.fitting import FitSettings, build_problem, solve
+    from experiments.fit.fitting import FitSettings, build_problem, solve
     from experiments.phantom.fe import (
         ReferenceSlab,
         SlabSolution,

@@ -155,8 +155,8 @@ def test_a_dataset_without_a_probe_radius_loads_and_is_diagnosed(tmp_path):
     With the paper's energy (``--energy dnurbs``): what is tested is the generator's file
     and the command's acceptance of it. Step 0 on an undeclared radius (estimated, not 0)
     is test_basemodel's, on a patch of this generator."""
-    from experiments.cli import main
-    from experiments.dataset import load_dataset, save_dataset
+    from experiments.command.cli import main
+    from experiments.data.dataset import load_dataset, save_dataset
 
     patch = _curved(marked=(16.0, 12.0))
     forces, contacts = tissue_cases("paper", patch)

@@ -57,8 +57,8 @@ from experiments.basemodel.family import (
     starting_resolution,
     with_radius,
 )
-from experiments.dataset import Dataset
-from experiments.fitting import FitSettings, dataset_loads
+from experiments.data.dataset import Dataset
+from experiments.fit.fitting import FitSettings, dataset_loads
 from solvers.blas import one_thread
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.problem import ExtendedProblem
@@ -124,7 +124,7 @@ class BaseChoice:
     def fit_settings(self) -> FitSettings:
         """The ``FitSettings`` of ``dvs fit`` on the chosen model: the paper's estimates
         mu and gamma too (as ``dvs fit --energy dnurbs``), the continuum E and nu."""
-        from experiments.fitting import ENERGY_NAMES
+        from experiments.fit.fitting import ENERGY_NAMES
 
         names = ENERGY_NAMES[self.settings.energy]
         estimate = dict(zip(self.chosen.fit.problem.names, map(float, self.chosen.fit.p)))
@@ -347,7 +347,7 @@ def _chi2(fitted: EffectFit, sigma: float) -> tuple[float, int]:
 
 def _paper_trial(dataset: Dataset) -> Trial:
     """The paper's energy as ``dvs diagnose --energy dnurbs`` poses it."""
-    from experiments.fitting import build_problem
+    from experiments.fit.fitting import build_problem
 
     begin = time.perf_counter()
     settings = FitSettings(names=("alpha_u", "alpha_v", "alpha_w"))

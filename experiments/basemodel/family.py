@@ -14,9 +14,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from experiments.dataset import Dataset
-from experiments.fitting import FitSettings, build_model, dataset_loads, problem_on
-from experiments.surroundings import marked_lengths, marker_spacing
+from experiments.data.dataset import Dataset
+from experiments.fit.fitting import FitSettings, build_model, dataset_loads, problem_on
+from experiments.fit.surroundings import marked_lengths, marker_spacing
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import residual_test

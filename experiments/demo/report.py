@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.atomic import atomic_write_text
+from experiments.output.atomic import atomic_write_text
 
 
 class Report:

@@ -19,9 +19,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from experiments.atomic import atomic_write_json
 from experiments.demo import sections
 from experiments.demo.report import Report
+from experiments.output.atomic import atomic_write_json
 
 STEPS = (
     ("forward solution of the phantom", sections.forward),
@@ -125,7 +125,7 @@ def run(out: Path) -> int:
 
 def build_parser(prog: str = "python -m experiments.demo"):
     """The options of ``dvs demo``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "The main job: the paper, end to end, on the phantom.")
     parser.add_argument(
@@ -136,7 +136,7 @@ def build_parser(prog: str = "python -m experiments.demo"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.demo") -> int:
     """``dvs demo [--out DIR]``."""
-    from experiments.options import check_output_dir, run_guarded
+    from experiments.command.options import check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)
     return run_guarded(prog, lambda: run(check_output_dir(args.out)))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.atomic import atomic_write_json
+from experiments.output.atomic import atomic_write_json
 
 PAPER = (
     "Estimation of parameters for dynamic volume spline models. Special Issue Papers, "
@@ -58,7 +58,7 @@ residual of {summary["relative_residual"]:.1e}.
 
 def images(out: Path, report, state: dict, log) -> None:
     """2. The experiment on rendered images: calibrate, detect, triangulate."""
-    from experiments.dataset import save_dataset
+    from experiments.data.dataset import save_dataset
     from experiments.phantom.simulate import SimulationSettings, simulate
     from experiments.stereo.reconstruct import reconstruct
     from experiments.stereo.render import write_synthetic_experiment
@@ -115,7 +115,7 @@ image-reconstructed dataset is what sections 3 to 5 use.**
 
 def inverse(out: Path, report, state: dict, log) -> None:
     """3. Both formulations, and Table 1 of the paper; 4. identifiability."""
-    from experiments.fitting import FitSettings, fit_dataset, write_fit_outputs
+    from experiments.fit.fitting import FitSettings, fit_dataset, write_fit_outputs
     from experiments.inverse import paper
 
     dataset = state["dataset"]
@@ -199,7 +199,7 @@ Verdict of the joint fit: {fits["simultaneous"]["verdict"]["summary"]}.
 
 def compare(out: Path, report, state: dict, log) -> None:
     """5. Simultaneous, nested and paper-faithful from many starts, on the same data."""
-    from experiments.fitting import FitSettings, build_problem
+    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.inverse import compare as script
     from experiments.phantom.forehead import TRUE_PARAMETERS
 
@@ -257,7 +257,7 @@ the linearised one). The transient costs {s["wall_time_ratio"]:.0f} static solve
 
 def diagnosis(out: Path, report, state: dict, log) -> None:
     """7. A second dataset with an undeclared rigid motion, diagnosed."""
-    from experiments.dataset import save_dataset
+    from experiments.data.dataset import save_dataset
     from experiments.diagnosis import diagnose
     from experiments.phantom.simulate import simulate_with_effects
 

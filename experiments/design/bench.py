@@ -140,7 +140,7 @@ def run(budget: int = 10, gap_budget: int = 3, log=print) -> dict:
 
 def build_parser(prog: str = "python -m experiments.design.bench"):
     """The options of ``dvs bench design``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(
         prog, "Design search: speed, gap to exhaustive, against the 10-load design."
@@ -157,8 +157,8 @@ def build_parser(prog: str = "python -m experiments.design.bench"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.bench") -> int:
     """``dvs bench design [--out DIR]``."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.output.atomic import atomic_write_json
 
     args = build_parser(prog).parse_args(argv)
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.design.plan import DesignSettings, plan, require_noise
-from experiments.stepzero import AUTO, chosen_base
+from experiments.fit.stepzero import AUTO, chosen_base
 
 GAIN_LABELS = {
     "d": "gain in log det(F)^(1/p)",
@@ -81,7 +81,7 @@ def plot_map(path: Path, dataset, chosen, gains) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.atomic import atomic_savefig
+    from experiments.output.atomic import atomic_savefig
     from solvers.design.candidates import contact_point
 
     model, document, contacts = chosen.pool.model, chosen.document, chosen.contacts
@@ -135,7 +135,7 @@ def plot_map(path: Path, dataset, chosen, gains) -> None:
 
 def build_parser(prog: str = "python -m experiments.design.command"):
     """The options of ``dvs design``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Choose where, in which direction and how hard to press.")
     parser.add_argument(
@@ -237,11 +237,11 @@ def build_parser(prog: str = "python -m experiments.design.command"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.command"):
     """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
-    from experiments.atomic import atomic_write_json, atomic_write_text
-    from experiments.dataset import load_dataset
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.data.dataset import load_dataset
     from experiments.design.report import report_text
-    from experiments.options import UsageError, check_output_dir, run_guarded
-    from experiments.stepzero import refuse_model_options
+    from experiments.fit.stepzero import refuse_model_options
+    from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     args = build_parser(prog).parse_args(argv)
 
@@ -318,7 +318,7 @@ grid None: its 15 x 15 x 3)."""
 def model_options(args, defaults: dict) -> dict:
     """``--grid``, ``--degrees`` and ``--margin`` checked (exit 2 with one line when bad),
     each the mode's default when not given: {"grid", "degrees", "margin"}."""
-    from experiments.options import check_grid, check_margin, parse_degrees, parse_grid
+    from experiments.command.options import check_grid, check_margin, parse_degrees, parse_grid
 
     degrees = defaults["degrees"] if args.degrees is None else parse_degrees(args.degrees)
     grid = defaults["grid"]
@@ -334,7 +334,7 @@ def base_model(args):
     (``--energy auto``, the default): step 0 chooses it, and the other three are refused
     (exit 2), as by fit and diagnose."""
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.stepzero import refuse_model_options
+    from experiments.fit.stepzero import refuse_model_options
 
     model = model_options(args, {"grid": None, "degrees": base_settings().degrees, "margin": 0.0})
     degrees = None if args.degrees is None else model["degrees"]
@@ -353,12 +353,12 @@ def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Pat
     """``dvs design --sequential SCENARIO``: the loop against FE continuum data; writes
     sequential.json, report.md and path.png. ``model`` is ``model_options``'s (grid None:
     the loop's default)."""
-    from experiments.atomic import atomic_write_json, atomic_write_text
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.design.lab import ContinuumLab
     from experiments.design.pathreport import plot_path, report_text
     from experiments.design.sequential import SequentialSettings, run
     from experiments.diagnosis.continuum import SCENARIOS
-    from experiments.options import UsageError, check_output_dir
+    from experiments.output.atomic import atomic_write_json, atomic_write_text
     from experiments.phantom.fe import require_skfem
 
     if scenario not in SCENARIOS:

@@ -7,7 +7,7 @@ Each press is filmed once: the markers under the true load, their own noise draw
 (seed ``1000 seed + k`` for the k-th press) and the probe's occlusion. The rest capture
 is drawn once, with the first press, and shared by every press after it, as in a
 session where the cameras film the skin before the first press
-(``experiments.captures.merge_captures``, as ``dvs next`` appends a lab's presses).
+(``experiments.data.captures.merge_captures``, as ``dvs next`` appends a lab's presses).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from experiments.captures import merge_captures
-from experiments.dataset import Dataset
+from experiments.data.captures import merge_captures
+from experiments.data.dataset import Dataset
 from experiments.diagnosis.continuum import SCENARIOS, ContinuumStudy
 
 

@@ -12,7 +12,7 @@ progress over them (eq. D7), or say why to stop.
 
 The datasets given are one session: the first holds the session's rest capture, the
 others are presses reconstructed since (``dvs reconstruct`` on the new images), appended
-in order (``experiments.captures.merge_captures``); the merged data are written to
+in order (``experiments.data.captures.merge_captures``); the merged data are written to
 ``DIR/dataset.npz``, the DATASET of the next round.
 
 Writes ``next.json`` (schema ``dvs-design/1``, docs/formats.md; ``presses`` holds the
@@ -27,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.stepzero import AUTO
+from experiments.fit.stepzero import AUTO
 
 
 def build_parser(prog: str = "python -m experiments.design.nextpress"):
     """The options of ``dvs next``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Propose the next press of an experiment from the data so far.")
     parser.add_argument(
@@ -104,7 +104,7 @@ def build_parser(prog: str = "python -m experiments.design.nextpress"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.nextpress"):
     """``dvs next DATASET --budget N --out DIR``; exit 0, or 2 with one line for bad input."""
-    from experiments.options import run_guarded
+    from experiments.command.options import run_guarded
 
     args = build_parser(prog).parse_args(argv)
     return run_guarded(prog, lambda: work(args))
@@ -112,14 +112,14 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.desig
 
 def work(args) -> int:
     """Check every input, then diagnose, choose and write the outputs."""
-    from experiments.atomic import atomic_write_json, atomic_write_text
-    from experiments.captures import merge_captures
-    from experiments.dataset import load_dataset, save_dataset
+    from experiments.command.options import UsageError, check_output_dir
+    from experiments.data.captures import merge_captures
+    from experiments.data.dataset import load_dataset, save_dataset
     from experiments.design.command import SEQUENTIAL_MODEL, model_options
     from experiments.design.plan import DesignSettings, require_noise
     from experiments.design.sequential import SequentialSettings, step
-    from experiments.options import UsageError, check_output_dir
-    from experiments.stepzero import refuse_model_options
+    from experiments.fit.stepzero import refuse_model_options
+    from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     begin = time.perf_counter()
     if args.budget < 1:
@@ -277,7 +277,7 @@ def plot_next(path: Path, document: dict, dataset) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.atomic import atomic_savefig
+    from experiments.output.atomic import atomic_savefig
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5.2), layout="constrained")
     rest = dataset.outer_rest.reshape(-1, 3)

@@ -75,7 +75,7 @@ def plot_path(path: Path, document: dict, dataset) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.atomic import atomic_savefig
+    from experiments.output.atomic import atomic_savefig
 
     rows = document["path"]
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5.2), layout="constrained")

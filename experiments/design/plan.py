@@ -153,7 +153,7 @@ def press_document(model, press: Press) -> dict:
 def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
     """The dataset's own presses (with its declared probe radius) and the markers each
     capture sees."""
-    from experiments.fitting import dataset_loads
+    from experiments.fit.fitting import dataset_loads
 
     loads = dataset_loads(dataset, model.volume)
     presses = [
@@ -223,7 +223,7 @@ def plan(dataset, settings: DesignSettings, grid=None, log=print, base=None, fit
     ``FitSettings`` (default ``base_settings(grid)``, as ``dvs diagnose``) and ``fit`` its
     fit when already made (step 0's, ``solvers.diagnosis.fit.EffectFit``)."""
     from experiments.design.calibration import base_fit
-    from experiments.stepzero import model_record
+    from experiments.fit.stepzero import model_record
     from symbolic.effects.library import make_effect
 
     begin = time.perf_counter()

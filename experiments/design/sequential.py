@@ -30,7 +30,7 @@ from experiments.design.plan import (
     dataset_presses,
     press_document,
 )
-from experiments.stepzero import AUTO, model_record
+from experiments.fit.stepzero import AUTO, model_record
 from solvers.design.discrimination import Discrimination, questions, standings
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
@@ -56,7 +56,7 @@ class SequentialSettings:
     energy : str
         ``auto`` (the default): before each diagnosis step 0 chooses the base model, its
         resolution and surroundings and the probe's radius from the data so far, as
-        ``dvs diagnose`` does (``experiments.stepzero``); ``linear-elastic``: the volume
+        ``dvs diagnose`` does (``experiments.fit.stepzero``); ``linear-elastic``: the volume
         of ``grid``, ``degrees`` and ``margin``.
     grid, degrees : tuple of int
         The control grid and spline degrees of ``energy="linear-elastic"``.
@@ -119,7 +119,7 @@ def diagnosis_base(dataset, settings: SequentialSettings, log=None):
     diagnosis starts from it), the dataset as it reads it (step 0's probe radius and
     shape) and step 0's record (None for the fixed volume)."""
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.stepzero import chosen_base
+    from experiments.fit.stepzero import chosen_base
 
     if settings.energy == AUTO:
         return chosen_base(dataset, settings.candidates.level, log or (lambda _: None))

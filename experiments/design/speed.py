@@ -4,7 +4,7 @@ with its defaults (step 0 chooses the model) on a 10-load dataset.
 
 The model is the continuum study's (``experiments.diagnosis.continuum.ContinuumStudy``:
 the linear-elastic volume spline, degrees 3 x 3 x 2, 10 mm of tissue beyond the
-markers). Each row runs in a fresh process (``experiments.isolation.isolated``) and
+markers). Each row runs in a fresh process (``experiments.command.isolation.isolated``) and
 reports its wall time, its "x floor" (the time over one factorisation of the same K,
 timed in the same process, so that a loaded machine scales both) and the process's
 peak memory (``ru_maxrss``).
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 
-from experiments.isolation import factorisation_seconds, peak_mb
+from experiments.command.isolation import factorisation_seconds, peak_mb
 
 SEARCH_TARGET_S = 60.0
 """``dvs design`` over 250 candidates at 27 x 27 x 4 [s]."""
@@ -40,10 +40,10 @@ def timed_search(path: str, study) -> dict:
     information of the dataset's presses and 250 candidates, search for 10) at the
     study's model, timed, with one factorisation of its K and the peak memory. Meant
     for a fresh process."""
-    from experiments.dataset import load_dataset
+    from experiments.data.dataset import load_dataset
     from experiments.design.plan import DesignSettings, plan
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fitting import build_problem
+    from experiments.fit.fitting import build_problem
 
     settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
     dataset = load_dataset(path)
@@ -69,7 +69,7 @@ def timed_step(scenario: str, study) -> dict:
     from experiments.design.lab import ContinuumLab
     from experiments.design.sequential import SequentialSettings, step
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fitting import build_problem
+    from experiments.fit.fitting import build_problem
 
     settings = SequentialSettings(
         energy="linear-elastic", grid=study.grid, degrees=study.degrees, margin=study.margin
@@ -112,8 +112,8 @@ def design_search_benchmark(scenario: str = "tilted_force", log=print) -> dict:
 
 def sequential_step_benchmark(scenario: str = "stiffness_gradient", log=print) -> dict:
     """The "one sequential step" row: ``timed_step`` on ``scenario`` at 27 x 27 x 4."""
+    from experiments.command.isolation import isolated
     from experiments.diagnosis.continuum import ContinuumStudy
-    from experiments.isolation import isolated
 
     row = isolated(timed_step, scenario, ContinuumStudy())
     row["scenario"] = scenario
@@ -140,10 +140,10 @@ def timed_next(path: str, study) -> dict:
     import tempfile
     from pathlib import Path
 
-    from experiments.dataset import load_dataset
+    from experiments.data.dataset import load_dataset
     from experiments.design.nextpress import main
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fitting import build_problem
+    from experiments.fit.fitting import build_problem
 
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "next"

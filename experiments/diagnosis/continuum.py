@@ -82,14 +82,14 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
     """``dvs diagnose`` on a saved dataset at the study's grid, timed whole (build, loop,
     figure and outputs), with one factorisation of its K timed in the same process (the
     "x floor" unit) and the process's peak memory. Meant for a fresh process
-    (``experiments.isolation.isolated``).
+    (``experiments.command.isolation.isolated``).
     """
     import tempfile
 
-    from experiments.dataset import load_dataset
+    from experiments.command.isolation import factorisation_seconds, peak_mb
+    from experiments.data.dataset import load_dataset
     from experiments.diagnosis.diagnose import base_settings, run
-    from experiments.fitting import build_problem
-    from experiments.isolation import factorisation_seconds, peak_mb
+    from experiments.fit.fitting import build_problem
 
     settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
     with tempfile.TemporaryDirectory() as out:
@@ -108,12 +108,12 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
 
 
 def timed_on_scenario(timed, scenario: str, study: ContinuumStudy) -> dict:
-    """``timed(path, study)`` in a fresh process (``experiments.isolation.isolated``) on
+    """``timed(path, study)`` in a fresh process (``experiments.command.isolation.isolated``) on
     the scenario's dataset saved to a temporary file; the row gains its ``scenario``."""
     import tempfile
 
-    from experiments.dataset import save_dataset
-    from experiments.isolation import isolated
+    from experiments.command.isolation import isolated
+    from experiments.data.dataset import save_dataset
 
     with tempfile.TemporaryDirectory() as folder:
         path = str(Path(folder) / f"{scenario}.npz")
@@ -202,7 +202,7 @@ def model_error_rows(study: ContinuumStudy, cases=MODEL_ERROR_CASES, log=print) 
     The slab's cells keep their size (2.5 mm) whatever its extent; the scenario is
     ``none``; ``study`` gives the design, the degrees and the probe.
     """
-    from experiments.fitting import build_problem, solve
+    from experiments.fit.fitting import build_problem, solve
     from experiments.phantom.fe import reference_dataset
     from experiments.phantom.simulate import SimulationSettings
 
@@ -285,7 +285,7 @@ def table(rows: list[dict]) -> str:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
     """The options of ``dvs study continuum``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
@@ -308,8 +308,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.continuum"):
     """``dvs study continuum --out DIR``: rows.json and table.md."""
-    from experiments.atomic import atomic_write_json, atomic_write_text
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_grid,
         check_margin,
@@ -318,6 +317,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         parse_grid,
         run_guarded,
     )
+    from experiments.output.atomic import atomic_write_json, atomic_write_text
     from experiments.phantom.fe import require_skfem
 
     args = build_parser(prog).parse_args(argv)

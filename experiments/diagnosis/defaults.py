@@ -98,8 +98,8 @@ def timed_default_diagnosis(path: str) -> dict:
     outputs), with the process's CPU time (what other jobs on a shared machine change
     least) and peak memory. Meant for a fresh process."""
     from experiments.basemodel.family import Surroundings
+    from experiments.command.isolation import peak_mb
     from experiments.diagnosis.diagnose import run
-    from experiments.isolation import peak_mb
 
     with tempfile.TemporaryDirectory() as out:
         begin, cpu = time.perf_counter(), time.process_time()
@@ -130,8 +130,8 @@ def timed_default_diagnosis(path: str) -> dict:
 
 def timed_row(name: str, injected: str | None = None) -> dict:
     """``timed_default_diagnosis`` on a row's dataset, in a fresh process."""
-    from experiments.dataset import save_dataset
-    from experiments.isolation import isolated
+    from experiments.command.isolation import isolated
+    from experiments.data.dataset import save_dataset
 
     with tempfile.TemporaryDirectory() as folder:
         path = str(Path(folder) / "data.npz")

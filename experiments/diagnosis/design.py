@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.dataset import Dataset
-from experiments.plausibility import outward_normals
-from experiments.validation import median_marker_spacing
+from experiments.data.dataset import Dataset
+from experiments.data.plausibility import outward_normals
+from experiments.data.validation import median_marker_spacing
 from symbolic.effects.library import effect_library
 
 HIDDEN_ANYWHERE = ("base_compliance",)

@@ -136,7 +136,7 @@ def print_table(results: list[dict], log=print) -> None:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
     """The options of ``dvs study detection``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--effects", default="", help="comma list; default every effect")
@@ -153,14 +153,14 @@ def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.detection"):
     """``dvs study detection [--effects a,b] [--factors 1,2,4] --out DIR``: detection.json."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_output_dir,
         check_seed,
         parse_numbers,
         run_guarded,
     )
+    from experiments.output.atomic import atomic_write_json
 
     args = build_parser(prog).parse_args(argv)
 

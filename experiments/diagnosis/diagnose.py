@@ -13,10 +13,10 @@ import sys
 import time
 from pathlib import Path
 
-from experiments.dataset import Dataset, load_dataset
+from experiments.command.options import plural
+from experiments.data.dataset import Dataset, load_dataset
+from experiments.data.plausibility import dataset_warnings
 from experiments.diagnosis.design import design_note
-from experiments.options import plural
-from experiments.plausibility import dataset_warnings
 from solvers.diagnosis.report import report, verdict
 from symbolic.effects.library import EFFECT_NAMES
 
@@ -26,7 +26,7 @@ BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
 
 def base_settings(grid=None, energy: str = "dnurbs", degrees=None, margin: float = 0.0):
     """The ``FitSettings`` of the loop's base model: the energy's default parameters."""
-    from experiments.fitting import ENERGY_NAMES, FitSettings
+    from experiments.fit.fitting import ENERGY_NAMES, FitSettings
 
     names = BASE_NAMES if energy == "dnurbs" else ENERGY_NAMES[energy]
     extra = {} if degrees is None else {"degrees": tuple(degrees)}
@@ -46,7 +46,7 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     ``Diagnosis.base_choice``. A ``grid`` (M, N, L) without ``base`` is the paper's
     energy on that grid.
     """
-    from experiments.fitting import build_problem, dataset_loads
+    from experiments.fit.fitting import build_problem, dataset_loads
     from solvers.diagnosis.loop import DiagnosisSettings, diagnose
 
     settings = settings or DiagnosisSettings()
@@ -89,7 +89,7 @@ def run(
     dict
         The diagnosis.json document (schema ``dvs-diagnosis/1``).
     """
-    from experiments.atomic import atomic_write_json, atomic_write_text
+    from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
@@ -184,8 +184,8 @@ def plot_residuals(diagnosis, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.atomic import atomic_savefig
-    from experiments.plots import residual_panel
+    from experiments.output.atomic import atomic_savefig
+    from experiments.output.plots import residual_panel
 
     first, last = diagnosis.steps[0].fit, diagnosis.steps[-1].fit
     cases = first.problem.cases
@@ -214,7 +214,7 @@ def plot_residuals(diagnosis, path: Path) -> None:
 
 def parse_candidates(text: str) -> tuple[str, ...]:
     """``--candidates``: effect names, where ``default`` stands for ``EFFECT_NAMES``."""
-    from experiments.options import UsageError
+    from experiments.command.options import UsageError
     from symbolic.effects.library import ALL_EFFECT_NAMES
 
     names: list[str] = []
@@ -233,7 +233,7 @@ def parse_candidates(text: str) -> tuple[str, ...]:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     """The options of ``dvs diagnose``."""
-    from experiments.options import add_margin_argument, make_parser, path_argument
+    from experiments.command.options import add_margin_argument, make_parser, path_argument
 
     parser = make_parser(prog, "Find what the base model is missing (writes diagnosis.json).")
     parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
@@ -274,7 +274,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.diagnose"):
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
 
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_grid,
         check_margin,

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from experiments.dataset import Dataset, save_dataset
+from experiments.data.dataset import Dataset, save_dataset
 from experiments.phantom.fe import require_skfem
 from experiments.phantom.simulate import SimulationSettings
 from symbolic.continuum import KPA, lame
@@ -225,7 +225,7 @@ def simulate_slab(
 
 def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """The options of ``dvs study outoflibrary``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
@@ -236,7 +236,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """``dvs study outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
-    from experiments.options import (
+    from experiments.command.options import (
         check_noise,
         check_output_file,
         check_seed,

@@ -71,7 +71,7 @@ def benchmark(effects: dict[str, float] | None = None, repeat: int = 3, log=prin
     the numeric work (one sensitivity evaluation and back-substitutions per
     case; a new dg/ds and its LU only for base_compliance, which adds state).
     """
-    from experiments.fitting import FitSettings, build_problem, dataset_loads
+    from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
     from solvers.diagnosis.stats import score_test
@@ -125,7 +125,7 @@ def diagnosis_timings(log=print) -> list[dict]:
     the ratio holds on a busy machine too.
     """
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fitting import build_problem, dataset_loads
+    from experiments.fit.fitting import build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
 
@@ -160,7 +160,7 @@ def diagnosis_timings(log=print) -> list[dict]:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.study"):
     """The options of ``dvs study diagnosis``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Every effect alone over several seeds, diagnosed.")
     parser.add_argument("--seeds", default="1,2,3,4", help="comma list of seeds (>= 0)")
@@ -175,14 +175,14 @@ def build_parser(prog: str = "python -m experiments.diagnosis.study"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.study"):
     """``dvs study diagnosis --out DIR``: study.json (or benchmark.json with ``--benchmark``)."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_output_dir,
         check_seed,
         parse_numbers,
         run_guarded,
     )
+    from experiments.output.atomic import atomic_write_json
 
     args = build_parser(prog).parse_args(argv)
 

@@ -29,7 +29,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.atomic import atomic_savefig, atomic_write_json  # noqa: E402
 from experiments.dynamics.trajectories import (  # noqa: E402
     DEFAULT_SUBSTEPS,
     DYNAMIC_NAMES,
@@ -37,7 +36,8 @@ from experiments.dynamics.trajectories import (  # noqa: E402
     build_dynamic_problem,
     simulate_dynamic,
 )
-from experiments.fitting import FitSettings, build_problem  # noqa: E402
+from experiments.fit.fitting import FitSettings, build_problem  # noqa: E402
+from experiments.output.atomic import atomic_savefig, atomic_write_json  # noqa: E402
 from solvers.dynamic.identifiability import analyse_dynamic, contrast, contrast_table  # noqa: E402
 from solvers.dynamic.nested import DynamicNestedSolver  # noqa: E402
 from solvers.dynamic.problem import DynamicProblem  # noqa: E402
@@ -229,7 +229,7 @@ def coverage_study(seeds=range(20), noise_mm=0.02, log=print) -> dict:
 
 def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
     """The options of ``dvs study dynamic``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
@@ -249,7 +249,7 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.inverse"):
     """``dvs study dynamic --out DIR``: dynamic.json and dynamic.png."""
 
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_noise,
         check_output_dir,

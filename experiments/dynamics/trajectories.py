@@ -13,8 +13,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from experiments.dataset import Dataset
-from experiments.fitting import FitSettings, dataset_loads, rest_geometry
+from experiments.data.dataset import Dataset
+from experiments.fit.fitting import FitSettings, dataset_loads, rest_geometry
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,

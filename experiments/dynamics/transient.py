@@ -25,7 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.atomic import atomic_savefig, atomic_write_json  # noqa: E402
+from experiments.output.atomic import atomic_savefig, atomic_write_json  # noqa: E402
 from experiments.phantom.forehead import TRUE_PARAMETERS, forehead_model, probe_loads  # noqa: E402
 from solvers.equilibrium import EquilibriumSolver  # noqa: E402
 from solvers.transient.modal import (  # noqa: E402
@@ -226,7 +226,7 @@ def benchmark(repeats: int = 3, log=print) -> list[dict]:
 
 def build_parser(prog: str = "python -m experiments.dynamics.transient"):
     """The options of ``dvs transient``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
@@ -240,7 +240,7 @@ def build_parser(prog: str = "python -m experiments.dynamics.transient"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.transient"):
     """``dvs transient [--out DIR]``: transient.json and transient.png."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

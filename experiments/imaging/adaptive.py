@@ -74,7 +74,7 @@ def place_rows(seed: int, grid, log=print, shape=(16, 16)) -> dict:
     every candidate (one dataset of each, the same noise draw), linearised at the
     disc-free fit: the rows per press, the disc's exact signal per press, the field's L
     and node positions, the disc's centre and which presses are the design's."""
-    from experiments.fitting import FitSettings, build_problem, solve
+    from experiments.fit.fitting import FitSettings, build_problem, solve
     from experiments.phantom.fe import ReferenceSlab, SlabSolution, reference_dataset
     from experiments.phantom.simulate import SimulationSettings
     from solvers.fieldproblem import FieldProblem
@@ -265,7 +265,7 @@ def table(results: list[dict]) -> str:
 
 def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
     """The options of ``dvs study imageadaptive``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Adaptive stiffness imaging at random places (a study).")
     parser.add_argument(
@@ -284,9 +284,7 @@ def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
 
 def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int:
     """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
-    from experiments.atomic import atomic_write_json, atomic_write_text
-    from experiments.imaging.command import parse_field
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_grid,
         check_output_dir,
@@ -295,6 +293,8 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
         parse_numbers,
         run_guarded,
     )
+    from experiments.imaging.command import parse_field
+    from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     args = build_parser(prog).parse_args(argv)
 

@@ -42,7 +42,7 @@ def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list
     The data are made once, the model once per grid; only the field changes with N.
     """
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fitting import build_problem
+    from experiments.fit.fitting import build_problem
     from solvers.fieldproblem import FieldProblem
     from solvers.imaging import SOLVERS
     from solvers.regularization import Tikhonov
@@ -98,7 +98,7 @@ def timed_imaging(path: str) -> dict:
     """``dvs image`` on a saved dataset at ``IMAGING_GRID``, timed whole (build, fits,
     weight, Laplace, figures and outputs), with one factorisation of the model's K timed
     in the same process (the "x floor" unit) and the process's peak memory. Meant for a
-    fresh process (``experiments.isolation.isolated``).
+    fresh process (``experiments.command.isolation.isolated``).
     """
     import contextlib
     import io
@@ -106,11 +106,11 @@ def timed_imaging(path: str) -> dict:
     import tempfile
     from pathlib import Path
 
-    from experiments.dataset import load_dataset
-    from experiments.fitting import FitSettings, build_problem
+    from experiments.command.isolation import factorisation_seconds, peak_mb
+    from experiments.command.options import parse_degrees, parse_grid
+    from experiments.data.dataset import load_dataset
+    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.imaging.command import main
-    from experiments.isolation import factorisation_seconds, peak_mb
-    from experiments.options import parse_degrees, parse_grid
 
     with tempfile.TemporaryDirectory() as out:
         arguments = [path, "--energy", "linear-elastic", "--grid", IMAGING_GRID]
@@ -146,9 +146,9 @@ def imaging_benchmark(log=print) -> dict:
     import tempfile
     from pathlib import Path
 
-    from experiments.dataset import save_dataset
+    from experiments.command.isolation import isolated
+    from experiments.data.dataset import save_dataset
     from experiments.imaging.weightstudy import inclusion_datasets
-    from experiments.isolation import isolated
 
     with tempfile.TemporaryDirectory() as folder:
         path = str(Path(folder) / "disc.npz")
@@ -191,7 +191,7 @@ def table(rows: list[dict]) -> str:
 
 def build_parser(prog: str = "python -m experiments.imaging.bench"):
     """The options of ``dvs bench image`` (docs/cli.md)."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Stiffness imaging: fit time against N for three methods.")
     parser.add_argument("--grids", default="9x9x2,17x17x3", help="model grids, comma list")
@@ -204,7 +204,7 @@ def build_parser(prog: str = "python -m experiments.imaging.bench"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.imaging.bench") -> int:
     """``dvs bench image``: exit 0, or 2 with one line for bad input."""
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_output_dir,
         parse_grid,
@@ -236,7 +236,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
         text = table(rows)
         print(text)
         if args.out is not None:
-            from experiments.atomic import atomic_write_json, atomic_write_text
+            from experiments.output.atomic import atomic_write_json, atomic_write_text
 
             args.out.mkdir(parents=True, exist_ok=True)
             atomic_write_json(args.out / "imagebench.json", rows)

@@ -22,7 +22,7 @@ DEGREES = (3, 3, 1)
 
 def parse_field(text: str, over: str) -> tuple[int, ...]:
     """'5x5' (surface) or '5x5x3' (layers, volume): nodes per direction, at least 2 along u, v."""
-    from experiments.options import UsageError
+    from experiments.command.options import UsageError
 
     wanted = 2 if over == "surface" else 3
     try:
@@ -44,7 +44,7 @@ def parse_field(text: str, over: str) -> tuple[int, ...]:
 
 def parse_weight(text: str) -> str | float:
     """'morozov', 'gcv', 'lcurve' or a positive beta [mm^2]."""
-    from experiments.options import UsageError
+    from experiments.command.options import UsageError
 
     if text in ("morozov", "gcv", "lcurve"):
         return text
@@ -61,7 +61,7 @@ def parse_weight(text: str) -> str | float:
 
 def build_parser(prog: str = "python -m experiments.imaging.command"):
     """The options of ``dvs image`` (docs/cli.md)."""
-    from experiments.options import add_margin_argument, make_parser, path_argument
+    from experiments.command.options import add_margin_argument, make_parser, path_argument
 
     parser = make_parser(
         prog, "Image Young's modulus as a field, with its uncertainty (writes image.json)."
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
     import sys
     from dataclasses import replace
 
-    from experiments.options import (
+    from experiments.command.options import (
         EXIT_NOT_CONVERGED,
         UsageError,
         check_grid,
@@ -122,13 +122,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
         parse_grid,
         run_guarded,
     )
-    from experiments.stepzero import model_record, refuse_model_options
+    from experiments.fit.stepzero import model_record, refuse_model_options
 
     args = build_parser(prog).parse_args(argv)
 
     def work() -> int:
-        from experiments.dataset import load_dataset
-        from experiments.fitting import FitSettings
+        from experiments.data.dataset import load_dataset
+        from experiments.fit.fitting import FitSettings
         from experiments.imaging.outputs import document, plot_maps, write_vtu
         from experiments.imaging.run import ImageSettings, image_dataset
 
@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
         plot_maps(image, dataset.outer_rest, args.out / "map.png", args.out / "std.png")
         if not write_vtu(image, args.out / "map.vtu"):
             print(f"{prog}: warning: map.vtu not written: pip install meshio", file=sys.stderr)
-        from experiments.atomic import atomic_write_json
+        from experiments.output.atomic import atomic_write_json
 
         atomic_write_json(args.out / "image.json", record)
         residual, strongest = record["residual"], record["strongest_departure"]

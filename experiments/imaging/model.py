@@ -118,7 +118,7 @@ def imaging_model(dataset, level: float = 0.01, log=print) -> ImagingModel:
     its one line and, when the map is not of step 0's choice, one line saying so."""
     import gc
 
-    from experiments.stepzero import run_step0
+    from experiments.fit.stepzero import run_step0
     from solvers.blas import one_thread
 
     choice = run_step0(dataset, level, log)

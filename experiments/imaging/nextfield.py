@@ -116,9 +116,9 @@ def with_candidates(dataset, presses, points, visible):
 def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
     """Step 0, the homogeneous fit, the posterior and the next press, or why to stop."""
     from experiments.design.plan import press_document
-    from experiments.fitting import build_problem, solve
+    from experiments.fit.fitting import build_problem, solve
+    from experiments.fit.stepzero import model_record
     from experiments.imaging.model import imaging_model
-    from experiments.stepzero import model_record
     from solvers.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores
     from solvers.fieldproblem import FieldProblem
     from symbolic.field import StiffnessField
@@ -274,7 +274,7 @@ def plot_field(path, document: dict, dataset, headline: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.atomic import atomic_savefig
+    from experiments.output.atomic import atomic_savefig
 
     posterior = document["posterior"]
     places = np.array(posterior["places_mm"])

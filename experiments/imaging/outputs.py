@@ -150,7 +150,7 @@ def plot_maps(image: Image, markers: np.ndarray, path_map: Path, path_std: Path)
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm, Normalize
 
-    from experiments.atomic import atomic_savefig
+    from experiments.output.atomic import atomic_savefig
 
     depths = layer_depths(image)
     samples = [sample(image, w) for w in depths]
@@ -193,7 +193,7 @@ def write_vtu(image: Image, path: Path, count: tuple[int, int, int] = (41, 41, 5
         import meshio
     except ImportError:
         return False
-    from experiments.atomic import atomic_write_by_name
+    from experiments.output.atomic import atomic_write_by_name
 
     axes = [np.linspace(0.0, 1.0, n) for n in count]
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)

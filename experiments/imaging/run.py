@@ -15,8 +15,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from experiments.dataset import Dataset
-from experiments.fitting import FitSettings, build_problem, solve
+from experiments.data.dataset import Dataset
+from experiments.fit.fitting import FitSettings, build_problem, solve
 from solvers.fieldproblem import FieldProblem
 from solvers.imaging import SOLVERS, Laplace, laplace
 from solvers.regularization import Tikhonov, TotalVariation

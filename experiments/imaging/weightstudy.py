@@ -85,7 +85,7 @@ def linearise(disc, none, grid, shape=(16, 16), log=print) -> dict:
     """J, nu's column, the disc signal d, L and the nodes' x-y at the disc-free fit; the
     disc-free data's own residual there, r0 (noise and model error; d + r0 is the disc
     dataset's), and the tissue's lengths [mm] for a regulariser."""
-    from experiments.fitting import FitSettings, build_problem, solve
+    from experiments.fit.fitting import FitSettings, build_problem, solve
     from solvers.fieldproblem import FieldProblem
     from solvers.regularization import Tikhonov
     from symbolic.field import StiffnessField, tissue_lengths
@@ -288,7 +288,7 @@ def monte_carlo(study: LinearStudy, draws: int, seed: int = 0) -> dict:
 
 def build_parser(prog: str = "python -m experiments.imaging.weightstudy"):
     """The options of ``dvs study imageweights``."""
-    from experiments.options import make_parser
+    from experiments.command.options import make_parser
 
     parser = make_parser(
         prog, "Which weight rule sees the acceptance inclusion: a linearised Monte Carlo."
@@ -360,7 +360,7 @@ def places_table(rows: list[dict]) -> str:
 def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> int:
     """Print the rules' rates and the fixed weights' (``dvs study imageweights``), for each
     seed; for several, the places table at the end."""
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_grid,
         check_seed,

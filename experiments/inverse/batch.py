@@ -22,7 +22,7 @@ ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 
 def coverage_task(seed: int, noise_mm: float = 0.02) -> dict:
     """One Monte-Carlo draw: simulate, fit (nested exact), report estimates and std."""
-    from experiments.fitting import FitSettings, build_problem
+    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.phantom.simulate import SimulationSettings, simulate
     from solvers.identifiability import analyse
     from solvers.nested import NestedSolver
@@ -41,7 +41,7 @@ def coverage_task(seed: int, noise_mm: float = 0.02) -> dict:
 
 def multistart_task(start: Sequence[float], seed: int = 0) -> dict:
     """One start of the simultaneous method on the phantom's dataset (seed fixes the data)."""
-    from experiments.fitting import FitSettings, build_problem
+    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.phantom.simulate import SimulationSettings, simulate
     from solvers.simultaneous import SimultaneousSolver
 
@@ -100,7 +100,7 @@ def coverage_summary(results: list[dict], truth: dict) -> dict:
 
 def build_parser(prog: str = "python -m experiments.inverse.batch"):
     """The options of ``dvs study batch``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Batch studies on dask.distributed.")
     parser.add_argument(
@@ -115,8 +115,8 @@ def build_parser(prog: str = "python -m experiments.inverse.batch"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.batch") -> int:
     """Command line for the batch studies."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.output.atomic import atomic_write_json
     from experiments.phantom.forehead import TRUE_PARAMETERS
 
     args = build_parser(prog).parse_args(argv)

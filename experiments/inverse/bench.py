@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from experiments.isolation import isolated, peak_mb
+from experiments.command.isolation import isolated, peak_mb
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -120,7 +120,7 @@ def print_forward(timings: list[ForwardTiming]) -> None:
 
 def inverse_problem(grid: tuple[int, int, int]):
     """The phantom's two-load inverse problem (alpha only) on a given control grid."""
-    from experiments.fitting import FitSettings, build_problem
+    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.phantom.simulate import SimulationSettings, simulate
 
     m, n, layers = grid
@@ -311,7 +311,7 @@ def print_targets(forward: list[ForwardTiming], results: dict) -> None:
 
 def build_parser(prog: str = "python -m experiments.inverse.bench"):
     """The options of ``dvs bench inverse``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--k0", type=float, default=0.0, help="stiffening for the forward runs")
@@ -336,8 +336,8 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
 
 def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
     """Comma list of control grids, each one ``dvs fit --grid`` would accept."""
-    from experiments.fitting import FitSettings
-    from experiments.options import check_grid, parse_grid
+    from experiments.command.options import check_grid, parse_grid
+    from experiments.fit.fitting import FitSettings
 
     degrees = FitSettings().degrees
     return [
@@ -349,8 +349,8 @@ def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.bench") -> int:
     """Print the benchmark tables (and write ``bench.json`` with ``--out``)."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.output.atomic import atomic_write_json
 
     args = build_parser(prog).parse_args(argv)
 

@@ -20,8 +20,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.atomic import atomic_savefig, atomic_write_json, atomic_write_text  # noqa: E402
-from experiments.fitting import FitSettings, build_problem  # noqa: E402
+from experiments.fit.fitting import FitSettings, build_problem  # noqa: E402
+from experiments.output.atomic import atomic_savefig, atomic_write_json, atomic_write_text  # noqa: E402
 from solvers.nested import NestedSolver, PaperNestedSolver  # noqa: E402
 from solvers.problem import InverseProblem  # noqa: E402
 from solvers.simultaneous import SimultaneousSolver  # noqa: E402
@@ -159,7 +159,7 @@ def plot(rows: dict, path: Path) -> None:
 
 def run(dataset, out: Path, starts: int = 20, paper_starts: int = 5, truth=None, log=print):
     """Compare the methods on a dataset (path or Dataset) and write the outputs."""
-    from experiments.dataset import Dataset, load_dataset
+    from experiments.data.dataset import Dataset, load_dataset
 
     data = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
     problem = build_problem(data, FitSettings(names=ALPHAS))
@@ -178,7 +178,7 @@ def run(dataset, out: Path, starts: int = 20, paper_starts: int = 5, truth=None,
 
 def build_parser(prog: str = "python -m experiments.inverse.compare"):
     """The options of ``dvs study compare``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Simultaneous vs nested vs paper-faithful, multi-start.")
     parser.add_argument(
@@ -204,7 +204,7 @@ def build_parser(prog: str = "python -m experiments.inverse.compare"):
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
     """``dvs study compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
 
-    from experiments.options import UsageError, check_output_dir, not_converged, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, not_converged, run_guarded
     from experiments.phantom.forehead import TRUE_PARAMETERS
     from experiments.phantom.simulate import simulate
 

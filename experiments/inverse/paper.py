@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.atomic import atomic_write_json, atomic_write_text
-from experiments.fitting import FitSettings, build_problem
+from experiments.fit.fitting import FitSettings, build_problem
+from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.phantom.forehead import TRUE_PARAMETERS
 from experiments.phantom.simulate import SimulationSettings, simulate
 from solvers.identifiability import analyse
@@ -131,7 +131,7 @@ def run(out: Path, noise_mm: float = 0.02, seed: int = 0, log=print, dataset=Non
 
 def build_parser(prog: str = "python -m experiments.inverse.paper"):
     """The options of ``dvs study paper``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "The paper's Table 1: two data sets, separately and jointly.")
     parser.add_argument("--out", type=path_argument, default=Path("paper-output"), help="directory")
@@ -142,7 +142,7 @@ def build_parser(prog: str = "python -m experiments.inverse.paper"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.paper"):
     """``dvs study paper --out DIR``: table1.md and paper.json."""
-    from experiments.options import check_noise, check_output_dir, check_seed, run_guarded
+    from experiments.command.options import check_noise, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.dataset import Dataset
+from experiments.data.dataset import Dataset
 from experiments.phantom.simulate import SimulationSettings, measured_dataset
 from solvers.cholmod import factorised, symmetric_lu
 from symbolic.continuum import lame

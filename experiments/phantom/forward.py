@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.atomic import atomic_write_json
+from experiments.output.atomic import atomic_write_json
+from experiments.output.plots import plot_deformation
 from experiments.phantom.forehead import PhantomSettings, forehead_model, probe_loads
-from experiments.plots import plot_deformation
 from solvers.equilibrium import EquilibriumSolver
 
 
@@ -57,7 +57,7 @@ def run(out: Path, force: float = 0.25, k0: float = 0.0, log=print) -> dict:
 
 def build_parser(prog: str = "python -m experiments.phantom.forward"):
     """The options of ``dvs study forward``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Forward solve of the forehead phantom under a probe force.")
     parser.add_argument(
@@ -70,7 +70,7 @@ def build_parser(prog: str = "python -m experiments.phantom.forward"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.forward"):
     """``dvs study forward --out DIR [--force N] [--k0 K]``."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

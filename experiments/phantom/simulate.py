@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.dataset import Dataset
+from experiments.data.dataset import Dataset
 from experiments.phantom.designs import DESIGNS, design_loads, design_options, press_loads
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
@@ -308,7 +308,7 @@ def simulate_with_effects(
 # ------------------------------------------------------------------- dvs simulate
 def build_parser(prog: str = "python -m experiments.phantom.simulate"):
     """The options of ``dvs simulate``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Write a synthetic dataset from the forehead phantom.")
     parser.epilog = (
@@ -336,8 +336,7 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.simulate"):
     """``dvs simulate [--effect NAME[=VALUE] ...] --out FILE.npz``."""
-    from experiments.dataset import save_dataset
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_noise,
         check_output_file,
@@ -345,6 +344,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.phant
         plural,
         run_guarded,
     )
+    from experiments.data.dataset import save_dataset
 
     args = build_parser(prog).parse_args(argv)
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from experiments.dataset import Dataset
+from experiments.data.dataset import Dataset
 from experiments.phantom.fe import Departure, design_cases, require_skfem, rigid_departure
 from experiments.phantom.simulate import SimulationSettings, measured_dataset
 from solvers.cholmod import factorised, symmetric_lu

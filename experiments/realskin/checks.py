@@ -26,7 +26,7 @@ import dataclasses
 
 import numpy as np
 
-from experiments.paths import shared_data_dir
+from experiments.data.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
 from experiments.realskin.loop import close_the_loop
 from experiments.realskin.scan import overlap, scan
@@ -153,7 +153,7 @@ def line(result: dict) -> str:
 
 def build_parser(prog: str = "python -m experiments.realskin.checks"):
     """The options of ``dvs realskin checks``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--check", default=",".join(CHECKS), help="comma list")
@@ -166,8 +166,8 @@ def build_parser(prog: str = "python -m experiments.realskin.checks"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.checks") -> int:
     """``dvs realskin checks [--check a,b]``; one line and exit 2 on bad input."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.output.atomic import atomic_write_json
 
     args = build_parser(prog).parse_args(argv)
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from experiments.atomic import atomic_write_json, atomic_write_text
+from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cases import load_cases
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.continuum_cells import ContinuumCells
@@ -264,7 +264,7 @@ def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=p
 
 
 def build_parser(prog: str = "python -m experiments.realskin.continuum"):
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Fit real skin with the continuum energies (E, nu).")
     parser.add_argument("--cases", default="healthy,keloid", help="comma list of cases")
@@ -276,7 +276,7 @@ def build_parser(prog: str = "python -m experiments.realskin.continuum"):
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.continuum"):
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
 
     parser = build_parser(prog)
     args = parser.parse_args(argv)

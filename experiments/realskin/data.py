@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from experiments.paths import shared_data_dir
+from experiments.data.paths import shared_data_dir
 from experiments.realskin.geometry import SkinGeometry, geometry_from_geo, points_in_polygon
 
 CASES = ("healthy", "keloid")
@@ -393,7 +393,7 @@ def summary(case: SkinCase) -> str:
 
 def build_parser(prog: str = "python -m experiments.realskin.data"):
     """The options of ``dvs realskin data``."""
-    from experiments.options import make_parser
+    from experiments.command.options import make_parser
 
     parser = make_parser(prog, "Summary of the extensometer measurements (docs/realskin-data.md).")
     parser.add_argument("--case", choices=CASES, action="append", help="repeatable; default both")
@@ -402,7 +402,7 @@ def build_parser(prog: str = "python -m experiments.realskin.data"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.data") -> int:
     """Print :func:`summary` for the cases (``dvs realskin data``)."""
-    from experiments.options import run_guarded
+    from experiments.command.options import run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

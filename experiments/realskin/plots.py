@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.atomic import atomic_savefig  # noqa: E402
+from experiments.output.atomic import atomic_savefig  # noqa: E402
 from experiments.realskin.geometry import Rect
 
 DPI = 80

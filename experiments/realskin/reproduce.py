@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.atomic import atomic_write_json, atomic_write_text
+from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin import authors, mesh2d
 from experiments.realskin.data import load_case
 from experiments.realskin.planar import Assumptions, EquilibriumFailed, Extensometer
@@ -331,7 +331,7 @@ def table(rows: list[dict]) -> str:
 
 # ----------------------------------------------------------------------- command
 def build_parser(prog: str = "python -m experiments.realskin.reproduce"):
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "The authors' plane-strain fit, then one assumption at a time.")
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
@@ -360,7 +360,7 @@ def build_parser(prog: str = "python -m experiments.realskin.reproduce"):
 
 def parse_variants(text: str) -> tuple[str, ...]:
     """'ring,plane' -> ('ring', 'plane'); 'none' -> ()."""
-    from experiments.options import UsageError
+    from experiments.command.options import UsageError
 
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     if names == ("none",):
@@ -374,7 +374,7 @@ def parse_variants(text: str) -> tuple[str, ...]:
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.reproduce"):
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
 
     parser = build_parser(prog)
     args = parser.parse_args(argv)

@@ -39,7 +39,7 @@ import numpy as np
 from scipy import stats
 from scipy.signal import savgol_filter
 
-from experiments.atomic import atomic_write_json, atomic_write_text
+from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin import authors
 from experiments.realskin.data import dic_noise_mm
 from experiments.realskin.planar import Assumptions, Extensometer, Solution

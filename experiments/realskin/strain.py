@@ -129,7 +129,7 @@ def figure(case: SkinCase, frames, path, window: int = 4, pads=None) -> None:
 
 def build_parser(prog: str = "python -m experiments.realskin.strain"):
     """The options of ``dvs realskin strain``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
@@ -144,7 +144,12 @@ def build_parser(prog: str = "python -m experiments.realskin.strain"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.strain") -> int:
     """``dvs realskin strain [--case healthy] [--frames 14,42]``; exit 2 on bad input."""
-    from experiments.options import UsageError, check_output_file, parse_numbers, run_guarded
+    from experiments.command.options import (
+        UsageError,
+        check_output_file,
+        parse_numbers,
+        run_guarded,
+    )
 
     args = build_parser(prog).parse_args(argv)
 

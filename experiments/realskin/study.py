@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.atomic import atomic_write_json, atomic_write_text
+from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.figures import case_figures, stage_summary
 from experiments.realskin.loop import (
@@ -216,7 +216,7 @@ def run(
 
 def build_parser(prog: str = "python -m experiments.realskin"):
     """The options of ``dvs realskin fit``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
@@ -242,7 +242,7 @@ def build_parser(prog: str = "python -m experiments.realskin"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin") -> int:
     """``dvs realskin fit --out DIR [--boundary lateral] [--case keloid]``."""
-    from experiments.options import (
+    from experiments.command.options import (
         UsageError,
         check_output_dir,
         parse_grid,

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from experiments.paths import shared_data_dir
+from experiments.data.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
 from experiments.realskin.geometry import points_in_polygon
 from experiments.realskin.loop import close_the_loop
@@ -287,7 +287,7 @@ def _numbers(text: str, kind, what: str) -> list:
 
 def build_parser(prog: str = "python -m experiments.realskin.twin"):
     """The options of ``dvs realskin twin``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--ratios", default="3.5,23", help="stiffness ratios of the keloid")
@@ -309,8 +309,8 @@ def build_parser(prog: str = "python -m experiments.realskin.twin"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.twin") -> int:
     """``dvs realskin twin [--ratios 3.5,23] [--seeds 0,1,2]``; one line and exit 2 on bad input."""
-    from experiments.atomic import atomic_write_json
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.output.atomic import atomic_write_json
 
     args = build_parser(prog).parse_args(argv)
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from experiments.paths import shared_data_dir
+from experiments.data.paths import shared_data_dir
 
 from .calibration import calibrate_camera
 from .chessboard import board_points, find_corners
@@ -148,7 +148,7 @@ def report(sample: dict, rendered: dict) -> list[str]:
 
 def build_parser(prog: str = "python -m experiments.stereo.boardbench"):
     """The options of the benchmark."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--data", type=path_argument, default=None, help="shared data directory")
@@ -160,7 +160,7 @@ def build_parser(prog: str = "python -m experiments.stereo.boardbench"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.boardbench"):
     """Print the benchmark; exit 0 (the targets are reported, not enforced)."""
-    from experiments.options import UsageError, run_guarded
+    from experiments.command.options import UsageError, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

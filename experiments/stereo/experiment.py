@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from experiments.archive import ArchiveError, check_input_file, read_npz
+from experiments.data.archive import ArchiveError, check_input_file, read_npz
 
 from .rig import BoardTarget
 

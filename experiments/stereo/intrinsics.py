@@ -43,7 +43,7 @@ def intrinsics_document(cameras) -> dict:
 
 def save_intrinsics(path, cameras) -> None:
     """Write the cameras' intrinsics to ``path`` (atomically)."""
-    from experiments.atomic import atomic_write_json
+    from experiments.output.atomic import atomic_write_json
 
     atomic_write_json(Path(path), intrinsics_document(cameras))
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from experiments.paths import shared_data_dir
+from experiments.data.paths import shared_data_dir
 
 from . import multidic as md
 from .calibration import DISTORTION_MODELS
@@ -263,7 +263,7 @@ def make_figure(artefacts: dict, path: Path, scale: float = 0.25) -> None:
 
 def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
     """The options of ``dvs study realcheck``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
@@ -273,7 +273,7 @@ def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.realcheck"):
     """``dvs study realcheck --out DIR``: realcheck.json and realcheck.png."""
-    from experiments.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from experiments.dataset import Dataset, save_dataset, validate
+from experiments.data.dataset import Dataset, save_dataset, validate
 
 from .cameras import Camera
 from .dots import detect_dots, to_gray
@@ -367,7 +367,7 @@ def reconstruct(
 
 def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
     """The options of ``dvs reconstruct``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Reconstruct a dataset from the images of an experiment.")
     parser.add_argument("folder", type=path_argument, help="experiment folder (docs/stereo.md)")
@@ -386,7 +386,7 @@ def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.reconstruct"):
     """``dvs reconstruct FOLDER --out FILE.npz [--intrinsics FILE]``; exit 2 on bad input."""
-    from experiments.options import check_output_file, run_guarded
+    from experiments.command.options import check_output_file, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

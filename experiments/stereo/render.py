@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from experiments.atomic import atomic_save_npz, atomic_write_bytes, atomic_write_text
+from experiments.output.atomic import atomic_save_npz, atomic_write_bytes, atomic_write_text
 from experiments.phantom.forehead import PhantomSettings
 
 from .cameras import Camera
@@ -402,7 +402,7 @@ def write_synthetic_experiment(
 
 def build_parser(prog: str = "python -m experiments.stereo.render"):
     """The options of ``dvs study render``."""
-    from experiments.options import make_parser, path_argument
+    from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Render a synthetic forehead experiment for dvs reconstruct.")
     parser.add_argument("folder", type=path_argument, help="experiment folder to write")
@@ -414,7 +414,7 @@ def build_parser(prog: str = "python -m experiments.stereo.render"):
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.render"):
     """``dvs study render FOLDER [--scale S] [--boards N] [--seed N]``."""
-    from experiments.options import UsageError, check_output_dir, check_seed, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, check_seed, run_guarded
 
     args = build_parser(prog).parse_args(argv)
 

@@ -345,10 +345,10 @@ def diagnose(
     Parameters
     ----------
     base : InverseProblem
-        The base problem (``experiments.fitting.build_problem``); its active
+        The base problem (``experiments.fit.fitting.build_problem``); its active
         parameters are refitted at every step.
     loads : list
-        The dataset's declared loads (``experiments.fitting.dataset_loads``).
+        The dataset's declared loads (``experiments.fit.fitting.dataset_loads``).
     settings : DiagnosisSettings
         Level, candidates, limits.
     log : callable, optional

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.dataset import Dataset
-from experiments.plausibility import dataset_warnings
-from experiments.surroundings import extend_grid, margin_rows
+from experiments.data.dataset import Dataset
+from experiments.data.plausibility import dataset_warnings
+from experiments.fit.surroundings import extend_grid, margin_rows
 from solvers.identifiability import IdentifiabilityReport, analyse
 from solvers.nested import NestedSolver
 from solvers.problem import (
@@ -72,7 +72,7 @@ class FitSettings:
         with a fibre family (also kf1, kf2 and fibre_angle, eq. C13).
     margin : float
         Width [mm] of the band of tissue beyond the markers that the volume also
-        covers (``experiments.surroundings``); 0, the default, ends the volume at the
+        covers (``experiments.fit.surroundings``); 0, the default, ends the volume at the
         markers as the paper did. Only with ``objective="markers"``.
     start : dict, optional
         Start values of estimated parameters by name (default the paper's starts,
@@ -354,8 +354,8 @@ def write_fit_outputs(out, problem, result, document) -> None:
     """result.json plus the residual map and the measured-vs-fitted section."""
     from pathlib import Path
 
-    from experiments.atomic import atomic_write_json
-    from experiments.plots import plot_fitted_section, plot_residual_maps
+    from experiments.output.atomic import atomic_write_json
+    from experiments.output.plots import plot_fitted_section, plot_residual_maps
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

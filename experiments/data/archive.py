@@ -144,7 +144,7 @@ def read_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
             ) from None
         raise ArchiveError(
             f"not a readable .npz archive ({error}); write datasets with "
-            "experiments.dataset.save_dataset"
+            "experiments.data.dataset.save_dataset"
         ) from None
     except (OSError, EOFError, ValueError) as error:
         if isinstance(error, ArchiveError):

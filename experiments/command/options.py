@@ -12,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from experiments.dataset import DatasetError
+from experiments.data.dataset import DatasetError
 
 EXIT_BAD_INPUT = 2
 """Exit code for input the user can fix (an option, a path, a dataset)."""

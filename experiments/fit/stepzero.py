@@ -29,7 +29,7 @@ def refuse_model_options(grid, degrees, margin: float, energies: str = "--energy
     energies : str
         How to name the ``--energy`` to give (e.g. "--energy linear-elastic").
     """
-    from experiments.options import UsageError, verb
+    from experiments.command.options import UsageError, verb
 
     chosen = [f"--{n}" for n, v in (("grid", grid), ("degrees", degrees)) if v is not None]
     chosen += ["--margin"] if margin > 0 else []

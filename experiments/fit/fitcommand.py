@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
-from experiments.fitting import (
+from experiments.data.plausibility import dataset_warnings
+from experiments.fit.fitting import (
     ENERGY_NAMES,
     FitSettings,
     fit_dataset,
     model_grid,
     write_fit_outputs,
 )
-from experiments.plausibility import dataset_warnings
 from symbolic.continuum_model import ENERGIES
 
 
 def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
     """Every estimated parameter must enter the chosen energy's equilibrium or dynamics."""
-    from experiments.options import UsageError
+    from experiments.command.options import UsageError
 
     paper = {"alpha_u", "alpha_v", "alpha_w", "beta", "k0"}
     fibres = {"kf1", "kf2", "fibre_angle"}
@@ -34,10 +34,10 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
         )
 
 
-def build_parser(prog: str = "python -m experiments.fitcommand"):
+def build_parser(prog: str = "python -m experiments.fit.fitcommand"):
     """The options of ``dvs fit`` (docs/cli.md)."""
 
-    from experiments.options import add_margin_argument, make_parser, path_argument
+    from experiments.command.options import add_margin_argument, make_parser, path_argument
 
     parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
     parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
@@ -82,15 +82,14 @@ def build_parser(prog: str = "python -m experiments.fitcommand"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitcommand") -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.fit.fitcommand") -> int:
     """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
 
     Plausibility warnings go to stderr, one line each; the verdict is printed last.
     """
     import sys
 
-    from experiments.dataset import load_dataset
-    from experiments.options import (
+    from experiments.command.options import (
         EXIT_NOT_CONVERGED,
         UsageError,
         check_grid,
@@ -103,6 +102,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fitco
         run_guarded,
         verb,
     )
+    from experiments.data.dataset import load_dataset
 
     args = build_parser(prog).parse_args(argv)
 

@@ -19,8 +19,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from experiments.dataset import Dataset
-from experiments.validation import DatasetError, validate
+from experiments.data.dataset import Dataset
+from experiments.data.validation import DatasetError, validate
 
 REST_TOLERANCE = 5.0
 """Largest RMS difference of two rest captures, in noise levels (chi^2 per marker

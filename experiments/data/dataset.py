@@ -15,15 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from experiments.archive import ArchiveError, read_npz
-from experiments.atomic import atomic_save_npz
-from experiments.validation import (
+from experiments.data.archive import ArchiveError, read_npz
+from experiments.data.validation import (
     KNOWN_KEYS,
     OPTIONAL_KEYS,
     REQUIRED_KEYS,
     DatasetError,
     validate,
 )
+from experiments.output.atomic import atomic_save_npz
 
 SCHEMA = "dvs-dataset/1"
 
@@ -107,7 +107,7 @@ def save_dataset(path: str | os.PathLike, dataset: Dataset) -> Path:
 
 
 def _read_npz(source: Path) -> dict[str, np.ndarray]:
-    """All arrays of an ``.npz`` archive, read safely (``experiments.archive``)."""
+    """All arrays of an ``.npz`` archive, read safely (``experiments.data.archive``)."""
     try:
         return read_npz(source)
     except ArchiveError as error:

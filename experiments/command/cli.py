@@ -5,7 +5,7 @@ paper``, ``dvs realskin fit`` the groups' commands (docs/cli.md). Every command'
 has ``build_parser(prog)`` and ``main(argv, prog)`` and runs
 as ``python -m MODULE`` too. Only the module of the command given is imported, so
 ``dvs --help`` and a bad option answer at once. The contract (exit 0, or 2 with one
-line on stderr, never a traceback) is ``experiments.options.run_guarded``.
+line on stderr, never a traceback) is ``experiments.command.options.run_guarded``.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ import argparse
 import importlib
 from importlib import metadata
 
-from experiments.options import OneLineParser
+from experiments.command.options import OneLineParser
 
 VERBS = {
     "demo": ("experiments.demo.run", "run the main job on the embedded forehead phantom"),
     "simulate": ("experiments.phantom.simulate", "write a synthetic dataset from the phantom"),
     "reconstruct": ("experiments.stereo.reconstruct", "images of the marked skin -> dataset"),
-    "fit": ("experiments.fitcommand", "estimate parameters from a dataset, with a verdict"),
+    "fit": ("experiments.fit.fitcommand", "estimate parameters from a dataset, with a verdict"),
     "diagnose": ("experiments.diagnosis.diagnose", "find the effect the model lacks"),
     "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
     "design": ("experiments.design.command", "choose where and how hard to press (design.json)"),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.atomic import atomic_write_by_name
+from experiments.output.atomic import atomic_write_by_name
 from symbolic.volume import VolumeSpline
 
 

@@ -9,7 +9,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.atomic import atomic_savefig  # noqa: E402
+from experiments.output.atomic import atomic_savefig  # noqa: E402
 from symbolic.volume import VolumeSpline  # noqa: E402
 
 

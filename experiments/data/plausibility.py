@@ -1,6 +1,6 @@
 """Warnings for datasets that are valid but physically implausible (one line each).
 
-``experiments.dataset.validate`` rejects what cannot be used (shapes, NaN, overlapping
+``experiments.data.dataset.validate`` rejects what cannot be used (shapes, NaN, overlapping
 surfaces). What passes may still be wrong in ways only physics tells: a probe that
 pulls the skin outward (a sign error, or outer and inner surfaces swapped), forces in
 the wrong unit, a tissue hundreds of millimetres thick, a noise level no camera has.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.dataset import Dataset
+from experiments.data.dataset import Dataset
 
 FORCE_RANGE_N = (1e-3, 5.0)
 """Plausible force of a probe on skin [N] (the paper: 0.17 and 0.25 N)."""

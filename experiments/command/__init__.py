@@ -1,0 +1,3 @@
+"""The command line: ``cli`` (the ``dvs`` verbs and groups, docs/cli.md), ``options``
+(parsers that answer bad input in one line, the exit-code contract ``run_guarded``)
+and ``isolation`` (a measurement in a fresh process, for the benchmarks)."""

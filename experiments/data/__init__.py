@@ -1,0 +1,5 @@
+"""The dataset and its checks (docs/formats.md): ``dataset`` (format v1, load and save),
+``validation`` (every array and number checked before use), ``archive`` (.npz archives
+read safely), ``plausibility`` (valid but implausible input: one-line warnings),
+``captures`` (a session's presses appended on its rest capture) and ``paths`` (the real
+measured data beside the checkout)."""
