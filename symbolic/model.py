@@ -217,7 +217,7 @@ class TissueModel:
     """True when the energy has the fibre family of eq. (C13) (kf1, kf2, fibre_angle)."""
 
     componentwise = True
-    """The linear K acts as I3 (x) A on the free points (``solvers.componentwise``);
+    """The linear K acts as I3 (x) A on the free points (``solvers.forward.componentwise``);
     models that couple the components or add terms of their own set it False."""
 
     def influential(self, names: tuple[str, ...]) -> np.ndarray | None:

@@ -78,7 +78,7 @@ def test_the_linearised_refit_agrees_with_the_full_refit(patch_data, patch_choic
     """The check's refit is one Gauss-Newton step from the coarse estimate; the distance
     it gives (how far the finer volume moves the predicted markers) is the full refit's
     to a tenth, where the rule compares it with the 1-dof quantile."""
-    from experiments.fit.fitting import build_model, dataset_loads, problem_on
+    from experiments.problem.fitting import build_model, dataset_loads, problem_on
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
 

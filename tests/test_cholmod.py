@@ -1,4 +1,4 @@
-"""CHOLMOD through ctypes (solvers/cholmod.py): the same solutions as SuperLU, the
+"""CHOLMOD through ctypes (solvers/linalg/cholmod.py): the same solutions as SuperLU, the
 fallbacks, and the switch. Skipped where the system has no libcholmod.so.3."""
 
 import subprocess
@@ -9,7 +9,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers import cholmod
+from solvers.linalg import cholmod
 
 pytestmark = pytest.mark.skipif(not cholmod.available(), reason="no CHOLMOD 3 on this system")
 
@@ -50,7 +50,7 @@ def test_factorised_falls_back_for_indefinite_and_unsymmetric_matrices():
 
 
 def test_the_environment_switches_it_off():
-    code = "from solvers import cholmod; print(cholmod.backend())"
+    code = "from solvers.linalg import cholmod; print(cholmod.backend())"
     env = {"DVS_FACTORISATION": "superlu", "PATH": ""}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.stdout.strip() == "SuperLU", out.stderr

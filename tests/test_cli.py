@@ -155,7 +155,7 @@ def test_fit_that_does_not_converge_exits_3_with_success_false(
     """A solver that stops without converging: result.json says so and the exit is 3."""
     from dataclasses import replace
 
-    from solvers.simultaneous import SimultaneousSolver
+    from solvers.inverse.simultaneous import SimultaneousSolver
 
     solve = SimultaneousSolver.solve
 
@@ -175,11 +175,11 @@ def test_the_verdict_statistic_is_the_diagnosis_residual_test(dataset_file):
     the diagnosis's residual test (the same whitening of the rest-marker noise)."""
     from experiments.data.dataset import load_dataset
     from experiments.diagnosis.diagnose import BASE_NAMES
-    from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
+    from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
     from solvers.diagnosis.stats import residual_test
-    from solvers.verdict import fit_verdict
+    from solvers.diagnosis.verdict import fit_verdict
 
     dataset = load_dataset(dataset_file)
     base = build_problem(dataset, FitSettings(names=BASE_NAMES))

@@ -1,6 +1,6 @@
 """The linear model on one scalar factorisation equals the full Newton path.
 
-The componentwise path (``solvers.componentwise``) must give the states and the exact
+The componentwise path (``solvers.forward.componentwise``) must give the states and the exact
 sensitivities of the CasADi residual and its Newton solve, with and without prescribed
 displacements, and must not build the CasADi residual at all.
 """
@@ -14,12 +14,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from experiments.fit.fitting import FitSettings, build_problem
 from experiments.phantom.forehead import forehead_model, probe_loads
 from experiments.phantom.simulate import simulate
-from solvers.componentwise import ScalarSystem
-from solvers.equilibrium import EquilibriumSolver, casadi_to_scipy
-from solvers.nested import NestedSolver
+from experiments.problem.fitting import FitSettings, build_problem
+from solvers.forward.componentwise import ScalarSystem
+from solvers.forward.equilibrium import EquilibriumSolver, casadi_to_scipy
+from solvers.inverse.nested import NestedSolver
 from symbolic.loads import PrescribedDisplacement
 
 NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")

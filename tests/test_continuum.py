@@ -321,7 +321,7 @@ def test_inverse_recovers_young_and_poisson_from_scikit_fem_data(reference_data)
     """The model (17 x 17 x 4 control points, free sides at the marked area's edge)
     differs from the truth in mesh, element and extent; E within 3 %, nu within 0.01,
     residual at the noise level, and the two inverse methods agree."""
-    from experiments.fit.fitting import FitSettings, build_problem, solve
+    from experiments.problem.fitting import FitSettings, build_problem, solve
 
     settings = FitSettings(
         names=("E", "nu"), energy="linear-elastic", grid=(17, 17, 4), degrees=(3, 3, 2)

@@ -7,7 +7,7 @@ import pytest
 from effectchecks import check_derivatives, check_theta_zero
 
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fit.fitting import build_problem, dataset_loads
+from experiments.problem.fitting import build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.problem import ExtendedProblem
 from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect

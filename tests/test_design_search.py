@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from experiments.command.cli import main as dvs
+from experiments.data.designfile import read_presses
 from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
-from experiments.design.files import read_presses
 from experiments.design.plan import DesignSettings, dataset_presses, plan
 from solvers.design.candidates import (
     MAX_FORCE_N,
@@ -28,7 +28,7 @@ from solvers.design.information import effect_power, fisher_information, needed_
 from solvers.design.pool import InformationPool
 from solvers.design.search import exhaustive, search
 from solvers.diagnosis.problem import ExtendedProblem
-from solvers.problem import InverseProblem, observation_case
+from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.library import make_effect
 
 
@@ -77,7 +77,7 @@ def test_a_probe_datasets_presses_keep_its_probe(setting):
 
 def test_repeated_presses_share_the_rest_noise(setting):
     """(D5) with a repeated press equals the whitening of the stacked cases
-    (``solvers.noise``), and gives less than twice one press's information."""
+    (``solvers.inverse.noise``), and gives less than twice one press's information."""
     dataset, fit, pool, own = setting
     design = [own[0], own[3], own[3], own[7]]
     model = fit.problem.model

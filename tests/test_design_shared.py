@@ -16,7 +16,7 @@ from solvers.design.candidates import candidate_presses, contact_grid
 from solvers.design.loads import press_loads
 from solvers.diagnosis import linear
 from solvers.diagnosis.problem import ExtendedProblem
-from solvers.problem import InverseProblem, observation_case
+from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.library import make_effect
 
 

@@ -35,16 +35,16 @@ from experiments.diagnosis.diagnose import (
     main,
     run,
 )
-from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
+from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.guard import folds
 from solvers.diagnosis.loop import SCHEMA, DiagnosisSettings
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.report import verdict
 from solvers.diagnosis.stats import log_chi2_sf, log_chi2_sf_series, score_test
-from solvers.noise import rest_noise_map
+from solvers.inverse.noise import rest_noise_map
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 
 SEED = 1

@@ -13,17 +13,17 @@ from experiments.dynamics.trajectories import (
     simulate_dynamic,
     truth_trajectories,
 )
-from experiments.fit.fitting import FitSettings, build_problem
 from experiments.phantom.forehead import forehead_model, marker_uv, probe_loads
 from experiments.phantom.simulate import simulate
+from experiments.problem.fitting import FitSettings, build_problem
 from solvers.dynamic.identifiability import analyse_dynamic
 from solvers.dynamic.nested import DynamicNestedSolver
 from solvers.dynamic.problem import DynamicProblem, TimeGrid, trajectory_case
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.dynamic.simultaneous import DynamicSimultaneousSolver
-from solvers.identifiability import analyse
-from solvers.problem import ParameterSpace
-from solvers.simultaneous import IpoptSettings, SimultaneousSolver
+from solvers.inverse.identifiability import analyse
+from solvers.inverse.problem import ParameterSpace
+from solvers.inverse.simultaneous import IpoptSettings, SimultaneousSolver
 from solvers.transient.stepping import StepSettings, TransientSolver
 
 TRUTH = np.array([DYNAMIC_TRUTH[n] for n in DYNAMIC_NAMES])

@@ -7,13 +7,13 @@ import pytest
 from effectchecks import check_derivatives, check_theta_zero
 
 from experiments.diagnosis.diagnose import BASE_NAMES
-from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
 from experiments.phantom.simulate import (
     SimulationSettings,
     parse_effect_specs,
     simulate,
     simulate_with_effects,
 )
+from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.problem import ExtendedProblem
 from symbolic.effects.base import surface_frame, surface_rule

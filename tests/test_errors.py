@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from experiments.phantom.forehead import PhantomSettings, forehead_model, segmented_surfaces
-from solvers.equilibrium import EquilibriumSolver, NewtonSettings
+from solvers.forward.equilibrium import EquilibriumSolver, NewtonSettings
 from symbolic.basis import BSplineBasis, VolumeBasis
 from symbolic.loads import PointForce, PrescribedDisplacement, ProbeForce
 from symbolic.model import BoundaryConditions, TissueModel

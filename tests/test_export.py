@@ -7,7 +7,7 @@ import pytest
 
 from experiments.output.export import write_vtu
 from experiments.phantom.forehead import forehead_model, probe_loads
-from solvers.equilibrium import EquilibriumSolver
+from solvers.forward.equilibrium import EquilibriumSolver
 
 meshio = pytest.importorskip("meshio", reason="the vtu extra (meshio) is not installed")
 

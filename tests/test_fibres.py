@@ -117,7 +117,7 @@ def test_homogeneous_stretch_along_and_across_the_fibres(stretch):
 def test_fibre_model_without_fibres_is_the_exponential_model():
     """At kf1 = 0 the fibre model's equilibrium under a probe is the exponential
     model's, bit for bit; the models without the family refuse kf1 with one line."""
-    from solvers.equilibrium import EquilibriumSolver
+    from solvers.forward.equilibrium import EquilibriumSolver
     from symbolic.continuum_model import ExponentialModel, FibreModel, NeoHookeanModel
     from symbolic.loads import ProbeForce
 

@@ -1,4 +1,4 @@
-"""The next press for a stiffness map (``solvers.fielddesign``, docs/imaging.md eqs.
+"""The next press for a stiffness map (``solvers.imaging.fielddesign``, docs/imaging.md eqs.
 I11-I14): any set of presses is the map of an experiment that made only those, the
 posterior finds a known inclusion's place, and a press never lowers the information.
 
@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fit.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
-from solvers.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores
-from solvers.fieldproblem import FieldProblem
-from solvers.noise import Whitening
+from experiments.problem.fitting import build_problem
+from solvers.imaging.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores
+from solvers.imaging.fieldproblem import FieldProblem
+from solvers.inverse.noise import Whitening
 from symbolic.field import StiffnessField
 
 SETTINGS = base_settings((7, 7, 2), "linear-elastic")

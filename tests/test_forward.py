@@ -10,7 +10,7 @@ from experiments.phantom.forehead import (
     forehead_model,
     probe_loads,
 )
-from solvers.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings
+from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings
 from symbolic.loads import PointForce, PrescribedDisplacement, ProbeForce
 from symbolic.model import BoundaryConditions, TissueModel
 

@@ -121,7 +121,7 @@ def test_nonlinear_patch_test():
 def test_small_loads_reduce_to_linear_elasticity():
     """At rest the models share K; the difference of the deflections grows like the
     load squared, so relative to the deflection it is linear in the load."""
-    from solvers.equilibrium import EquilibriumSolver
+    from solvers.forward.equilibrium import EquilibriumSolver
     from symbolic.loads import ProbeForce
 
     volume = box_volume((20.0, 20.0, 4.0), (9, 9, 3), (3, 3, 2))
@@ -156,7 +156,7 @@ def large_strain_data():
     ~25 % compression under the probe); 13 x 13 markers over the central 30 x 30 mm,
     noise 0.02 mm, occlusion and missing markers."""
     from experiments.phantom.simulate import SimulationSettings, measured_dataset
-    from solvers.equilibrium import EquilibriumSolver
+    from solvers.forward.equilibrium import EquilibriumSolver
     from symbolic.loads import ProbeForce
 
     volume = box_volume((40.0, 40.0, 5.0), (15, 15, 4), (3, 3, 2), origin=(-20.0, -20.0, 0.0))
@@ -184,7 +184,7 @@ def test_inverse_recovers_young_and_poisson_at_large_strain(large_strain_data):
     """A coarser model (9 x 9 x 3 over the marked area only, free sides) recovers E and
     nu of the finer neo-Hookean truth at the noise level; linear elasticity, fitted to
     the same data, is biased (measured: E 20.7 against 23.1 kPa)."""
-    from experiments.fit.fitting import FitSettings, build_problem, solve
+    from experiments.problem.fitting import FitSettings, build_problem, solve
 
     estimates, levels = {}, {}
     for energy in ("neo-hookean", "linear-elastic"):
@@ -272,7 +272,7 @@ def test_exponential_model_stiffens_only_with_strain():
     as the load vanishes, the relative difference of order 2 in the load (the term is
     quartic in the strain, its force cubic), and it is much stiffer at large load;
     models without the term refuse k1."""
-    from solvers.equilibrium import EquilibriumSolver
+    from solvers.forward.equilibrium import EquilibriumSolver
     from symbolic.continuum_model import ExponentialModel
     from symbolic.loads import ProbeForce
 
@@ -301,7 +301,7 @@ def probe_dataset(truth, forces: np.ndarray):
     """13 x 13 markers over the central 30 x 30 mm of ``truth``'s slab, 4 mm probes at
     the centre with ``forces`` [N], noise 0.02 mm (occlusion and missing markers)."""
     from experiments.phantom.simulate import SimulationSettings, measured_dataset
-    from solvers.equilibrium import EquilibriumSolver
+    from solvers.forward.equilibrium import EquilibriumSolver
     from symbolic.loads import ProbeForce
 
     volume, solver = truth.volume, EquilibriumSolver(truth)
@@ -336,7 +336,7 @@ def test_stiffening_is_found_when_present_and_only_then():
     distance against its noise: |S B - Y|^2 / (2 sigma^2) per component pair (rest and
     loaded positions both noisy). k1 itself is weakly determined by probe data
     (measured 27 here, 45 on the truth's own grid), so only the detection is asserted."""
-    from experiments.fit.fitting import FitSettings, build_problem, solve
+    from experiments.problem.fitting import FitSettings, build_problem, solve
     from symbolic.continuum_model import ExponentialModel
 
     volume = box_volume((40.0, 40.0, 5.0), (15, 15, 4), (3, 3, 2), origin=(-20.0, -20.0, 0.0))

@@ -36,7 +36,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.optimize import brentq
 
-from solvers.equilibrium import EquilibriumError, EquilibriumSolver
+from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
 from symbolic.basis import BSplineBasis
 from symbolic.continuum import KPA, box_volume, lame
 from symbolic.continuum_model import ENERGIES
@@ -393,7 +393,7 @@ class FeBlock:
             When a Newton step must be cut below 1/8 (the load step is too large: give
             up early and let ``continuation`` halve it) or 25 steps do not converge.
         """
-        from solvers.cholmod import factorised, symmetric_lu
+        from solvers.linalg.cholmod import factorised, symmetric_lu
 
         increment = np.zeros(3 * self.n)
         increment[self.fixed] = prescribed[self.fixed] - u[self.fixed]

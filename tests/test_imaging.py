@@ -12,13 +12,13 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fit.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
-from solvers.fieldproblem import FieldProblem
-from solvers.imaging import gauss_newton, laplace, lbfgs, secant_update, simultaneous
-from solvers.regularization import Tikhonov, TotalVariation
-from solvers.weight import discrepancy_weight, gcv_weight, lcurve_weight, linear_gcv
+from experiments.problem.fitting import build_problem
+from solvers.imaging.estimate import gauss_newton, laplace, lbfgs, secant_update, simultaneous
+from solvers.imaging.fieldproblem import FieldProblem
+from solvers.imaging.regularization import Tikhonov, TotalVariation
+from solvers.imaging.weight import discrepancy_weight, gcv_weight, lcurve_weight, linear_gcv
 from symbolic.field import StiffnessField
 
 LENGTHS = (40.0, 40.0, 5.0)

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-import solvers.nested as nested
+import solvers.inverse.nested as nested
 from experiments.diagnosis.diagnose import base_settings
-from experiments.fit.fitting import build_problem
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
-from solvers.fieldproblem import Factor, FieldProblem
-from solvers.imaging import SOLVERS
-from solvers.regularization import Tikhonov
-from solvers.weight import discrepancy_weight
+from experiments.problem.fitting import build_problem
+from solvers.imaging.estimate import SOLVERS
+from solvers.imaging.fieldproblem import Factor, FieldProblem
+from solvers.imaging.regularization import Tikhonov
+from solvers.imaging.weight import discrepancy_weight
 from symbolic.field import StiffnessField
 
 LENGTHS = (40.0, 40.0, 5.0)

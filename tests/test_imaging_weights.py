@@ -59,7 +59,7 @@ def test_every_rule_finds_a_strong_bump_and_none_on_pure_noise():
 
 class Differences:
     """R(c) = sum_e sqrt((D c)_e^2 + eps^2) - its minimum: a total variation over the
-    toy's edges, with the interface of ``solvers.regularization.TotalVariation``."""
+    toy's edges, with the interface of ``solvers.imaging.regularization.TotalVariation``."""
 
     def __init__(self, difference, epsilon=0.01):
         self.D, self.epsilon = difference, epsilon

@@ -4,7 +4,6 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from experiments.fit.fitting import FitSettings, build_problem
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -13,11 +12,17 @@ from experiments.phantom.forehead import (
     probe_loads,
 )
 from experiments.phantom.simulate import SimulationSettings, simulate
-from solvers.equilibrium import EquilibriumSolver
-from solvers.identifiability import analyse
-from solvers.nested import NestedSolver
-from solvers.problem import InverseProblem, ParameterSpace, observation_case
-from solvers.simultaneous import METIS_ABOVE, IpoptSettings, SimultaneousSolver, static_defaults
+from experiments.problem.fitting import FitSettings, build_problem
+from solvers.forward.equilibrium import EquilibriumSolver
+from solvers.inverse.identifiability import analyse
+from solvers.inverse.nested import NestedSolver
+from solvers.inverse.problem import InverseProblem, ParameterSpace, observation_case
+from solvers.inverse.simultaneous import (
+    METIS_ABOVE,
+    IpoptSettings,
+    SimultaneousSolver,
+    static_defaults,
+)
 
 ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 TRUTH = np.array([TRUE_PARAMETERS[n] for n in ALPHAS])
@@ -63,8 +68,8 @@ def test_noise_free_data_recover_the_truth_from_the_paper_start(solver):
 
 
 def test_control_point_objective_recovers_the_truth_too():
-    from experiments.fit.fitting import loaded_control_points
-    from solvers.problem import control_point_case
+    from experiments.problem.fitting import loaded_control_points
+    from solvers.inverse.problem import control_point_case
 
     base = phantom_problem()
     settings = PhantomSettings()
@@ -165,7 +170,7 @@ def test_ipopt_defaults_and_user_options_reach_ipopt(noisy):
 
 @pytest.mark.parametrize("case", ["linear", "prescribed", "k0"])
 def test_structured_derivatives_equal_automatic_differentiation(noisy, case):
-    """solvers.lagrangian's closed-form d2L/dv2 and dg/dv are CasADi's AD derivatives."""
+    """solvers.inverse.lagrangian's closed-form d2L/dv2 and dg/dv are CasADi's AD derivatives."""
     problem = {
         "linear": lambda: noisy,
         "prescribed": lambda: pad_problem(with_force=True),
@@ -212,7 +217,7 @@ def test_bad_parameter_spaces_are_rejected():
 
 def pad_problem(with_force: bool) -> InverseProblem:
     """Two 'pads' of prescribed skin points; the moving one travels -0.5 mm along x."""
-    from solvers.problem import LoadCase
+    from solvers.inverse.problem import LoadCase
     from symbolic.loads import PrescribedDisplacement
     from symbolic.model import TissueModel
 

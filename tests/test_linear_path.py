@@ -15,10 +15,10 @@ import scipy.sparse.linalg as spla
 
 import solvers.diagnosis.linear as linear
 from experiments.diagnosis.diagnose import BASE_NAMES, base_settings
-from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.fe import ReferenceSlab, SlabSolution, design_cases, reference_dataset
 from experiments.phantom.simulate import simulate_with_effects
+from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis import guard
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.problem import ExtendedProblem
@@ -67,7 +67,7 @@ def _point(problem: ExtendedProblem, base_p: np.ndarray) -> np.ndarray:
 
 def _count_factorisations(monkeypatch) -> list:
     """A list that grows by one at every sparse factorisation of the linear path (CHOLMOD
-    or SuperLU, ``solvers.cholmod.factorised``) and every LU of the Newton path."""
+    or SuperLU, ``solvers.linalg.cholmod.factorised``) and every LU of the Newton path."""
     calls = []
     original, choose = spla.splu, linear.factorised
 
@@ -208,7 +208,7 @@ def test_guard_falls_back_to_refits_near_zero(paper, monkeypatch):
 def test_base_compliance_rows_divided_by_c_make_k_symmetric(name, request):
     """diag(d) K with d = 1/c on the foundation's rows is symmetric positive definite, so
     CHOLMOD factorises it (``BaseCompliance.extra_row_scale``), and the solve is K's own."""
-    from solvers import cholmod
+    from solvers.linalg import cholmod
 
     if not cholmod.available():
         pytest.skip("no CHOLMOD on this system")
@@ -230,7 +230,7 @@ def test_base_compliance_at_zero_is_block_triangular_and_solved_so(name, request
     """At c = 0 the foundation's rows are M_I Delta_I alone: dg/ds is block upper
     triangular, solved by back substitution over its two SPD diagonal blocks (CHOLMOD
     each, where available), to SuperLU's solution of the whole."""
-    from solvers import cholmod
+    from solvers.linalg import cholmod
 
     problem, base_fit, library = request.getfixturevalue(name)
     extended = problem.with_effects([library["base_compliance"]])
@@ -254,13 +254,13 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
     """1 + sum of the fields' ``least_modulus`` bounds the relative modulus from below
     (exactly, for the gradient, at a corner of the volume); beyond it K(p) is indefinite,
     and a fit started there is brought back and never evaluates such a p."""
-    from solvers import cholmod
     from solvers.diagnosis.stability import (
         STIFFNESS_FLOOR,
         admissible,
         into_admissible,
         least_modulus,
     )
+    from solvers.linalg import cholmod
 
     problem, base_fit, library = continuum
     extended = problem.with_effects([library["heterogeneity"], library["layering"]])

@@ -85,7 +85,7 @@ def test_a_merge_refuses_captures_it_cannot_put_in_one_frame():
 def test_next_proposes_a_press_the_simulator_can_make(session, tmp_path, capsys):
     """On FE data of the paper's two presses, with the defaults (step 0 chooses the
     model): a press inside the marked area, within the safe range, with its reason."""
-    from experiments.design.files import read_presses
+    from experiments.data.designfile import read_presses
 
     folder, both, _ = session
     out = tmp_path / "n"
@@ -181,7 +181,7 @@ def test_next_for_the_stiffness_map_presses_where_the_inclusion_is_likely(inclus
     """``--target field``: the posterior of the inclusion's place is a distribution, its
     mode lies near the disc (the data's own model is step 0's, not the FE slab's), and
     the proposed press raises the inclusion's signal there and lies near the mode."""
-    from experiments.design.files import read_presses
+    from experiments.data.designfile import read_presses
 
     out = tmp_path / "field"
     argv = ["next", str(inclusion_data), "--budget", "4", "--target", "field", "--out", str(out)]

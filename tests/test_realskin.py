@@ -22,7 +22,7 @@ from experiments.realskin.slab import (
     surface_uv,
 )
 from experiments.realskin.stages import standard_errors
-from solvers.problem import LoadCase, ParameterSpace, PlanarProblem
+from solvers.inverse.problem import LoadCase, ParameterSpace, PlanarProblem
 from symbolic.model import BoundaryConditions
 from symbolic.skin_slab import POISSON, REGION_RATIO, SkinSlabModel
 from symbolic.stiffening import exponential_stiffening
@@ -209,7 +209,7 @@ def _case(model, pads, names, x):
         POISSON: (0.0, 20.0),
         REGION_RATIO: (0.1, 100.0),
     }
-    from solvers.problem import SkinParameterSpace
+    from solvers.inverse.problem import SkinParameterSpace
 
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
     return case, space, bounds
@@ -244,8 +244,8 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
     from types import SimpleNamespace
 
     import experiments.realskin.loop as realskin
-    from solvers.equilibrium import EquilibriumError
-    from solvers.problem import SkinParameterSpace
+    from solvers.forward.equilibrium import EquilibriumError
+    from solvers.inverse.problem import SkinParameterSpace
 
     model, pads = small_model(BoundaryConditions(fix_inner=True))
     names = ("alpha_u", "k0")
@@ -291,7 +291,7 @@ def test_scan_cell_columns_equal_the_models_own_sensitivity():
         with_region,
     )
     from experiments.realskin.stages import stage_solver
-    from solvers.problem import SkinParameterSpace
+    from solvers.inverse.problem import SkinParameterSpace
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     model = SkinSlabModel(
@@ -335,7 +335,7 @@ def test_poisson_coupling_contracts_the_skin_across_the_pull():
             isotropic=True,
             poisson=c,
         )
-        from solvers.equilibrium import EquilibriumSolver
+        from solvers.forward.equilibrium import EquilibriumSolver
 
         result = EquilibriumSolver(model, ("alpha_u",)).solve(
             np.zeros((model.n_free, 3)), np.array([0.01]), pads.displacement([-2.0, 0.0])
@@ -431,7 +431,7 @@ def test_load_continuation_reaches_the_equilibrium_newton_misses(shared_data):
     equilibrium (residual at Newton's tolerance). Where Newton converges (k0 = 0.25), the
     two agree."""
     from experiments.realskin.setup import RealSkinSettings, build
-    from solvers.equilibrium import EquilibriumError, EquilibriumSolver
+    from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
 
     setup = build("healthy", RealSkinSettings())
     case = setup.cases[-1]

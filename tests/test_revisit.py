@@ -15,9 +15,9 @@ import pytest
 from experiments.basemodel.choice import BaseChoice
 from experiments.basemodel.family import SEARCH_SPAN_OF_SPACING, Family, starting_resolution
 from experiments.basemodel.revisit import Revisit
-from solvers.blas import one_thread
 from solvers.diagnosis.loop import _refit
 from solvers.diagnosis.stats import score_test
+from solvers.linalg.blas import one_thread
 from symbolic.effects.library import make_effect
 
 TRUE_RADIUS_MM = 2.5

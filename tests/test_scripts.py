@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from experiments.fit.fitting import FitSettings, build_problem
 from experiments.inverse import compare, paper
 from experiments.phantom import forward
 from experiments.phantom.simulate import simulate
+from experiments.problem.fitting import FitSettings, build_problem
 
 
 def test_forward_script_reports_the_probe_displacement(tmp_path):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from experiments.data.dataset import load_dataset
-from experiments.fit.fitting import FitSettings, build_problem
+from experiments.problem.fitting import FitSettings, build_problem
 from experiments.stereo.cameras import Camera
 from experiments.stereo.reconstruct import ReconstructSettings, main, reconstruct
 from experiments.stereo.render import (
@@ -29,7 +29,7 @@ from experiments.stereo.render import (
 )
 from experiments.stereo.rig import RigCalibration, RigSettings
 from experiments.stereo.surface import rigid_align
-from solvers.nested import NestedSolver
+from solvers.inverse.nested import NestedSolver
 
 TRUE_ALPHA = np.array([2.6, 0.18, 1.7])  # N/mm, experiments.phantom.forehead.TRUE_PARAMETERS
 

@@ -14,9 +14,9 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.diagnosis.diagnose import BASE_NAMES
-from experiments.fit.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
+from experiments.problem.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.loop import DiagnosisSettings, diagnose
 from solvers.diagnosis.problem import ExtendedProblem

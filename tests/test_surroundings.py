@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.fit.surroundings import extend_grid, margin_rows
+from experiments.problem.surroundings import extend_grid, margin_rows
 
 
 def _plane(u=9, v=7, spacing=5.0):
@@ -56,8 +56,8 @@ def test_on_a_curved_skin_the_band_departs_by_the_predicted_distance():
 
 
 def test_the_markers_project_inside_the_extended_volume():
-    from experiments.fit.fitting import FitSettings, model_grid, rest_geometry
     from experiments.phantom.simulate import simulate
+    from experiments.problem.fitting import FitSettings, model_grid, rest_geometry
 
     dataset = simulate()
     settings = FitSettings(names=("E", "nu"), energy="linear-elastic", margin=10.0)
@@ -81,7 +81,6 @@ def test_tissue_beyond_the_markers_halves_the_model_error_on_another_codes_slab(
     truth's 20 mm, halves it on the same grid and recovers nu.
     """
     pytest.importorskip("skfem")
-    from experiments.fit.fitting import FitSettings, build_problem, solve
     from experiments.phantom.fe import (
         ReferenceSlab,
         SlabSolution,
@@ -89,6 +88,7 @@ def test_tissue_beyond_the_markers_halves_the_model_error_on_another_codes_slab(
         reference_dataset,
     )
     from experiments.phantom.simulate import SimulationSettings
+    from experiments.problem.fitting import FitSettings, build_problem, solve
 
     slab = ReferenceSlab(lengths=(80.0, 80.0, 5.0), elements=(16, 16, 3))
     forces, contacts = design_cases("diagnosis", slab)

@@ -58,11 +58,11 @@ from experiments.basemodel.family import (
     with_radius,
 )
 from experiments.data.dataset import Dataset
-from experiments.fit.fitting import FitSettings, dataset_loads
-from solvers.blas import one_thread
+from experiments.problem.fitting import FitSettings, dataset_loads
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import residual_test, robust_sigma
+from solvers.linalg.blas import one_thread
 from symbolic.loads import PROBE_SHAPES
 
 REFINEMENT = 1.5
@@ -124,7 +124,7 @@ class BaseChoice:
     def fit_settings(self) -> FitSettings:
         """The ``FitSettings`` of ``dvs fit`` on the chosen model: the paper's estimates
         mu and gamma too (as ``dvs fit --energy dnurbs``), the continuum E and nu."""
-        from experiments.fit.fitting import ENERGY_NAMES
+        from experiments.problem.fitting import ENERGY_NAMES
 
         names = ENERGY_NAMES[self.settings.energy]
         estimate = dict(zip(self.chosen.fit.problem.names, map(float, self.chosen.fit.p)))
@@ -347,7 +347,7 @@ def _chi2(fitted: EffectFit, sigma: float) -> tuple[float, int]:
 
 def _paper_trial(dataset: Dataset) -> Trial:
     """The paper's energy as ``dvs diagnose --energy dnurbs`` poses it."""
-    from experiments.fit.fitting import build_problem
+    from experiments.problem.fitting import build_problem
 
     begin = time.perf_counter()
     settings = FitSettings(names=("alpha_u", "alpha_v", "alpha_w"))

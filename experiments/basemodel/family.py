@@ -15,8 +15,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from experiments.data.dataset import Dataset
-from experiments.fit.fitting import FitSettings, build_model, dataset_loads, problem_on
-from experiments.fit.surroundings import marked_lengths, marker_spacing
+from experiments.problem.fitting import FitSettings, build_model, dataset_loads, problem_on
+from experiments.problem.surroundings import marked_lengths, marker_spacing
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import residual_test

@@ -115,8 +115,8 @@ image-reconstructed dataset is what sections 3 to 5 use.**
 
 def inverse(out: Path, report, state: dict, log) -> None:
     """3. Both formulations, and Table 1 of the paper; 4. identifiability."""
-    from experiments.fit.fitting import FitSettings, fit_dataset, write_fit_outputs
     from experiments.inverse import paper
+    from experiments.problem.fitting import FitSettings, fit_dataset, write_fit_outputs
 
     dataset = state["dataset"]
     fits = {}
@@ -199,9 +199,9 @@ Verdict of the joint fit: {fits["simultaneous"]["verdict"]["summary"]}.
 
 def compare(out: Path, report, state: dict, log) -> None:
     """5. Simultaneous, nested and paper-faithful from many starts, on the same data."""
-    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.inverse import compare as script
     from experiments.phantom.forehead import TRUE_PARAMETERS
+    from experiments.problem.fitting import FitSettings, build_problem
 
     problem = build_problem(state["dataset"], FitSettings(names=script.ALPHAS))
     log("paper-faithful method: one start, finite differences over transients (a few s)")

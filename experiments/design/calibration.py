@@ -41,7 +41,7 @@ def base_fit(dataset, grid=None, base=None):
     """The loop's base fit (``solvers.diagnosis.fit``) of a dataset; ``base`` is the base
     model's ``FitSettings`` (default ``base_settings(grid)``: the paper's energy)."""
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.fitting import build_problem, dataset_loads
+    from experiments.problem.fitting import build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
 

@@ -140,7 +140,7 @@ def work(args) -> int:
         degrees = None if args.degrees is None else model["degrees"]
         refuse_model_options(model["grid"], degrees, args.margin or 0.0, "--energy linear-elastic")
     if field:
-        from experiments.imaging import nextfield
+        from experiments.design import nextfield
 
         if args.energy != AUTO:
             raise UsageError(

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from experiments.data.designfile import SCHEMA
 from solvers.design.candidates import (
     Press,
     candidate_presses,
@@ -29,7 +30,6 @@ from solvers.design.information import needed_noncentrality
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
 
-SCHEMA = "dvs-design/1"
 POWER_GOAL = 0.9
 """The power a design for an effect should reach (issue 21)."""
 
@@ -153,7 +153,7 @@ def press_document(model, press: Press) -> dict:
 def dataset_presses(dataset, model) -> tuple[list[Press], list[np.ndarray]]:
     """The dataset's own presses (with its declared probe radius) and the markers each
     capture sees."""
-    from experiments.fit.fitting import dataset_loads
+    from experiments.problem.fitting import dataset_loads
 
     loads = dataset_loads(dataset, model.volume)
     presses = [

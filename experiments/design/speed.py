@@ -43,7 +43,7 @@ def timed_search(path: str, study) -> dict:
     from experiments.data.dataset import load_dataset
     from experiments.design.plan import DesignSettings, plan
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.fitting import build_problem
+    from experiments.problem.fitting import build_problem
 
     settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
     dataset = load_dataset(path)
@@ -69,7 +69,7 @@ def timed_step(scenario: str, study) -> dict:
     from experiments.design.lab import ContinuumLab
     from experiments.design.sequential import SequentialSettings, step
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.fitting import build_problem
+    from experiments.problem.fitting import build_problem
 
     settings = SequentialSettings(
         energy="linear-elastic", grid=study.grid, degrees=study.degrees, margin=study.margin
@@ -143,7 +143,7 @@ def timed_next(path: str, study) -> dict:
     from experiments.data.dataset import load_dataset
     from experiments.design.nextpress import main
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.fitting import build_problem
+    from experiments.problem.fitting import build_problem
 
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "next"

@@ -89,7 +89,7 @@ def timed_diagnosis(path: str, study: ContinuumStudy) -> dict:
     from experiments.command.isolation import factorisation_seconds, peak_mb
     from experiments.data.dataset import load_dataset
     from experiments.diagnosis.diagnose import base_settings, run
-    from experiments.fit.fitting import build_problem
+    from experiments.problem.fitting import build_problem
 
     settings = base_settings(study.grid, "linear-elastic", study.degrees, study.margin)
     with tempfile.TemporaryDirectory() as out:
@@ -202,9 +202,9 @@ def model_error_rows(study: ContinuumStudy, cases=MODEL_ERROR_CASES, log=print) 
     The slab's cells keep their size (2.5 mm) whatever its extent; the scenario is
     ``none``; ``study`` gives the design, the degrees and the probe.
     """
-    from experiments.fit.fitting import build_problem, solve
     from experiments.phantom.fe import reference_dataset
     from experiments.phantom.simulate import SimulationSettings
+    from experiments.problem.fitting import build_problem, solve
 
     from .diagnose import base_settings
 

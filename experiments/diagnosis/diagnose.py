@@ -26,7 +26,7 @@ BASE_NAMES = ("alpha_u", "alpha_v", "alpha_w")
 
 def base_settings(grid=None, energy: str = "dnurbs", degrees=None, margin: float = 0.0):
     """The ``FitSettings`` of the loop's base model: the energy's default parameters."""
-    from experiments.fit.fitting import ENERGY_NAMES, FitSettings
+    from experiments.problem.fitting import ENERGY_NAMES, FitSettings
 
     names = BASE_NAMES if energy == "dnurbs" else ENERGY_NAMES[energy]
     extra = {} if degrees is None else {"degrees": tuple(degrees)}
@@ -46,7 +46,7 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     ``Diagnosis.base_choice``. A ``grid`` (M, N, L) without ``base`` is the paper's
     energy on that grid.
     """
-    from experiments.fit.fitting import build_problem, dataset_loads
+    from experiments.problem.fitting import build_problem, dataset_loads
     from solvers.diagnosis.loop import DiagnosisSettings, diagnose
 
     settings = settings or DiagnosisSettings()

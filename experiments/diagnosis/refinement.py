@@ -52,7 +52,7 @@ def refinement_check(diagnosis, dataset, settings) -> dict:
 
     The chi^2 limit is the 1-dof quantile at the loop's level (``diagnosis.level``).
     """
-    from experiments.fit.fitting import build_problem, dataset_loads, model_grid
+    from experiments.problem.fitting import build_problem, dataset_loads, model_grid
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
     from symbolic.effects.library import make_effect

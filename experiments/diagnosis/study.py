@@ -71,7 +71,7 @@ def benchmark(effects: dict[str, float] | None = None, repeat: int = 3, log=prin
     the numeric work (one sensitivity evaluation and back-substitutions per
     case; a new dg/ds and its LU only for base_compliance, which adds state).
     """
-    from experiments.fit.fitting import FitSettings, build_problem, dataset_loads
+    from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
     from solvers.diagnosis.stats import score_test
@@ -125,7 +125,7 @@ def diagnosis_timings(log=print) -> list[dict]:
     the ratio holds on a busy machine too.
     """
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.fitting import build_problem, dataset_loads
+    from experiments.problem.fitting import build_problem, dataset_loads
     from solvers.diagnosis.fit import fit
     from solvers.diagnosis.problem import ExtendedProblem
 

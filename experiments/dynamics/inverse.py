@@ -36,14 +36,14 @@ from experiments.dynamics.trajectories import (  # noqa: E402
     build_dynamic_problem,
     simulate_dynamic,
 )
-from experiments.fit.fitting import FitSettings, build_problem  # noqa: E402
 from experiments.output.atomic import atomic_savefig, atomic_write_json  # noqa: E402
+from experiments.problem.fitting import FitSettings, build_problem  # noqa: E402
 from solvers.dynamic.identifiability import analyse_dynamic, contrast, contrast_table  # noqa: E402
 from solvers.dynamic.nested import DynamicNestedSolver  # noqa: E402
 from solvers.dynamic.problem import DynamicProblem  # noqa: E402
 from solvers.dynamic.simultaneous import DynamicSimultaneousSolver  # noqa: E402
-from solvers.identifiability import analyse  # noqa: E402
-from solvers.simultaneous import SimultaneousSolver  # noqa: E402
+from solvers.inverse.identifiability import analyse  # noqa: E402
+from solvers.inverse.simultaneous import SimultaneousSolver  # noqa: E402
 
 
 def _parameter_rows(report, truth: dict) -> dict:

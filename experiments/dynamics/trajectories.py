@@ -14,7 +14,6 @@ from functools import lru_cache
 import numpy as np
 
 from experiments.data.dataset import Dataset
-from experiments.fit.fitting import FitSettings, dataset_loads, rest_geometry
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
     PhantomSettings,
@@ -22,10 +21,11 @@ from experiments.phantom.forehead import (
     marker_uv,
     probe_loads,
 )
+from experiments.problem.fitting import FitSettings, dataset_loads, rest_geometry
 from solvers.dynamic.problem import DynamicProblem, TimeGrid, step_profile, trajectory_case
 from solvers.dynamic.scheme import TrapezoidalScheme
-from solvers.equilibrium import EquilibriumSolver
-from solvers.problem import ParameterSpace
+from solvers.forward.equilibrium import EquilibriumSolver
+from solvers.inverse.problem import ParameterSpace
 from solvers.transient.loads import Load, ramp_load
 from solvers.transient.sundials import integrate_casadi
 from symbolic.model import BoundaryConditions, TissueModel

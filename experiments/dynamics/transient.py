@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 from experiments.output.atomic import atomic_savefig, atomic_write_json  # noqa: E402
 from experiments.phantom.forehead import TRUE_PARAMETERS, forehead_model, probe_loads  # noqa: E402
-from solvers.equilibrium import EquilibriumSolver  # noqa: E402
+from solvers.forward.equilibrium import EquilibriumSolver  # noqa: E402
 from solvers.transient.modal import (  # noqa: E402
     StepResponse,
     modal_basis,

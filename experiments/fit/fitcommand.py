@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from experiments.data.plausibility import dataset_warnings
-from experiments.fit.fitting import (
+from experiments.problem.fitting import (
     ENERGY_NAMES,
     FitSettings,
     fit_dataset,

@@ -9,7 +9,7 @@ once. The slab, with and without the disc and the same noise draw, is pressed by
 design and candidate load once (``place_rows``), and the problem is linearised at the
 disc-free homogeneous fit, as in the weight study (``experiments.imaging.weightstudy``):
 each press's rows of J, of nu's column and of the data are kept apart
-(``solvers.fielddesign.PressRows``), so that any set of presses is the map of an
+(``solvers.imaging.fielddesign.PressRows``), so that any set of presses is the map of an
 experiment that made those presses.
 
 The loop (``adaptive_run``): map the presses so far (H1, the GCV weight: the rule the
@@ -37,7 +37,7 @@ from experiments.imaging.weightstudy import (
     passes,
     study_cases,
 )
-from solvers.fielddesign import (
+from solvers.imaging.fielddesign import (
     PlacePosterior,
     PressRows,
     inclusion_templates,
@@ -74,11 +74,11 @@ def place_rows(seed: int, grid, log=print, shape=(16, 16)) -> dict:
     every candidate (one dataset of each, the same noise draw), linearised at the
     disc-free fit: the rows per press, the disc's exact signal per press, the field's L
     and node positions, the disc's centre and which presses are the design's."""
-    from experiments.fit.fitting import FitSettings, build_problem, solve
     from experiments.phantom.fe import ReferenceSlab, SlabSolution, reference_dataset
     from experiments.phantom.simulate import SimulationSettings
-    from solvers.fieldproblem import FieldProblem
-    from solvers.regularization import Tikhonov
+    from experiments.problem.fitting import FitSettings, build_problem, solve
+    from solvers.imaging.fieldproblem import FieldProblem
+    from solvers.imaging.regularization import Tikhonov
     from symbolic.field import StiffnessField, tissue_lengths
 
     begin = time.perf_counter()

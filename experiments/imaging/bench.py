@@ -42,10 +42,10 @@ def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list
     The data are made once, the model once per grid; only the field changes with N.
     """
     from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.fitting import build_problem
-    from solvers.fieldproblem import FieldProblem
-    from solvers.imaging import SOLVERS
-    from solvers.regularization import Tikhonov
+    from experiments.problem.fitting import build_problem
+    from solvers.imaging.estimate import SOLVERS
+    from solvers.imaging.fieldproblem import FieldProblem
+    from solvers.imaging.regularization import Tikhonov
     from symbolic.field import StiffnessField, tissue_lengths
 
     data = bench_data()
@@ -109,8 +109,8 @@ def timed_imaging(path: str) -> dict:
     from experiments.command.isolation import factorisation_seconds, peak_mb
     from experiments.command.options import parse_degrees, parse_grid
     from experiments.data.dataset import load_dataset
-    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.imaging.command import main
+    from experiments.problem.fitting import FitSettings, build_problem
 
     with tempfile.TemporaryDirectory() as out:
         arguments = [path, "--energy", "linear-elastic", "--grid", IMAGING_GRID]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 from experiments.imaging.run import REGULARIZERS
-from solvers.imaging import SOLVERS
+from solvers.imaging.estimate import SOLVERS
 
 MAX_FIELD_SIZE = 2000
 """Largest number of field coefficients ``dvs image`` accepts."""
@@ -128,9 +128,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
 
     def work() -> int:
         from experiments.data.dataset import load_dataset
-        from experiments.fit.fitting import FitSettings
         from experiments.imaging.outputs import document, plot_maps, write_vtu
         from experiments.imaging.run import ImageSettings, image_dataset
+        from experiments.problem.fitting import FitSettings
 
         shape = parse_field(args.field, args.over)
         weight = parse_weight(args.weight)

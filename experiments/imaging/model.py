@@ -82,7 +82,7 @@ class ImagingModel:
 
     def problem(self):
         """The homogeneous problem, on the model step 0 built, started at its estimate."""
-        from solvers.problem import ParameterSpace
+        from solvers.inverse.problem import ParameterSpace
 
         base = self.trial.fit.problem.base
         settings = self.settings()
@@ -119,7 +119,7 @@ def imaging_model(dataset, level: float = 0.01, log=print) -> ImagingModel:
     import gc
 
     from experiments.fit.stepzero import run_step0
-    from solvers.blas import one_thread
+    from solvers.linalg.blas import one_thread
 
     choice = run_step0(dataset, level, log)
     record = choice.record()

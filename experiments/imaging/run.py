@@ -16,15 +16,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from experiments.data.dataset import Dataset
-from experiments.fit.fitting import FitSettings, build_problem, solve
-from solvers.fieldproblem import FieldProblem
-from solvers.imaging import SOLVERS, Laplace, laplace
-from solvers.regularization import Tikhonov, TotalVariation
-from solvers.weight import WeightChoice, discrepancy_weight, gcv_weight, lcurve_weight
+from experiments.problem.fitting import FitSettings, build_problem, solve
+from solvers.imaging.estimate import SOLVERS, Laplace, laplace
+from solvers.imaging.fieldproblem import FieldProblem
+from solvers.imaging.regularization import Tikhonov, TotalVariation
+from solvers.imaging.weight import WeightChoice, discrepancy_weight, gcv_weight, lcurve_weight
 from symbolic.field import StiffnessField, tissue_lengths
 
 REGULARIZERS = {"h1": Tikhonov, "tv": TotalVariation}
-"""``--regularizer`` -> class (solvers/regularization.py)."""
+"""``--regularizer`` -> class (solvers/imaging/regularization.py)."""
 
 DENSE_LAPLACE_MAX_N = 400
 """Up to this N the Laplace approximation forms J; above it, low rank (``LOW_RANK``)."""
@@ -53,7 +53,7 @@ class ImageSettings:
     weight : str or float
         "morozov", "gcv", "lcurve", or beta [mm^2].
     method : str
-        A key of ``solvers.imaging.SOLVERS``, or "auto".
+        A key of ``solvers.imaging.estimate.SOLVERS``, or "auto".
     fit : FitSettings
         The model: grid, degrees, margin (energy linear-elastic).
     """

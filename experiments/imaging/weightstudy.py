@@ -85,9 +85,9 @@ def linearise(disc, none, grid, shape=(16, 16), log=print) -> dict:
     """J, nu's column, the disc signal d, L and the nodes' x-y at the disc-free fit; the
     disc-free data's own residual there, r0 (noise and model error; d + r0 is the disc
     dataset's), and the tissue's lengths [mm] for a regulariser."""
-    from experiments.fit.fitting import FitSettings, build_problem, solve
-    from solvers.fieldproblem import FieldProblem
-    from solvers.regularization import Tikhonov
+    from experiments.problem.fitting import FitSettings, build_problem, solve
+    from solvers.imaging.fieldproblem import FieldProblem
+    from solvers.imaging.regularization import Tikhonov
     from symbolic.field import StiffnessField, tissue_lengths
 
     fit = FitSettings(
@@ -119,10 +119,10 @@ class LinearStudy:
     """The estimates of every beta on a grid, for any data y.
 
     ``regularizer`` None: Tikhonov with ``parts["L"]``, in closed form. Otherwise an
-    object with ``hessian(c)`` and ``value(c)`` (``solvers.regularization``), e.g.
+    object with ``hessian(c)`` and ``value(c)`` (``solvers.imaging.regularization``), e.g.
     total variation, solved by lagged diffusivity from the largest beta down, each beta
     warm-started from the last; its dof and standard deviations are then those of the
-    lagged Hessian at the estimate, as ``solvers.imaging.laplace`` forms them.
+    lagged Hessian at the estimate, as ``solvers.imaging.estimate.laplace`` forms them.
     """
 
     def __init__(self, parts: dict, centre, betas=BETAS, regularizer=None):
@@ -226,7 +226,7 @@ def study_regularizer(parts: dict, name: str):
     """None for "h1" (the study's closed form), else eq. (I7) on the 16 x 16 field."""
     if name == "h1":
         return None
-    from solvers.regularization import TotalVariation
+    from solvers.imaging.regularization import TotalVariation
     from symbolic.field import StiffnessField
 
     side = int(round(np.sqrt(parts["J"].shape[1])))

@@ -22,10 +22,10 @@ ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 
 def coverage_task(seed: int, noise_mm: float = 0.02) -> dict:
     """One Monte-Carlo draw: simulate, fit (nested exact), report estimates and std."""
-    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.phantom.simulate import SimulationSettings, simulate
-    from solvers.identifiability import analyse
-    from solvers.nested import NestedSolver
+    from experiments.problem.fitting import FitSettings, build_problem
+    from solvers.inverse.identifiability import analyse
+    from solvers.inverse.nested import NestedSolver
 
     dataset = simulate(measurement=SimulationSettings(noise_mm=noise_mm, seed=int(seed)))
     problem = build_problem(dataset, FitSettings(names=ALPHAS))
@@ -41,9 +41,9 @@ def coverage_task(seed: int, noise_mm: float = 0.02) -> dict:
 
 def multistart_task(start: Sequence[float], seed: int = 0) -> dict:
     """One start of the simultaneous method on the phantom's dataset (seed fixes the data)."""
-    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.phantom.simulate import SimulationSettings, simulate
-    from solvers.simultaneous import SimultaneousSolver
+    from experiments.problem.fitting import FitSettings, build_problem
+    from solvers.inverse.simultaneous import SimultaneousSolver
 
     dataset = simulate(measurement=SimulationSettings(seed=int(seed)))
     problem = build_problem(dataset, FitSettings(names=ALPHAS))

@@ -24,8 +24,8 @@ from experiments.phantom.forehead import (
     probe_loads,
     segmented_surfaces,
 )
-from solvers.componentwise import ScalarSystem
-from solvers.equilibrium import EquilibriumSolver
+from solvers.forward.componentwise import ScalarSystem
+from solvers.forward.equilibrium import EquilibriumSolver
 from symbolic.model import BoundaryConditions, TissueModel
 from symbolic.volume import VolumeSpline
 
@@ -120,8 +120,8 @@ def print_forward(timings: list[ForwardTiming]) -> None:
 
 def inverse_problem(grid: tuple[int, int, int]):
     """The phantom's two-load inverse problem (alpha only) on a given control grid."""
-    from experiments.fit.fitting import FitSettings, build_problem
     from experiments.phantom.simulate import SimulationSettings, simulate
+    from experiments.problem.fitting import FitSettings, build_problem
 
     m, n, layers = grid
     phantom = PhantomSettings(segmentation=(2 * m + 1, 2 * n + 1), grid=(m, n, 2), markers=(m, n))
@@ -131,9 +131,9 @@ def inverse_problem(grid: tuple[int, int, int]):
 
 def time_inverse(grid: tuple[int, int, int], methods=("simultaneous", "nested")) -> dict:
     """Build and solve times [s] of the inverse methods on one grid, in this process."""
-    from solvers.nested import NestedSolver, PaperNestedSolver
-    from solvers.problem import InverseProblem
-    from solvers.simultaneous import SimultaneousSolver
+    from solvers.inverse.nested import NestedSolver, PaperNestedSolver
+    from solvers.inverse.problem import InverseProblem
+    from solvers.inverse.simultaneous import SimultaneousSolver
 
     classes = {
         "simultaneous": SimultaneousSolver,
@@ -337,7 +337,7 @@ def build_parser(prog: str = "python -m experiments.inverse.bench"):
 def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
     """Comma list of control grids, each one ``dvs fit --grid`` would accept."""
     from experiments.command.options import check_grid, parse_grid
-    from experiments.fit.fitting import FitSettings
+    from experiments.problem.fitting import FitSettings
 
     degrees = FitSettings().degrees
     return [

@@ -20,11 +20,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.fit.fitting import FitSettings, build_problem  # noqa: E402
 from experiments.output.atomic import atomic_savefig, atomic_write_json, atomic_write_text  # noqa: E402
-from solvers.nested import NestedSolver, PaperNestedSolver  # noqa: E402
-from solvers.problem import InverseProblem  # noqa: E402
-from solvers.simultaneous import SimultaneousSolver  # noqa: E402
+from experiments.problem.fitting import FitSettings, build_problem  # noqa: E402
+from solvers.inverse.nested import NestedSolver, PaperNestedSolver  # noqa: E402
+from solvers.inverse.problem import InverseProblem  # noqa: E402
+from solvers.inverse.simultaneous import SimultaneousSolver  # noqa: E402
 
 METHODS = {
     "simultaneous": SimultaneousSolver,

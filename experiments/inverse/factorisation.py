@@ -6,7 +6,7 @@ at the grids step 0 checks on FE tissue. Each solver factorises it twice (the me
 is printed) and solves 10 right-hand sides, one BLAS thread each; the ratio is the
 figure to compare (a shared machine moves both). CHOLMOD then runs again on the BLAS
 threads it uses by default (``cholmod.threads``), wall time side by side.
-``solvers.cholmod`` says why CHOLMOD needs an optimised BLAS. Part of ``make bench``
+``solvers.linalg.cholmod`` says why CHOLMOD needs an optimised BLAS. Part of ``make bench``
 (``--diagnose``).
 """
 
@@ -18,9 +18,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers import cholmod
-from solvers.blas import one_thread
-from solvers.diagnosis.linear import FACTOR_OPTIONS
+from solvers.forward.componentwise import FACTOR_OPTIONS
+from solvers.linalg import cholmod
+from solvers.linalg.blas import one_thread
 
 GRIDS = ((28, 23, 5), (40, 33, 6))
 """Control grids of the benchmark: row A's first and checked volumes (docs/continuum.md)."""

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.fit.fitting import FitSettings, build_problem
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.phantom.forehead import TRUE_PARAMETERS
 from experiments.phantom.simulate import SimulationSettings, simulate
-from solvers.identifiability import analyse
-from solvers.simultaneous import SimultaneousSolver
+from experiments.problem.fitting import FitSettings, build_problem
+from solvers.inverse.identifiability import analyse
+from solvers.inverse.simultaneous import SimultaneousSolver
 
 PAPER_NAMES = ("mu", "alpha_u", "alpha_v", "alpha_w")
 PAPER_TABLE = {

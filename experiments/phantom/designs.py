@@ -31,7 +31,7 @@ def design_options(design: str) -> dict:
     """Keyword arguments of ``simulate_with_effects`` for a named design, or for the
     presses of a ``design.json`` file (``dvs design``)."""
     if str(design).endswith(".json"):
-        from experiments.design.files import read_presses
+        from experiments.data.designfile import read_presses
 
         return {"presses": read_presses(design)}
     if design == "paper":

@@ -18,7 +18,7 @@ import numpy as np
 
 from experiments.data.dataset import Dataset
 from experiments.phantom.simulate import SimulationSettings, measured_dataset
-from solvers.cholmod import factorised, symmetric_lu
+from solvers.linalg.cholmod import factorised, symmetric_lu
 from symbolic.continuum import lame
 
 
@@ -131,7 +131,7 @@ class SlabSolution:
             return base | side
 
         self.free = self.basis.complement_dofs(self.basis.get_dofs(fixed))
-        # symmetric positive definite: CHOLMOD (solvers/cholmod.py), else SuperLU with
+        # symmetric positive definite: CHOLMOD (solvers/linalg/cholmod.py), else SuperLU with
         # diagonal pivots and a symmetric ordering (partial pivoting at nu = 0.49 on
         # 24 x 24 x 4 cells: 31.7 s against 8.6 s, same solution to 3e-14)
         self.factor = factorised(matrix[self.free][:, self.free].tocsc(), symmetric_lu)

@@ -15,7 +15,7 @@ import numpy as np
 from experiments.output.atomic import atomic_write_json
 from experiments.output.plots import plot_deformation
 from experiments.phantom.forehead import PhantomSettings, forehead_model, probe_loads
-from solvers.equilibrium import EquilibriumSolver
+from solvers.forward.equilibrium import EquilibriumSolver
 
 
 def run(out: Path, force: float = 0.25, k0: float = 0.0, log=print) -> dict:

@@ -27,8 +27,8 @@ from experiments.phantom.forehead import (
     marker_uv,
     probe_loads,
 )
-from solvers.equilibrium import EquilibriumError, EquilibriumSolver
-from solvers.problem import InverseProblem, ParameterSpace, observation_case
+from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
+from solvers.inverse.problem import InverseProblem, ParameterSpace, observation_case
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 from symbolic.loads import ProbeForce
 

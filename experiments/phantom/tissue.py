@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 from experiments.data.dataset import Dataset
 from experiments.phantom.fe import Departure, design_cases, require_skfem, rigid_departure
 from experiments.phantom.simulate import SimulationSettings, measured_dataset
-from solvers.cholmod import factorised, symmetric_lu
+from solvers.linalg.cholmod import factorised, symmetric_lu
 from symbolic.continuum import lame
 
 SUPPORTS = ("free", "clamped", "elastic")
@@ -258,7 +258,7 @@ class TissueSolution:
             fixed = np.union1d(fixed, lateral)
         self.free = self.basis.complement_dofs(self.basis.get_dofs(facets=fixed))
         stiffness = self.matrix[self.free][:, self.free].tocsc()
-        # symmetric positive definite: CHOLMOD (solvers/cholmod.py), else SuperLU without
+        # symmetric positive definite: CHOLMOD (solvers/linalg/cholmod.py), else SuperLU without
         # pivoting (partial pivoting at nu = 0.49 fills in without bound on a 37k-dof
         # mesh) and a symmetric ordering
         self.factor = factorised(stiffness, symmetric_lu)

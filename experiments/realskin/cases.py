@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from experiments.realskin.data import SkinCase, force_at_travel
 from experiments.realskin.geometry import Rect
 from experiments.realskin.slab import Pads, surface_uv
-from solvers.problem import LoadCase
+from solvers.inverse.problem import LoadCase
 from symbolic.skin_slab import SkinSlabModel
 
 

@@ -42,7 +42,7 @@ from experiments.realskin.report import map_table
 from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.study import AUTHORS
-from solvers.problem import SkinParameterSpace
+from solvers.inverse.problem import SkinParameterSpace
 from symbolic.continuum import KPA
 from symbolic.continuum_model import ENERGIES
 from symbolic.model import BoundaryConditions

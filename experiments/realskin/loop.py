@@ -11,8 +11,8 @@ from __future__ import annotations
 from experiments.realskin.scan import SCAN, CellTerms, ScanResult, rect_indicator, scan, with_region
 from experiments.realskin.setup import RealSkinSettings, Setup
 from experiments.realskin.stages import LABELS, NULL, ONE_SIDED, StageFit, fit_stage, score_test
-from solvers.equilibrium import EquilibriumError
-from solvers.problem import SkinParameterSpace
+from solvers.forward.equilibrium import EquilibriumError
+from solvers.inverse.problem import SkinParameterSpace
 from symbolic.skin_slab import REGION_RATIO
 
 

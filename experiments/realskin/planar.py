@@ -39,7 +39,7 @@ import scipy.linalg
 
 from experiments.realskin import mesh2d
 from experiments.realskin.authors import Frames, mls_project
-from solvers.cholmod import factorised, symmetric_lu
+from solvers.linalg.cholmod import factorised, symmetric_lu
 from symbolic.planar_neohookean import PLANES, PlanarNeoHookean
 
 FORCES = ("traction", "reaction")

@@ -7,9 +7,10 @@
 - ``fit_stage``: fit one parameter set and summarise it (``StageFit``);
 - ``force_curve``: the model's pad force along the travel.
 
-The fits run on the shared solvers: the planar observation is ``solvers.problem.PlanarProblem``,
-the nested inverse ``solvers.nested.NestedSolver`` with the loop's settings
-(``stage_solver``), the equilibria ``solvers.equilibrium.EquilibriumSolver``.
+The fits run on the shared solvers: the planar observation is
+``solvers.inverse.problem.PlanarProblem``, the nested inverse
+``solvers.inverse.nested.NestedSolver`` with the loop's settings (``stage_solver``), the
+equilibria ``solvers.forward.equilibrium.EquilibriumSolver``.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from solvers.equilibrium import EquilibriumSolver, NewtonSettings
-from solvers.nested import NestedSolver
-from solvers.problem import LoadCase, PlanarProblem, SkinParameterSpace
+from solvers.forward.equilibrium import EquilibriumSolver, NewtonSettings
+from solvers.inverse.nested import NestedSolver
+from solvers.inverse.problem import LoadCase, PlanarProblem, SkinParameterSpace
 from symbolic.model import PARAMETERS
 from symbolic.skin_slab import ANISOTROPY, POISSON, REGION_RATIO, SkinSlabModel
 

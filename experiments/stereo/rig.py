@@ -34,7 +34,7 @@ from experiments.phantom.forehead import (
     marker_uv,
     probe_loads,
 )
-from solvers.equilibrium import EquilibriumSolver
+from solvers.forward.equilibrium import EquilibriumSolver
 
 from .calibration import CameraCalibration, calibrate_camera, stereo_calibrate
 from .cameras import Camera

@@ -48,7 +48,7 @@ class Press:
         Angle between the force and the inward normal [deg].
     probe_radius : float
         Radius of the probe's patch [mm]; 0 for a point force (as a dataset declares it,
-        ``experiments.fit.fitting.dataset_loads``).
+        ``experiments.problem.fitting.dataset_loads``).
     probe_shape : str
         The patch's shape (``symbolic.loads.PROBE_SHAPES``).
     """

@@ -3,7 +3,7 @@
 A design is the set of load cases of an ``ExtendedProblem``; ``base`` is a fit of its
 base parameters x at the point where the design is judged (the current estimate, or
 the truth of a phantom, on noise-free data). With the whitened residual rho = W r,
-covariance sigma^2 I under pure noise (``solvers.noise``), and its exact Jacobian
+covariance sigma^2 I under pure noise (``solvers.inverse.noise``), and its exact Jacobian
 J = d rho / dp (implicit function theorem through the equilibrium, one sparse LU per
 load case: ``EffectFit.jacobian``; no finite differences):
 
@@ -36,10 +36,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, special
 
 from solvers.diagnosis.fit import EffectFit
-from solvers.diagnosis.stats import CONFOUNDED, candidate_jacobian
+from solvers.diagnosis.stats import (
+    CONFOUNDED,
+    candidate_jacobian,
+    power,
+)
 from symbolic.effects.base import Effect
 
 
@@ -83,37 +86,6 @@ def fisher_information(base: EffectFit, sigma: float) -> tuple[list[str], np.nda
     sub = base.jacobian[:, chosen]
     labels = [label for label, keep in zip(base.problem.labels, chosen) if keep]
     return labels, sub.T @ sub / sigma**2
-
-
-def critical_value(level: float, dof: int, one_sided: bool) -> float:
-    """The score test's critical value at ``level``: z for the one-sided test (compared
-    with sqrt of the statistic), chi^2_dof otherwise.
-
-    The search scores thousands of designs, so these and the tails below are scipy's
-    special functions (ufuncs, about 1 us a call) rather than ``scipy.stats``
-    distributions (about 70 us a call for the same numbers).
-    """
-    return float(-special.ndtri(level)) if one_sided else float(special.chdtri(dof, level))
-
-
-def power(noncentrality: float, dof: int, level: float, one_sided: bool = False) -> float:
-    """Eq. (D3): the probability that the score test rejects at level ``level``."""
-    if dof == 0:
-        return 0.0
-    critical = critical_value(level, dof, one_sided)
-    if one_sided:
-        return float(special.ndtr(np.sqrt(noncentrality) - critical))
-    return float(1.0 - special.chndtr(critical, dof, max(noncentrality, 1e-300)))
-
-
-def needed_noncentrality(dof: int, level: float, one_sided: bool, goal: float) -> float:
-    """The lambda at which the score test reaches power ``goal`` (eq. D3 inverted)."""
-    if one_sided:
-        return float((critical_value(level, dof, True) + special.ndtri(goal)) ** 2)
-    critical = critical_value(level, dof, False)
-    return float(
-        optimize.brentq(lambda x: 1.0 - special.chndtr(critical, dof, x) - goal, 1e-9, 1e6)
-    )
 
 
 def effect_power(

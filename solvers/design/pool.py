@@ -8,7 +8,7 @@ Its columns, at the base fit x and theta = 0, are
 with the effect's signal solved at its magnitude, s_k,e = r_k(x, theta_e,1) - r_k(x, 0)
 (eq. D2; one equilibrium per press and effect). The rest markers are shared by all
 presses, so the residual covariance of a design D is sigma^2 (I + P P^T)
-(``solvers.noise``), and the whitened Gram matrix of its columns is, by Woodbury,
+(``solvers.inverse.noise``), and the whitened Gram matrix of its columns is, by Woodbury,
 
     M(D) = sum_k C_k^T C_k - H^T (I + N)^-1 H,   H = sum_k P_k^T C_k,
                                                  N = sum_k diag(P_k^T P_k)          (D5)
@@ -34,7 +34,7 @@ from solvers.design.loads import press_loads
 from solvers.diagnosis.fit import EffectFit
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import extended_linearisation
-from solvers.problem import InverseProblem, observation_case
+from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.base import Effect
 
 

@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.blas import one_thread
 from solvers.diagnosis import linear
+from solvers.linalg.blas import one_thread
 
 
 def _dense(value) -> np.ndarray:
@@ -158,7 +158,7 @@ def compress(columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``columns`` (n, m) as Q C with Q (n, r) orthonormal and r its numerical rank: a
     QR, then the SVD of the small R; singular values below ``RANK`` of the largest
     are dropped (those columns are combinations of the others). (A pivoted QR gives
-    the same.) On one BLAS thread (``solvers.blas``): on two busy cores the
+    the same.) On one BLAS thread (``solvers.linalg.blas``): on two busy cores the
     blocked QR of 6561 x 57 took 1.3-1.6 s with two threads, 0.04 s with one."""
     with one_thread():
         q, r = np.linalg.qr(columns)

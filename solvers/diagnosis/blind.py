@@ -25,8 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize
 
-from solvers.design.information import needed_noncentrality, power
-from solvers.diagnosis.stats import ScoreTest
+from solvers.diagnosis.stats import ScoreTest, needed_noncentrality, power
 from symbolic.effects.library import make_effect
 
 GOAL = 0.8

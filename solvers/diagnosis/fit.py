@@ -18,7 +18,7 @@ from scipy.optimize import least_squares
 
 from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stability import admissible, into_admissible
-from solvers.equilibrium import EquilibriumError
+from solvers.forward.equilibrium import EquilibriumError
 
 
 @dataclass

@@ -32,17 +32,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.blas import daxpy
 
-from solvers.blas import one_thread
-from solvers.cholmod import factorised, symmetric
-from solvers.componentwise import ORDERING
+from solvers.forward.componentwise import FACTOR_OPTIONS
+from solvers.linalg.blas import one_thread
+from solvers.linalg.cholmod import factorised, symmetric
 from symbolic.sparse import term_matrix
-
-FACTOR_OPTIONS = {**ORDERING, "diag_pivot_thresh": 1e-3}
-"""SuperLU with the symmetric ordering and diagonal pivots unless one is below 1e-3 of
-its column: K(p) of base_compliance is not symmetric (its inner rows carry the
-compliance c), and with SuperLU's default threshold of 1 its pivoting undid the
-ordering, 26 s per factorisation at 27 x 27 x 4 against 2.2 s (the SPD K alone: no
-change, 0.73 s)."""
 
 REFINE = 1e-12
 """Relative equilibrium residual |K s - b| / |b| above which one refinement step runs."""
@@ -79,7 +72,7 @@ class StateJacobian:
         self._lu = None
 
     def _factorise(self):
-        """CHOLMOD for an SPD K(p), else SuperLU (``solvers.cholmod.factorised``)."""
+        """CHOLMOD for an SPD K(p), else SuperLU (``solvers.linalg.cholmod.factorised``)."""
         matrix, n = self.matrix, self.split
         if self.rows is None and n is not None and 0 < n < matrix.shape[0]:
             if matrix[n:, :n].count_nonzero() == 0:

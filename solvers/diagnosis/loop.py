@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solvers.blas import one_thread
 from solvers.diagnosis.blind import blind_spots
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.guard import PredictionCheck, prediction_check
@@ -54,7 +53,8 @@ from solvers.diagnosis.stats import (
     robust_sigma,
     score_test,
 )
-from solvers.problem import InverseProblem
+from solvers.inverse.problem import InverseProblem
+from solvers.linalg.blas import one_thread
 from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library
 from symbolic.model import PARAMETERS
 
@@ -338,17 +338,17 @@ def diagnose(
     start: EffectFit | None = None,
     revisit=None,
 ) -> Diagnosis:
-    """Run the loop on a base problem, with BLAS on one thread (``solvers.blas``: the
+    """Run the loop on a base problem, with BLAS on one thread (``solvers.linalg.blas``: the
     loop's dense work is small SVDs and QRs of Jacobians, which two OpenBLAS threads
     on a busy machine slow tenfold).
 
     Parameters
     ----------
     base : InverseProblem
-        The base problem (``experiments.fit.fitting.build_problem``); its active
+        The base problem (``experiments.problem.fitting.build_problem``); its active
         parameters are refitted at every step.
     loads : list
-        The dataset's declared loads (``experiments.fit.fitting.dataset_loads``).
+        The dataset's declared loads (``experiments.problem.fitting.dataset_loads``).
     settings : DiagnosisSettings
         Level, candidates, limits.
     log : callable, optional

@@ -11,7 +11,7 @@ the implicit function theorem,
 The noise model is that of the datasets: every marker coordinate, rest and
 loaded, has standard deviation sigma, and the rest markers are shared by all
 load cases, so Cov(r) = sigma^2 (I + P P^T). Residuals and Jacobians are whitened
-with W = (I + P P^T)^-1/2 (closed form, ``solvers.noise``): rho = W r has
+with W = (I + P P^T)^-1/2 (closed form, ``solvers.inverse.noise``): rho = W r has
 covariance sigma^2 I under pure noise.
 
 A model linear in the state (``ExtendedModel.linear_state``) takes the linear path
@@ -33,9 +33,9 @@ import scipy.sparse as sp
 from solvers.diagnosis import linear
 from solvers.diagnosis.linear import StateJacobian
 from solvers.diagnosis.numeric import NumericFunction
-from solvers.equilibrium import EquilibriumError
-from solvers.noise import Whitening, rest_noise_map
-from solvers.problem import LOG_PARAMETERS, InverseProblem, LoadCase
+from solvers.forward.equilibrium import EquilibriumError
+from solvers.inverse.noise import Whitening, rest_noise_map
+from solvers.inverse.problem import LOG_PARAMETERS, InverseProblem, LoadCase
 from symbolic.effects.base import CaseData, Effect
 from symbolic.effects.library import ExtendedModel
 
@@ -180,7 +180,7 @@ class ExtendedProblem:
         return self.cache[key]
 
     def _noise_model(self) -> Whitening:
-        """The whitening of the cases in use (``solvers.noise``)."""
+        """The whitening of the cases in use (``solvers.inverse.noise``)."""
         selected = [self.base.cases[k] for k in self.positions]
         n = sum(3 * c.n_observations for c in selected)
         return Whitening.of(rest_noise_map(selected, self.base.rest_noise), n)

@@ -1,6 +1,6 @@
 """What marker trajectories can tell, against static data (docs/dynamic.md, "What the data tell").
 
-The same report as ``solvers.identifiability.analyse``, with the sensitivity matrix of
+The same report as ``solvers.inverse.identifiability.analyse``, with the sensitivity matrix of
 the dynamic residual, S = dr/dx, from the exact forward sensitivities of the
 trapezoidal scheme (``solvers.dynamic.scheme``):
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from solvers.dynamic.nested import DynamicNestedSolver
 from solvers.dynamic.problem import DynamicProblem
-from solvers.identifiability import (  # noqa: F401  (report_from_sensitivity re-exported)
+from solvers.inverse.identifiability import (  # noqa: F401  (report_from_sensitivity re-exported)
     IdentifiabilityReport,
     report_from_sensitivity,
     sandwich_covariance,

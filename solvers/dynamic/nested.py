@@ -18,8 +18,8 @@ import numpy as np
 
 from solvers.dynamic.problem import DynamicProblem
 from solvers.dynamic.scheme import TrapezoidalScheme
-from solvers.nested import least_squares_fit
-from solvers.result import InverseResult
+from solvers.inverse.nested import least_squares_fit
+from solvers.inverse.result import InverseResult
 
 
 class DynamicNestedSolver:

@@ -41,8 +41,8 @@ import scipy.sparse as sp
 
 from solvers.dynamic.problem import DynamicProblem
 from solvers.dynamic.scheme import TrapezoidalScheme
-from solvers.result import InverseResult
-from solvers.simultaneous import IpoptSettings
+from solvers.inverse.result import InverseResult
+from solvers.inverse.simultaneous import IpoptSettings
 from symbolic.sparse import to_casadi_sparse
 
 DYNAMIC_DEFAULTS = {"ipopt.mumps_pivot_order": 2}

@@ -2,7 +2,7 @@
 
 The check docs/transient.md asks for: integrate eq. (22) from rest with ``solvers.transient``
 until velocity and residual vanish (the paper's forward solution), and compare the
-end state with the equilibrium K(B)(B - B0) = F_B that ``solvers.equilibrium``
+end state with the equilibrium K(B)(B - B0) = F_B that ``solvers.forward.equilibrium``
 solves directly (docs/model.md, eq. 22).
 """
 
@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from solvers.equilibrium import EquilibriumSolver
+from solvers.forward.equilibrium import EquilibriumSolver
 from solvers.transient.result import TransientResult
 from solvers.transient.stepping import StepSettings, transient_solver
 from symbolic.model import TissueModel

@@ -11,7 +11,7 @@ and contrast anywhere over the marked area, and where?
    with the largest force of the safe range, with the dataset's probe; each hides the
    markers the dataset's own rule hides (``occlusion_radius``).
 3. The dataset's presses and the candidates as one field problem linearised at the
-   homogeneous fit, its rows kept per press (``solvers.fielddesign.PressRows``): the
+   homogeneous fit, its rows kept per press (``solvers.imaging.fielddesign.PressRows``): the
    posterior of the inclusion's place from the data (eq. I12), the stop (eq. I14), or the
    candidate of eq. (I13).
 """
@@ -116,11 +116,16 @@ def with_candidates(dataset, presses, points, visible):
 def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
     """Step 0, the homogeneous fit, the posterior and the next press, or why to stop."""
     from experiments.design.plan import press_document
-    from experiments.fit.fitting import build_problem, solve
     from experiments.fit.stepzero import model_record
     from experiments.imaging.model import imaging_model
-    from solvers.fielddesign import PlacePosterior, PressRows, inclusion_templates, press_scores
-    from solvers.fieldproblem import FieldProblem
+    from experiments.problem.fitting import build_problem, solve
+    from solvers.imaging.fielddesign import (
+        PlacePosterior,
+        PressRows,
+        inclusion_templates,
+        press_scores,
+    )
+    from solvers.imaging.fieldproblem import FieldProblem
     from symbolic.field import StiffnessField
 
     begin = time.perf_counter()

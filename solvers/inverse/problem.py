@@ -5,7 +5,7 @@
 where S_k picks the model's material points that were observed (rows of J at
 the markers' (u, v, 1), or the outer control points in the paper's variant),
 Y_k are the measurements and W_k optional weights. The solvers in
-``solvers.simultaneous`` and ``solvers.nested`` are interchangeable strategies
+``solvers.inverse.simultaneous`` and ``solvers.inverse.nested`` are interchangeable strategies
 over this object and must agree on it.
 
 Parameters live in an internal coordinate z: log(x) for the positive ones
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.noise import rest_noise_map
+from solvers.inverse.noise import rest_noise_map
 from symbolic.model import PARAMETERS, TissueModel
 from symbolic.skin_slab import LOG_EXTRA
 
@@ -399,7 +399,7 @@ class InverseProblem:
         """P, mapping rest-marker coordinate noise into every residual, or None.
 
         The residual covariance is sigma^2 (I + P P^T) when ``rest_noise`` holds
-        (``solvers.noise``).
+        (``solvers.inverse.noise``).
         """
         return rest_noise_map(self.cases, self.rest_noise)
 

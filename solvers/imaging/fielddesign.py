@@ -1,14 +1,14 @@
 """The next press for a stiffness map: where an inclusion would be seen best
 (docs/imaging.md, "Adaptive imaging", eqs. I11-I14).
 
-Linearised at a homogeneous fit (c = 0, ``solvers.fieldproblem``), press k contributes
+Linearised at a homogeneous fit (c = 0, ``solvers.imaging.fieldproblem``), press k contributes
 rows to the residual: its field sensitivities J_k (n_k, N), the held nu's column and its
 data y_k, all over sigma and before whitening, with the map P_k of the rest-marker
 noise into its rows. A set S of presses is whitened together,
 
     W_S = (I + P_S P_S^T)^-1/2,                                                   (I11)
 
-because the rest capture is shared by every press (``solvers.noise``), and nu is
+because the rest capture is shared by every press (``solvers.inverse.noise``), and nu is
 profiled out by projection, as the map's own nu is. Then, with t_p the field of an
 inclusion of the target's size and contrast centred at place p:
 
@@ -42,7 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from solvers.noise import Whitening
+from solvers.inverse.noise import Whitening
 
 
 @dataclass

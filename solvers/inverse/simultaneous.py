@@ -8,7 +8,7 @@
 - every equilibrium constraint is divided by its case's force magnitude;
 - the states are warm-started from a forward solve at the start values;
 - IPOPT uses the exact Hessian of the Lagrangian, assembled from the problem's
-  structure (``solvers.lagrangian``): the objective is quadratic with a constant
+  structure (``solvers.inverse.lagrangian``): the objective is quadratic with a constant
   Hessian J^T J, and for the linear model g is bilinear in (c(x), Delta).
 
 The marker residuals are not lifted into extra variables: J_k^T J_k couples only
@@ -25,10 +25,10 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from solvers.equilibrium import EquilibriumSolver
-from solvers.lagrangian import constraint_jacobian, lagrangian_hessian
-from solvers.problem import InverseProblem
-from solvers.result import InverseResult
+from solvers.forward.equilibrium import EquilibriumSolver
+from solvers.inverse.lagrangian import constraint_jacobian, lagrangian_hessian
+from solvers.inverse.problem import InverseProblem
+from solvers.inverse.result import InverseResult
 from symbolic.sparse import to_casadi_sparse
 
 
@@ -50,7 +50,7 @@ class IpoptSettings:
     structured_hessian : bool
         Give IPOPT the Hessian of the Lagrangian (and, for the linear model, the
         constraint Jacobian) assembled from the problem's structure
-        (``solvers.lagrangian``) instead of CasADi's coloured AD derivatives.
+        (``solvers.inverse.lagrangian``) instead of CasADi's coloured AD derivatives.
         Same matrices, cheaper per evaluation.
     options : dict
         Extra nlpsol options, e.g. ``{"ipopt.mu_strategy": "adaptive"}``; they

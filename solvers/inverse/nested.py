@@ -21,11 +21,16 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
-from solvers.componentwise import ScalarSystem
-from solvers.continuumfit import ContinuumSystem
-from solvers.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings, casadi_to_scipy
-from solvers.problem import InverseProblem
-from solvers.result import InverseResult
+from solvers.forward.componentwise import ScalarSystem
+from solvers.forward.equilibrium import (
+    EquilibriumError,
+    EquilibriumSolver,
+    NewtonSettings,
+    casadi_to_scipy,
+)
+from solvers.inverse.continuumfit import ContinuumSystem
+from solvers.inverse.problem import InverseProblem
+from solvers.inverse.result import InverseResult
 
 
 def _result(solver, z, residual, success, status, evaluations, elapsed) -> InverseResult:
@@ -50,10 +55,10 @@ class NestedSolver:
     """Reduced-space least squares with exact sensitivities.
 
     For the linear model (``TissueModel.componentwise``) every evaluation factorises the
-    scalar block A(x) once (``solvers.componentwise``) and solves the three components,
+    scalar block A(x) once (``solvers.forward.componentwise``) and solves the three components,
     every load case and every sensitivity column with it; no CasADi Function is built.
     The linear-elastic model does the same with its full saddle system
-    (``solvers.continuumfit``). Otherwise each case is a Newton solve of the full
+    (``solvers.inverse.continuumfit``). Otherwise each case is a Newton solve of the full
     system (``EquilibriumSolver``).
 
     Parameters

@@ -1,6 +1,6 @@
 """Derivatives of the simultaneous NLP assembled from its structure: Hessian and Jacobian.
 
-The simultaneous NLP (``solvers.simultaneous``) has variables v = [z; s_1; ...; s_K]
+The simultaneous NLP (``solvers.inverse.simultaneous``) has variables v = [z; s_1; ...; s_K]
 and Lagrangian
 
     L = lam_f f(s) + sum_k lam_k^T g(s_k, x(z)) / c_k,
@@ -29,7 +29,7 @@ from __future__ import annotations
 import casadi as ca
 import scipy.sparse as sp
 
-from solvers.problem import InverseProblem
+from solvers.inverse.problem import InverseProblem
 from symbolic.sparse import to_casadi_sparse
 
 

@@ -20,8 +20,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.blas import one_thread
-from solvers.diagnosis.linear import FACTOR_OPTIONS
+from solvers.forward.componentwise import FACTOR_OPTIONS
+from solvers.linalg.blas import one_thread
 from symbolic.continuum import KPA
 
 
@@ -80,7 +80,7 @@ class ContinuumSystem:
         mu_l, lam = self.model.coefficients(values)
         stiffness = float(mu_l) * terms["shear"] + float(lam) * terms["volumetric"]
         factor = spla.splu(self._saddle(stiffness), **FACTOR_OPTIONS)
-        with one_thread():  # SuperLU's thin BLAS calls (solvers/blas.py)
+        with one_thread():  # SuperLU's thin BLAS calls (solvers/linalg/blas.py)
             states = factor.solve(self.right_hand_sides)
         n, n_cases = self.n_displacement, states.shape[1]
         slopes = lame_derivatives(young, poisson)

@@ -14,18 +14,18 @@ import numpy as np
 
 from experiments.data.dataset import Dataset
 from experiments.data.plausibility import dataset_warnings
-from experiments.fit.surroundings import extend_grid, margin_rows
-from solvers.identifiability import IdentifiabilityReport, analyse
-from solvers.nested import NestedSolver
-from solvers.problem import (
+from experiments.problem.surroundings import extend_grid, margin_rows
+from solvers.diagnosis.verdict import fit_verdict
+from solvers.inverse.identifiability import IdentifiabilityReport, analyse
+from solvers.inverse.nested import NestedSolver
+from solvers.inverse.problem import (
     InverseProblem,
     ParameterSpace,
     control_point_case,
     observation_case,
 )
-from solvers.result import InverseResult
-from solvers.simultaneous import SimultaneousSolver
-from solvers.verdict import fit_verdict
+from solvers.inverse.result import InverseResult
+from solvers.inverse.simultaneous import SimultaneousSolver
 from symbolic.continuum_model import ENERGIES
 from symbolic.loads import PointForce, ProbeForce
 from symbolic.model import BoundaryConditions, TissueModel
@@ -72,7 +72,7 @@ class FitSettings:
         with a fibre family (also kf1, kf2 and fibre_angle, eq. C13).
     margin : float
         Width [mm] of the band of tissue beyond the markers that the volume also
-        covers (``experiments.fit.surroundings``); 0, the default, ends the volume at the
+        covers (``experiments.problem.surroundings``); 0, the default, ends the volume at the
         markers as the paper did. Only with ``objective="markers"``.
     start : dict, optional
         Start values of estimated parameters by name (default the paper's starts,
@@ -271,7 +271,7 @@ def solve(problem: InverseProblem, method: str = "simultaneous", log=None) -> In
     if method == "auto":
         method = choose_method(problem)[0]
     if method == "paper":
-        from solvers.nested import PaperNestedSolver
+        from solvers.inverse.nested import PaperNestedSolver
 
         return PaperNestedSolver(problem, log=log).solve()
     if method not in SOLVERS:

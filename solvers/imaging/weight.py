@@ -24,8 +24,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from solvers.fieldproblem import FieldProblem
-from solvers.imaging import SOLVERS, FieldEstimate, laplace
+from solvers.imaging.estimate import SOLVERS, FieldEstimate, laplace
+from solvers.imaging.fieldproblem import FieldProblem
 
 
 @dataclass
@@ -283,7 +283,7 @@ def gcv_weight(
     either side of the least, to ``tolerance`` decades. A least value at the largest
     beta means the data need no field (``reached`` False, no search). k(beta) is the
     Laplace approximation's effective dof at each estimate (``rank`` as in
-    ``solvers.imaging.laplace``).
+    ``solvers.imaging.estimate.laplace``).
     """
     solve = solve or SOLVERS["nested-adjoint"]
     n = float(fp.n_residuals)

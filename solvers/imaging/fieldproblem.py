@@ -17,7 +17,7 @@ and the whitened misfit is
     Phi_d(c) = 1/2 |W [A_k s_k + b_k]_k|^2 / sigma^2                                (I4)
 
 with A_k, b_k those of ``InverseProblem`` (markers observed on the skin) and W the
-whitening of the rest-marker noise every case shares (``solvers.noise``), so that
+whitening of the rest-marker noise every case shares (``solvers.inverse.noise``), so that
 under pure noise 2 Phi_d ~ chi^2 with n_residuals degrees of freedom. Every load
 case shares M(c): one sparse factorisation per c serves all forward and adjoint
 solves (SuperLU with the options of ``solvers.diagnosis.linear``, ``Factor``). The
@@ -47,11 +47,11 @@ import scipy.linalg as sl
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.blas import one_thread
-from solvers.diagnosis.linear import FACTOR_OPTIONS
-from solvers.fieldsensitivity import ForceOperators, point_weights
-from solvers.noise import Whitening
-from solvers.problem import InverseProblem
+from solvers.forward.componentwise import FACTOR_OPTIONS
+from solvers.imaging.fieldsensitivity import ForceOperators, point_weights
+from solvers.inverse.noise import Whitening
+from solvers.inverse.problem import InverseProblem
+from solvers.linalg.blas import one_thread
 from symbolic.continuum import KPA, PhysicalGradient, lame
 from symbolic.field import StiffnessField
 
@@ -76,7 +76,7 @@ class Factor:
         """M^-1 right, for one right-hand side or the columns of a matrix."""
         right = np.asarray(right, dtype=float)
         if right.ndim < 2 or right.shape[1] < DENSE_RIGHT_SIDES:
-            with one_thread():  # SuperLU's thin BLAS calls (solvers/blas.py)
+            with one_thread():  # SuperLU's thin BLAS calls (solvers/linalg/blas.py)
                 return self.lu.solve(right)
         permuted = np.empty_like(right)
         permuted[self.lu.perm_r] = right
@@ -177,7 +177,7 @@ class FieldProblem:
         self._force_operators: ForceOperators | None = None
         self._restriction: tuple | None = None
         self.nlp_cache: dict = {}
-        """Simultaneous NLPs built for this problem (``solvers.imaging.simultaneous``)."""
+        """Simultaneous NLPs built for this problem (``solvers.imaging.estimate.simultaneous``)."""
 
     @property
     def size(self) -> int:
@@ -350,7 +350,7 @@ class FieldProblem:
 
     def _adjoint_sensitivities(self, state: Forward) -> list[np.ndarray]:
         """The per-case blocks -A_k M^-1 B_k of eq. (I6): Z = M^-1 U^T in one solve,
-        then B_k^T Z = sum_i T_ik Z_i by eq. (I7) (``solvers.fieldsensitivity``)."""
+        then B_k^T Z = sum_i T_ik Z_i by eq. (I7) (``solvers.imaging.fieldsensitivity``)."""
         adjoints = state.solve(self.observed_rows.T.toarray())[: self.n_displacement]
         if self._force_operators is None:
             self._force_operators = ForceOperators(self.Phi, self._free_gradient.operators)

@@ -4,7 +4,8 @@ The estimate minimises (docs/imaging.md)
 
     J(c) = Phi_d(c) + beta R(c)                                                      (I8)
 
-over the N field coefficients (``solvers.fieldproblem``, ``solvers.regularization``).
+over the N field coefficients (``solvers.imaging.fieldproblem``,
+``solvers.imaging.regularization``).
 
 - ``gauss_newton(..., hessian="adjoint")``: nested, matrix-free. Each Gauss-Newton
   step solves (J^T J + beta R'') p = -grad by conjugate gradients, each product
@@ -17,7 +18,7 @@ over the N field coefficients (``solvers.fieldproblem``, ``solvers.regularizatio
   IPOPT NLP, the equilibria (eq. I3) its equality constraints.
 
 ``laplace`` gives the posterior standard deviations around an estimate; the weight
-beta is chosen in ``solvers.weight``.
+beta is chosen in ``solvers.imaging.weight``.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ import scipy.optimize as so
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.fieldproblem import FieldProblem
-from solvers.simultaneous import static_defaults
+from solvers.imaging.fieldproblem import FieldProblem
+from solvers.inverse.simultaneous import static_defaults
 from symbolic.continuum import KPA
 from symbolic.sparse import to_casadi_sparse
 

@@ -1,6 +1,6 @@
 """Does a fit explain the data? The residual against the dataset's noise level.
 
-With the noise model of ``solvers.noise`` (every marker coordinate, rest and loaded,
+With the noise model of ``solvers.inverse.noise`` (every marker coordinate, rest and loaded,
 with standard deviation sigma), the whitened residual rho = W r of a correct model
 at its least-squares fit gives
 
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.diagnosis.stats import log_chi2_sf
-from solvers.noise import Whitening
+from solvers.inverse.noise import Whitening
 
 LEVEL = 0.01
 """Significance level of the residual test."""

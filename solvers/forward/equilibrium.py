@@ -10,7 +10,7 @@ often needs no factorisation at all. A backtracking line search on |g| guards th
 nonlinear model. Solves with dg/ds at the solution (``Equilibrium.solve``: the
 sensitivities of the nested inverse) refine the nearby LU's solution with dg/ds
 itself. The linear model (k0 = 0) is solved in one step on its scalar block instead
-(``solvers.componentwise``), without building any CasADi Function.
+(``solvers.forward.componentwise``), without building any CasADi Function.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.componentwise import ORDERING, ScalarSystem
+from solvers.forward.componentwise import ORDERING, ScalarSystem
 from symbolic.model import TissueModel
 
 CHORD_CONTRACTION = 0.5
