@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
-from solvers.design.information import effect_power, power
+from solvers.design.information import effect_power
 from solvers.diagnosis.blind import blind_spots, detectable_magnitude, noncentrality
 from solvers.diagnosis.report import verdict
-from solvers.diagnosis.stats import score_test
+from solvers.diagnosis.stats import power, score_test
 from symbolic.effects.library import EFFECT_NAMES, effect_library, make_effect
 
 LEVEL = 0.01

@@ -12,8 +12,8 @@ import pytest
 from scipy import stats
 
 from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
-from solvers.design.information import effect_power, fisher_information, power
-from solvers.diagnosis.stats import score_test
+from solvers.design.information import effect_power, fisher_information
+from solvers.diagnosis.stats import power, score_test
 from symbolic.effects.library import make_effect
 
 

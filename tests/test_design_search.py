@@ -24,10 +24,11 @@ from solvers.design.candidates import (
     occlusion_radius,
 )
 from solvers.design.criteria import Criterion, design_power
-from solvers.design.information import effect_power, fisher_information, needed_noncentrality, power
+from solvers.design.information import effect_power, fisher_information
 from solvers.design.pool import InformationPool
 from solvers.design.search import exhaustive, search
 from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.stats import needed_noncentrality, power
 from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.library import make_effect
 

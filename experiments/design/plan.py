@@ -26,9 +26,9 @@ from solvers.design.candidates import (
     occlusion_radius,
 )
 from solvers.design.criteria import Criterion, design_figures
-from solvers.design.information import needed_noncentrality
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
+from solvers.diagnosis.stats import needed_noncentrality
 
 POWER_GOAL = 0.9
 """The power a design for an effect should reach (issue 21)."""

@@ -23,11 +23,11 @@ from scipy import special
 
 from solvers.design.information import (
     EffectPower,
-    critical_value,
     effect_figures,
     projected_signal,
 )
 from solvers.design.pool import Layout
+from solvers.diagnosis.stats import critical_value
 
 CRITERIA = ("d", "a", "power", "maximin")
 """The criteria of ``dvs design --criterion``."""

@@ -52,8 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from solvers.design.information import needed_noncentrality, projected_signal, scaled_inverse
+from solvers.design.information import projected_signal, scaled_inverse
 from solvers.design.pool import InformationPool, Layout, Totals
+from solvers.diagnosis.stats import needed_noncentrality
 
 DETECT, SEPARATE = "detect", "separate"
 
