@@ -20,48 +20,18 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from symbolic.constraints import BoundaryConditions
 from symbolic.energy import STIFFNESS_TERMS, damping_matrix, mass_matrix, stiffness_terms
 from symbolic.loads import PrescribedDisplacement, independent_rows
 from symbolic.parameters import PARAMETERS, check_parameters
-from symbolic.sparse import combination, combined, to_casadi_sparse
+from symbolic.sparse import to_casadi_sparse
 from symbolic.stiffening import EdgeSet, StiffeningFunction, quadratic_stiffening
+from symbolic.unitterms import UnitTerms, term_parameter
 from symbolic.volume import VolumeSpline
 
 
-def term_parameter(term: str) -> str:
-    """The parameter that multiplies a stiffness term: alpha_u -> alpha_u, beta_uv -> beta."""
-    return "beta" if term.startswith("beta_") else term
-
-
-@dataclass(frozen=True)
-class BoundaryConditions:
-    """Which control points are fixed (zero displacement).
-
-    Attributes
-    ----------
-    fix_inner : bool
-        Fix the inner layer c = 0 (w = 0), attached to the fascia. Default.
-    fix_lateral : bool
-        Also fix the lateral ring a in {0, M-1} or b in {0, N-1}, as for a patch
-        cut out of a larger face.
-    """
-
-    fix_inner: bool = True
-    fix_lateral: bool = False
-
-    def fixed_mask(self, shape: tuple[int, int, int]) -> np.ndarray:
-        """Boolean (M, N, L) array, True where a control point is fixed."""
-        mask = np.zeros(shape, dtype=bool)
-        if self.fix_inner:
-            mask[:, :, 0] = True
-        if self.fix_lateral:
-            mask[[0, -1], :, :] = True
-            mask[:, [0, -1], :] = True
-        return mask
-
-
 @dataclass
-class TissueModel:
+class TissueModel(UnitTerms):
     """The dynamic volume spline model of the skin and fat layer.
 
     Parameters
@@ -323,52 +293,6 @@ class TissueModel:
             {"custom_jacobian": jacobian, "jac_penalty": 0, "never_inline": True},
         )
 
-    def linear_terms(self, names: tuple[str, ...]) -> tuple[ca.MX, ca.MX, list[str]]:
-        """The linear model as A(x) = sum_t c_t(x) (I3 (x) K_t) on the free points (eq. 11-18).
-
-        Returns
-        -------
-        x : casadi.MX
-            The estimated parameters (symbols, natural units).
-        coefficients : casadi.MX
-            c_t(x), one per term whose coefficient is not a fixed zero.
-        terms : list of str
-            Those terms; ``free_term(t)`` gives I3 (x) K_t on the free points.
-        """
-        x, values = self.symbolic_values(names)
-        # terms whose coefficient is a fixed zero (beta = 0 by default) contribute nothing
-        terms = [
-            t
-            for t in self.terms
-            if term_parameter(t) in names or self.parameters[term_parameter(t)] != 0.0
-        ]
-        coefficients = ca.vertcat(*[values[term_parameter(t)] for t in terms])
-        return x, coefficients, terms
-
-    def term_columns(self, terms: list[str], vector: ca.MX) -> ca.MX:
-        """[(I3 (x) K_t) v]_t for a vector v on the free points, (3 n_free, n_terms).
-
-        K_t acts on the (n_free, 3) matrix of v's x, y and z parts, which is
-        I3 (x) K_t on vec; each column is dg/dc_t of the linear model at Delta = v.
-        """
-        matrix = ca.reshape(vector, self.n_free, 3)
-        return ca.horzcat(*[ca.vec(ca.mtimes(self.free_term(t, "dm"), matrix)) for t in terms])
-
-    def free_term(self, term: str, form: str = "kron"):
-        """K_t restricted to the free control points, built once per model and form.
-
-        ``form`` is "kron" for I3 (x) K_t as scipy CSC (3 n_free, 3 n_free), "dm"
-        for K_t alone as a CasADi DM (n_free, n_free); apply the latter to the
-        (n_free, 3) displacement matrix, which is I3 (x) K_t on its vec.
-        """
-        key = (term, form)
-        if key not in self._term_cache:
-            block = self.free_block(self.terms[term])
-            if form == "kron":
-                block = sp.kron(sp.identity(3), block).tocsc()
-            self._term_cache[key] = block if form == "kron" else to_casadi_sparse(block)
-        return self._term_cache[key]
-
     def _linear_jacobian(self, names: tuple[str, ...]) -> ca.Function:
         """Closed-form Jacobian of the linear g with respect to s, x, F_B and d.
 
@@ -384,12 +308,6 @@ class TissueModel:
         columns = self.term_columns(terms, symbols[0][:n])
         d_x = ca.vertcat(ca.mtimes(columns, ca.jacobian(coefficients, x)), ca.MX(m_rows, x.numel()))
         return self._jacobian_function(symbols, x, d_s, d_x)
-
-    def stiffness_expression(self, coefficients: ca.MX, terms: list[str]) -> ca.MX:
-        """A(x) = I3 (x) sum_t c_t K_t on the free points, (3 n_free, 3 n_free), assembled
-        from the nonzeros of the unit terms (vec stacks the components)."""
-        blocks = [self.free_block(self.terms[t]) for t in terms]
-        return ca.diagcat(*[combined(combination(blocks), coefficients)] * 3)  # one x, y, z
 
     def _state_symbols(self) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
         """The symbols s, F_B, d and out_g of a custom Jacobian of ``state_residual``."""

@@ -18,7 +18,8 @@ from experiments.phantom.forehead import forehead_model, probe_loads
 from experiments.phantom.simulate import simulate
 from experiments.problem.fitting import FitSettings, build_problem
 from solvers.forward.componentwise import ScalarSystem
-from solvers.forward.equilibrium import EquilibriumSolver, casadi_to_scipy
+from solvers.forward.equilibrium import EquilibriumSolver
+from solvers.forward.evaluator import casadi_to_scipy
 from solvers.inverse.nested import NestedSolver
 from symbolic.loads import PrescribedDisplacement
 

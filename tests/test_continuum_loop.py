@@ -253,7 +253,7 @@ def test_the_refinement_check_finds_the_coarse_grids_share(solution):
     """At 9x9x2 the continuum's probe near field is under-resolved: refining moves E."""
     from experiments.diagnosis.diagnose import diagnose_dataset
     from experiments.diagnosis.refinement import refinement_check, summary
-    from solvers.diagnosis.loop import DiagnosisSettings
+    from solvers.diagnosis.record import DiagnosisSettings
 
     forces, contacts = design_cases("paper", SLAB)
     dataset = reference_dataset(SLAB, forces, contacts, 2.0, solver=solution)

@@ -40,8 +40,8 @@ from experiments.phantom.simulate import simulate_with_effects
 from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.guard import folds
-from solvers.diagnosis.loop import SCHEMA, DiagnosisSettings
 from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.record import SCHEMA, DiagnosisSettings
 from solvers.diagnosis.report import verdict
 from solvers.diagnosis.stats import log_chi2_sf, log_chi2_sf_series, score_test
 from solvers.inverse.noise import rest_noise_map
@@ -468,7 +468,7 @@ def test_shared_cache_keeps_only_the_most_recent_effect_sets():
     """The loop's store of CasADi Functions is bounded by effect set (least recently used
     out, whole); a set's entries stay together however many cases it has; the small
     entries (case data, noise models) are never evicted."""
-    from solvers.diagnosis.problem import SharedCache
+    from solvers.diagnosis.cache import SharedCache
 
     cache = SharedCache(limit=2)
     cache[("case", 0)] = "case data"

@@ -22,8 +22,8 @@ from solvers.dynamic.problem import DynamicProblem, TimeGrid, trajectory_case
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.dynamic.simultaneous import DynamicSimultaneousSolver
 from solvers.inverse.identifiability import analyse
-from solvers.inverse.problem import ParameterSpace
 from solvers.inverse.simultaneous import IpoptSettings, SimultaneousSolver
+from solvers.inverse.space import ParameterSpace
 from solvers.transient.stepping import StepSettings, TransientSolver
 
 TRUTH = np.array([DYNAMIC_TRUTH[n] for n in DYNAMIC_NAMES])

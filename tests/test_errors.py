@@ -6,8 +6,9 @@ import pytest
 from experiments.phantom.forehead import PhantomSettings, forehead_model, segmented_surfaces
 from solvers.forward.equilibrium import EquilibriumSolver, NewtonSettings
 from symbolic.basis import BSplineBasis, VolumeBasis
+from symbolic.constraints import BoundaryConditions
 from symbolic.loads import PointForce, PrescribedDisplacement, ProbeForce
-from symbolic.model import BoundaryConditions, TissueModel
+from symbolic.model import TissueModel
 from symbolic.volume import VolumeSpline
 
 GOOD = segmented_surfaces()

@@ -11,8 +11,9 @@ from experiments.phantom.forehead import (
     probe_loads,
 )
 from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings
+from symbolic.constraints import BoundaryConditions
 from symbolic.loads import PointForce, PrescribedDisplacement, ProbeForce
-from symbolic.model import BoundaryConditions, TissueModel
+from symbolic.model import TissueModel
 
 CENTER = np.array([[0.5, 0.5, 1.0]])
 

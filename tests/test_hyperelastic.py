@@ -371,8 +371,8 @@ def test_the_foundation_resists_only_the_normal_displacement():
     """``support``: the lumped areas of the inner face sum to its area; the tangent with
     the foundation equals AD of the force (exponential energy, 20 % random state) and
     differs from the one without by support * area on the z diagonal only."""
+    from symbolic.constraints import BoundaryConditions
     from symbolic.continuum_model import ExponentialModel, face_areas
-    from symbolic.model import BoundaryConditions
 
     volume = box_volume((20.0, 16.0, 3.0), (6, 5, 3), (3, 3, 2))
     assert face_areas(volume).sum() == pytest.approx(20.0 * 16.0, rel=1e-12)

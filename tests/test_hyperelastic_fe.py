@@ -38,10 +38,10 @@ from scipy.optimize import brentq
 
 from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
 from symbolic.basis import BSplineBasis
+from symbolic.constraints import BoundaryConditions
 from symbolic.continuum import KPA, box_volume, lame
 from symbolic.continuum_model import ENERGIES
 from symbolic.loads import PrescribedDisplacement
-from symbolic.model import BoundaryConditions
 
 BLOCK = np.array([10.0, 8.0, 4.0])
 """The block [0, Lx] x [0, Ly] x [0, Lz] [mm]: base z = 0 clamped, top z = Lz prescribed."""

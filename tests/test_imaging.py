@@ -15,8 +15,9 @@ from experiments.diagnosis.diagnose import base_settings
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
 from experiments.problem.fitting import build_problem
-from solvers.imaging.estimate import gauss_newton, laplace, lbfgs, secant_update, simultaneous
+from solvers.imaging.estimate import gauss_newton, lbfgs, secant_update, simultaneous
 from solvers.imaging.fieldproblem import FieldProblem
+from solvers.imaging.laplace import laplace
 from solvers.imaging.regularization import Tikhonov, TotalVariation
 from solvers.imaging.weight import discrepancy_weight, gcv_weight, lcurve_weight, linear_gcv
 from symbolic.field import StiffnessField

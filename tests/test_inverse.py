@@ -16,13 +16,14 @@ from experiments.problem.fitting import FitSettings, build_problem
 from solvers.forward.equilibrium import EquilibriumSolver
 from solvers.inverse.identifiability import analyse
 from solvers.inverse.nested import NestedSolver
-from solvers.inverse.problem import InverseProblem, ParameterSpace, observation_case
+from solvers.inverse.problem import InverseProblem, observation_case
 from solvers.inverse.simultaneous import (
     METIS_ABOVE,
     IpoptSettings,
     SimultaneousSolver,
     static_defaults,
 )
+from solvers.inverse.space import ParameterSpace
 
 ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 TRUTH = np.array([TRUE_PARAMETERS[n] for n in ALPHAS])

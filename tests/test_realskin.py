@@ -22,8 +22,9 @@ from experiments.realskin.slab import (
     surface_uv,
 )
 from experiments.realskin.stages import standard_errors
-from solvers.inverse.problem import LoadCase, ParameterSpace, PlanarProblem
-from symbolic.model import BoundaryConditions
+from solvers.inverse.problem import LoadCase, PlanarProblem
+from solvers.inverse.space import ParameterSpace
+from symbolic.constraints import BoundaryConditions
 from symbolic.skin_slab import POISSON, REGION_RATIO, SkinSlabModel
 from symbolic.stiffening import exponential_stiffening
 
@@ -209,7 +210,7 @@ def _case(model, pads, names, x):
         POISSON: (0.0, 20.0),
         REGION_RATIO: (0.1, 100.0),
     }
-    from solvers.inverse.problem import SkinParameterSpace
+    from solvers.inverse.space import SkinParameterSpace
 
     space = SkinParameterSpace.build(names, dict(zip(names, x)), bounds)
     return case, space, bounds
@@ -245,7 +246,7 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
 
     import experiments.realskin.loop as realskin
     from solvers.forward.equilibrium import EquilibriumError
-    from solvers.inverse.problem import SkinParameterSpace
+    from solvers.inverse.space import SkinParameterSpace
 
     model, pads = small_model(BoundaryConditions(fix_inner=True))
     names = ("alpha_u", "k0")
@@ -291,7 +292,7 @@ def test_scan_cell_columns_equal_the_models_own_sensitivity():
         with_region,
     )
     from experiments.realskin.stages import stage_solver
-    from solvers.inverse.problem import SkinParameterSpace
+    from solvers.inverse.space import SkinParameterSpace
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     model = SkinSlabModel(

@@ -60,7 +60,7 @@ def test_map_of_the_keloid_twin(shared_data):
     from experiments.realskin.setup import RealSkinSettings, build
     from experiments.realskin.stages import fit_stage
     from experiments.realskin.twin import base_parameters, make_twin, truth_model
-    from solvers.inverse.problem import SkinParameterSpace
+    from solvers.inverse.space import SkinParameterSpace
 
     settings = RealSkinSettings()
     real = build("keloid", settings)

@@ -48,7 +48,7 @@ def test_neo_hookean_membrane_against_the_authors(shared_data, case):
     evaluations, so that configuration is not tested (docs/realskin.md)."""
     from experiments.realskin.continuum import BOUNDS, continuum_setup
     from experiments.realskin.stages import fit_stage
-    from solvers.inverse.problem import SkinParameterSpace
+    from solvers.inverse.space import SkinParameterSpace
 
     membrane = continuum_setup(build(case, SETTINGS), SETTINGS.thickness_mm)
     space = SkinParameterSpace.build(("E", "nu"), membrane.start, BOUNDS)
@@ -118,9 +118,10 @@ def test_membrane_cell_columns_equal_the_sensitivity_of_a_stiffer_cell(energy):
     from experiments.realskin.scan import CellGrid, cell_columns
     from experiments.realskin.slab import Pads, slab_volume
     from experiments.realskin.stages import stage_solver
-    from solvers.inverse.problem import PlanarProblem, SkinParameterSpace
+    from solvers.inverse.problem import PlanarProblem
+    from solvers.inverse.space import SkinParameterSpace
+    from symbolic.constraints import BoundaryConditions
     from symbolic.continuum_model import ENERGIES
-    from symbolic.model import BoundaryConditions
 
     pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
     names, x = ("E", "nu", "k1"), np.array([6.0, 0.3, 20.0])

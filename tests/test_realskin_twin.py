@@ -45,7 +45,7 @@ def test_keloid_twin_is_consistent(shared_data):
         run_twin,
         truth_model,
     )
-    from solvers.inverse.problem import SkinParameterSpace
+    from solvers.inverse.space import SkinParameterSpace
 
     settings = RealSkinSettings()
     real = build("keloid", settings)

@@ -5,12 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.realskin.data import (
-    force_at_travel,
-    load_case,
-    spatial_noise_per_frame,
-    spurious_points,
-)
+from experiments.realskin.data import force_at_travel, load_case
+from experiments.realskin.dicnoise import spatial_noise_per_frame, spurious_points
 from experiments.realskin.geometry import geometry_from_geo, points_in_polygon
 
 EXPECTED = {  # case: (frames, points, force samples, pad gap [mm], max |F| [N], at ux [mm])

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from experiments.stereo import holdout
 from experiments.stereo import multidic as md
 from experiments.stereo.chessboard import calibrate_stereo_images
 from experiments.stereo.realcheck import (
@@ -46,7 +47,7 @@ def cylinder(shared_data):
 def stereo(cylinder):
     grid, views = cylinder
     pair = (views["201"], views["202"])
-    return md.stereo_check(pair, (pair[0].camera, pair[1].camera), grid)
+    return holdout.stereo_check(pair, (pair[0].camera, pair[1].camera), grid)
 
 
 # --- OpenCV stereo sample -------------------------------------------------------------
@@ -180,7 +181,7 @@ def test_triangulated_dots_match_p3d(stereo):
 def test_holdout_triangulation(cylinder):
     """Interleaved halves: every held-out dot has calibrated neighbours (near in-sample)."""
     grid, views = cylinder
-    hold = md.holdout_check((views["201"], views["202"]), grid)
+    hold = holdout.holdout_check((views["201"], views["202"]), grid)
     print(
         f"hold-out (calibrate on one checkerboard half, triangulate the other): RMS 3D "
         f"error {hold['rms']:.4f} mm over {hold['n']} dots, folds "
@@ -220,8 +221,8 @@ def test_spatial_holdout_triangulation(cylinder, reports):
     grid, views = cylinder
     pair = (views["201"], views["202"])
     flags = tuple(DISTORTION_MODELS[reports[n]["model"]] for n in ("201", "202"))
-    spatial = md.spatial_holdout_check(pair, grid, flags)
-    in_sample = md.stereo_check(pair, (pair[0].camera, pair[1].camera), grid).rms
+    spatial = holdout.spatial_holdout_check(pair, grid, flags)
+    in_sample = holdout.stereo_check(pair, (pair[0].camera, pair[1].camera), grid).rms
     print(
         f"3D RMS: in-sample {in_sample:.4f} mm, spatial blocks {spatial['blocks_rms']:.4f} "
         f"mm, one end from the other {spatial['ends_rms']:.4f} mm"

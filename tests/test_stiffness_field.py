@@ -18,8 +18,9 @@ from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
 from experiments.problem.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.fit import fit
-from solvers.diagnosis.loop import DiagnosisSettings, diagnose
+from solvers.diagnosis.loop import diagnose
 from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.record import DiagnosisSettings
 from symbolic.effects.field import MEAN_PIN, PRIOR_RMS, StiffnessFieldEffect
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 

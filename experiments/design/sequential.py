@@ -34,7 +34,7 @@ from experiments.fit.stepzero import AUTO, model_record
 from solvers.design.discrimination import Discrimination, questions, standings
 from solvers.design.pool import InformationPool
 from solvers.design.search import search
-from solvers.diagnosis.loop import DiagnosisSettings
+from solvers.diagnosis.record import DiagnosisSettings
 from symbolic.effects.library import effect_library
 
 SCHEMA = "dvs-sequential/1"

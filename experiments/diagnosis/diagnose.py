@@ -47,7 +47,8 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     energy on that grid.
     """
     from experiments.problem.fitting import build_problem, dataset_loads
-    from solvers.diagnosis.loop import DiagnosisSettings, diagnose
+    from solvers.diagnosis.loop import diagnose
+    from solvers.diagnosis.record import DiagnosisSettings
 
     settings = settings or DiagnosisSettings()
     log = log or (lambda *_: None)
@@ -285,7 +286,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         run_guarded,
         verb,
     )
-    from solvers.diagnosis.loop import DiagnosisSettings
+    from solvers.diagnosis.record import DiagnosisSettings
 
     args = build_parser(prog).parse_args(argv)
 

@@ -25,10 +25,11 @@ from experiments.problem.fitting import FitSettings, dataset_loads, rest_geometr
 from solvers.dynamic.problem import DynamicProblem, TimeGrid, step_profile, trajectory_case
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.forward.equilibrium import EquilibriumSolver
-from solvers.inverse.problem import ParameterSpace
+from solvers.inverse.space import ParameterSpace
 from solvers.transient.loads import Load, ramp_load
 from solvers.transient.sundials import integrate_casadi
-from symbolic.model import BoundaryConditions, TissueModel
+from symbolic.constraints import BoundaryConditions
+from symbolic.model import TissueModel
 
 DYNAMIC_TRUTH = {**TRUE_PARAMETERS, "gamma": 0.1}
 """Truth of the dynamic experiment: the phantom's, with gamma near critical damping."""

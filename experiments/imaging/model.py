@@ -82,7 +82,7 @@ class ImagingModel:
 
     def problem(self):
         """The homogeneous problem, on the model step 0 built, started at its estimate."""
-        from solvers.inverse.problem import ParameterSpace
+        from solvers.inverse.space import ParameterSpace
 
         base = self.trial.fit.problem.base
         settings = self.settings()

@@ -17,8 +17,9 @@ import numpy as np
 
 from experiments.data.dataset import Dataset
 from experiments.problem.fitting import FitSettings, build_problem, solve
-from solvers.imaging.estimate import SOLVERS, Laplace, laplace
+from solvers.imaging.estimate import SOLVERS
 from solvers.imaging.fieldproblem import FieldProblem
+from solvers.imaging.laplace import Laplace, laplace
 from solvers.imaging.regularization import Tikhonov, TotalVariation
 from solvers.imaging.weight import WeightChoice, discrepancy_weight, gcv_weight, lcurve_weight
 from symbolic.field import StiffnessField, tissue_lengths

@@ -122,7 +122,7 @@ class LinearStudy:
     object with ``hessian(c)`` and ``value(c)`` (``solvers.imaging.regularization``), e.g.
     total variation, solved by lagged diffusivity from the largest beta down, each beta
     warm-started from the last; its dof and standard deviations are then those of the
-    lagged Hessian at the estimate, as ``solvers.imaging.estimate.laplace`` forms them.
+    lagged Hessian at the estimate, as ``solvers.imaging.laplace.laplace`` forms them.
     """
 
     def __init__(self, parts: dict, centre, betas=BETAS, regularizer=None):

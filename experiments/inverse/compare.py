@@ -22,7 +22,8 @@ import numpy as np  # noqa: E402
 
 from experiments.output.atomic import atomic_savefig, atomic_write_json, atomic_write_text  # noqa: E402
 from experiments.problem.fitting import FitSettings, build_problem  # noqa: E402
-from solvers.inverse.nested import NestedSolver, PaperNestedSolver  # noqa: E402
+from solvers.inverse.nested import NestedSolver
+from solvers.inverse.paperfaithful import PaperNestedSolver
 from solvers.inverse.problem import InverseProblem  # noqa: E402
 from solvers.inverse.simultaneous import SimultaneousSolver  # noqa: E402
 

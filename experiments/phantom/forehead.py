@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from symbolic.constraints import BoundaryConditions
 from symbolic.loads import PointForce, ProbeForce
-from symbolic.model import BoundaryConditions, TissueModel
+from symbolic.model import TissueModel
 from symbolic.volume import FitReport, VolumeSpline
 
 TRUE_PARAMETERS = {"alpha_u": 2.6, "alpha_v": 0.18, "alpha_w": 1.7, "mu": 5e-4, "gamma": 15.0}

@@ -28,7 +28,8 @@ from experiments.phantom.forehead import (
     probe_loads,
 )
 from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
-from solvers.inverse.problem import InverseProblem, ParameterSpace, observation_case
+from solvers.inverse.problem import InverseProblem, observation_case
+from solvers.inverse.space import ParameterSpace
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 from symbolic.loads import ProbeForce
 

@@ -18,17 +18,14 @@ from experiments.problem.surroundings import extend_grid, margin_rows
 from solvers.diagnosis.verdict import fit_verdict
 from solvers.inverse.identifiability import IdentifiabilityReport, analyse
 from solvers.inverse.nested import NestedSolver
-from solvers.inverse.problem import (
-    InverseProblem,
-    ParameterSpace,
-    control_point_case,
-    observation_case,
-)
+from solvers.inverse.problem import InverseProblem, control_point_case, observation_case
 from solvers.inverse.result import InverseResult
 from solvers.inverse.simultaneous import SimultaneousSolver
+from solvers.inverse.space import ParameterSpace
+from symbolic.constraints import BoundaryConditions
 from symbolic.continuum_model import ENERGIES
 from symbolic.loads import PointForce, ProbeForce
-from symbolic.model import BoundaryConditions, TissueModel
+from symbolic.model import TissueModel
 from symbolic.volume import VolumeSpline
 
 DEFAULT_NAMES = ("alpha_u", "alpha_v", "alpha_w", "mu", "gamma")
@@ -271,7 +268,7 @@ def solve(problem: InverseProblem, method: str = "simultaneous", log=None) -> In
     if method == "auto":
         method = choose_method(problem)[0]
     if method == "paper":
-        from solvers.inverse.nested import PaperNestedSolver
+        from solvers.inverse.paperfaithful import PaperNestedSolver
 
         return PaperNestedSolver(problem, log=log).solve()
     if method not in SOLVERS:

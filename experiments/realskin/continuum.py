@@ -42,10 +42,10 @@ from experiments.realskin.report import map_table
 from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.study import AUTHORS
-from solvers.inverse.problem import SkinParameterSpace
+from solvers.inverse.space import SkinParameterSpace
+from symbolic.constraints import BoundaryConditions
 from symbolic.continuum import KPA
 from symbolic.continuum_model import ENERGIES
-from symbolic.model import BoundaryConditions
 
 CONTINUUM_ENERGIES = ("linear-elastic",)
 """Fitted alone; the neo-Hookean membrane is the base of ``stiffening_loop``."""

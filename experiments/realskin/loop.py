@@ -12,7 +12,7 @@ from experiments.realskin.scan import SCAN, CellTerms, ScanResult, rect_indicato
 from experiments.realskin.setup import RealSkinSettings, Setup
 from experiments.realskin.stages import LABELS, NULL, ONE_SIDED, StageFit, fit_stage, score_test
 from solvers.forward.equilibrium import EquilibriumError
-from solvers.inverse.problem import SkinParameterSpace
+from solvers.inverse.space import SkinParameterSpace
 from symbolic.skin_slab import REGION_RATIO
 
 

@@ -32,7 +32,8 @@ from scipy import stats
 from experiments.realskin.geometry import Rect, points_in_polygon
 from experiments.realskin.stages import Score, stage_solver
 from solvers.forward.equilibrium import EquilibriumSolver
-from solvers.inverse.problem import PlanarProblem, SkinParameterSpace
+from solvers.inverse.problem import PlanarProblem
+from solvers.inverse.space import SkinParameterSpace
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.energy import quadrature
 from symbolic.skin_slab import ALPHA_TERMS, SkinSlabModel

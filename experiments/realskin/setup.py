@@ -14,7 +14,7 @@ from experiments.realskin.data import SkinCase, dic_noise_mm, load_case
 from experiments.realskin.geometry import Rect
 from experiments.realskin.scan import SCAN, CellGrid, CellTerms
 from experiments.realskin.slab import Pads, region_indicator, slab_volume
-from symbolic.model import BoundaryConditions
+from symbolic.constraints import BoundaryConditions
 from symbolic.skin_slab import ANISOTROPY, POISSON, REGION_RATIO, SkinSlabModel
 from symbolic.stiffening import exponential_stiffening, quadratic_stiffening
 

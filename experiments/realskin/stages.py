@@ -23,7 +23,8 @@ from scipy import stats
 
 from solvers.forward.equilibrium import EquilibriumSolver, NewtonSettings
 from solvers.inverse.nested import NestedSolver
-from solvers.inverse.problem import LoadCase, PlanarProblem, SkinParameterSpace
+from solvers.inverse.problem import LoadCase, PlanarProblem
+from solvers.inverse.space import SkinParameterSpace
 from symbolic.model import PARAMETERS
 from symbolic.skin_slab import ANISOTROPY, POISSON, REGION_RATIO, SkinSlabModel
 

@@ -35,7 +35,8 @@ from experiments.realskin.setup import RealSkinSettings, Setup, build
 from experiments.realskin.slab import region_indicator
 from experiments.realskin.stages import fit_stage, score_test, stage_solver
 from solvers.forward.equilibrium import EquilibriumSolver
-from solvers.inverse.problem import PlanarProblem, SkinParameterSpace
+from solvers.inverse.problem import PlanarProblem
+from solvers.inverse.space import SkinParameterSpace
 from symbolic.skin_slab import REGION_RATIO, SkinSlabModel
 
 FORCE_NOISE_N = 0.02

@@ -27,6 +27,7 @@ import numpy as np
 
 from experiments.data.paths import shared_data_dir
 
+from . import holdout
 from . import multidic as md
 from .calibration import DISTORTION_MODELS
 from .chessboard import StereoBoardCalibration, calibrate_stereo_images
@@ -144,10 +145,10 @@ def check_multidic(data_dir: Path) -> tuple[dict, dict]:
     reports = [md.calibration_report(v, grid) for v in views]
     for name, report in zip(names, reports):
         out[name]["calibration"] = report
-    stereo = md.stereo_check(views, (views[0].camera, views[1].camera), grid)
-    hold = md.holdout_check(views, grid)
+    stereo = holdout.stereo_check(views, (views[0].camera, views[1].camera), grid)
+    hold = holdout.holdout_check(views, grid)
     flags = tuple(DISTORTION_MODELS[r["model"]] for r in reports)
-    spatial = md.spatial_holdout_check(views, grid, flags)
+    spatial = holdout.spatial_holdout_check(views, grid, flags)
     ij = np.argwhere(stereo.mask)
     uv = grid_parameters(ij)
     surf = fit_surface(stereo.triangulation.points, uv, SURFACE_GRID)

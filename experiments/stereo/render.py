@@ -29,6 +29,7 @@ import numpy as np
 
 from experiments.output.atomic import atomic_save_npz, atomic_write_bytes, atomic_write_text
 from experiments.phantom.forehead import PhantomSettings
+from experiments.stereo.imageops import _box_filter, _square_wave, _undistortion_map
 
 from .cameras import Camera
 from .rig import BoardTarget, PhantomScene, RigSettings, board_poses, default_rig, phantom_scene
@@ -282,41 +283,6 @@ class Renderer:
         sigma = np.sqrt(s.read_noise**2 + s.gain * np.maximum(img, 0.0))
         img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
-
-
-def _undistortion_map(camera: Camera, step: int = 8) -> np.ndarray:
-    """Undistorted normalised coordinates of every pixel, (h, w, 2).
-
-    Exact (``cv2.undistortPoints``) on a grid of every ``step`` px, bilinear in between:
-    the map is so smooth that this adds below 1e-3 px at 25 px/mm.
-    """
-    w, h = camera.image_size
-    gu, gv = np.arange(0, w + step, step), np.arange(0, h + step, step)
-    grid = np.stack(np.meshgrid(gu, gv), axis=-1).reshape(-1, 2).astype(np.float64)
-    coarse = camera.undistort_normalized(grid).reshape(len(gv), len(gu), 2).astype(np.float32)
-    u, v = np.arange(w), np.arange(h)
-    iu, iv = u // step, v // step
-    fu = (u % step / step).astype(np.float32)[None, :, None]
-    fv = (v % step / step).astype(np.float32)[:, None, None]
-    rows = coarse[iv]  # (h, len(gu), 2)
-    top = rows[:, iu] * (1 - fu) + rows[:, iu + 1] * fu
-    rows = coarse[iv + 1]
-    bottom = rows[:, iu] * (1 - fu) + rows[:, iu + 1] * fu
-    return top * (1 - fv) + bottom * fv
-
-
-def _box_filter(x: np.ndarray, lo: float, hi: float, width: np.ndarray) -> np.ndarray:
-    """Indicator of [lo, hi] averaged over a box of ``width`` centred at x (linear ramps)."""
-    return np.clip((x - lo) / width + 0.5, 0, 1) * np.clip((hi - x) / width + 0.5, 0, 1)
-
-
-def _square_wave(x: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """``(-1)^floor(x)`` averaged exactly over a box of ``width`` centred at x."""
-
-    def tri(v):  # antiderivative of the square wave: a triangle wave of period 2
-        return 1.0 - np.abs(np.mod(v, 2.0) - 1.0)
-
-    return (tri(x + width / 2) - tri(x - width / 2)) / width
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.inverse.problem import ParameterSpace
+from solvers.inverse.space import ParameterSpace
 from symbolic.model import TissueModel, term_parameter
 
 STEP_SNAP = 1e-10

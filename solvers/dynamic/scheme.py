@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from solvers.dynamic.problem import TimeGrid, parameter_values, unit_matrices
-from solvers.forward.equilibrium import casadi_to_scipy
+from solvers.forward.evaluator import casadi_to_scipy
 from symbolic.model import TissueModel, term_parameter
 
 

@@ -24,8 +24,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from solvers.imaging.estimate import SOLVERS, FieldEstimate, laplace
+from solvers.imaging.estimate import SOLVERS, FieldEstimate
 from solvers.imaging.fieldproblem import FieldProblem
+from solvers.imaging.laplace import laplace
 
 
 @dataclass
@@ -283,7 +284,7 @@ def gcv_weight(
     either side of the least, to ``tolerance`` decades. A least value at the largest
     beta means the data need no field (``reached`` False, no search). k(beta) is the
     Laplace approximation's effective dof at each estimate (``rank`` as in
-    ``solvers.imaging.estimate.laplace``).
+    ``solvers.imaging.laplace.laplace``).
     """
     solve = solve or SOLVERS["nested-adjoint"]
     n = float(fp.n_residuals)

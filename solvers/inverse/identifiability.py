@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.inverse.nested import NestedSolver
-from solvers.inverse.problem import DYNAMIC_ONLY, InverseProblem, ParameterSpace
+from solvers.inverse.problem import InverseProblem
+from solvers.inverse.space import DYNAMIC_ONLY, ParameterSpace
 from symbolic.model import PARAMETERS
 
 INFLUENCE_TOLERANCE = 1e-9
@@ -235,7 +236,7 @@ def profile_likelihood(
     dict
         ``{"values": [...], "cost": [...]}``; a flat profile means not identifiable.
     """
-    from solvers.inverse.problem import ParameterSpace
+    from solvers.inverse.space import ParameterSpace
 
     index = problem.space.names.index(name)
     keep = [i for i, n in enumerate(problem.space.names) if n != name]

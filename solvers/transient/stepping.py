@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.forward.equilibrium import casadi_to_scipy
+from solvers.forward.evaluator import casadi_to_scipy
 from solvers.transient.loads import as_load
 from solvers.transient.modal import probe_observation
 from solvers.transient.result import TransientResult, settling_time
