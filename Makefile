@@ -42,8 +42,8 @@ slow: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -m slow
 
 bench: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
-	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench --diagnose
+	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.inversebench
+	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.inversebench --diagnose
 	$(BIN)/dvs bench board
 	$(BIN)/dvs bench image
 

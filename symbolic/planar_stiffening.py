@@ -57,7 +57,7 @@ NAMES = ("E", "nu", "k1", "k2")
 EXPONENT_CAP = 200.0
 """Largest k2 s^2 evaluated (exp(200) ~ 7e86); beyond it an evaluation fails. A fit sliding
 to k1 -> 0, k2 -> inf would end on it; the stiffening study bounds k2 well inside
-(``experiments.realskin.stiffening.STIFFENING_CAP``, docs/realskin.md)."""
+(``experiments.realskin.planarstiffening.STIFFENING_CAP``, docs/realskin.md)."""
 
 
 def exponential_term(s, k1, k2):

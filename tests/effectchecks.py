@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.extended import ExtendedProblem
 
 
 def _point(problem: ExtendedProblem, base_p: np.ndarray, factor: float) -> np.ndarray:

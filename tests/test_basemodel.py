@@ -79,8 +79,8 @@ def test_the_linearised_refit_agrees_with_the_full_refit(patch_data, patch_choic
     it gives (how far the finer volume moves the predicted markers) is the full refit's
     to a tenth, where the rule compares it with the 1-dof quantile."""
     from experiments.problem.fitting import build_model, dataset_loads, problem_on
+    from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from solvers.diagnosis.problem import ExtendedProblem
 
     key, sigma = patch_choice.chosen.surroundings, patch_choice.sigma
     data = with_radius(patch_data, key.radius_mm)

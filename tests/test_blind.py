@@ -11,7 +11,7 @@ pre_tension also hide when every load presses one contact along the normal).
 import numpy as np
 import pytest
 
-from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
+from experiments.design.predictions import NOISE_MM, base_fit, phantom_dataset
 from solvers.design.information import effect_power
 from solvers.diagnosis.blind import blind_spots, detectable_magnitude, noncentrality
 from solvers.diagnosis.report import verdict

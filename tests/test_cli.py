@@ -176,8 +176,8 @@ def test_the_verdict_statistic_is_the_diagnosis_residual_test(dataset_file):
     from experiments.data.dataset import load_dataset
     from experiments.diagnosis.diagnose import BASE_NAMES
     from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
+    from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from solvers.diagnosis.problem import ExtendedProblem
     from solvers.diagnosis.stats import residual_test
     from solvers.diagnosis.verdict import fit_verdict
 

@@ -8,8 +8,8 @@ from effectchecks import check_derivatives, check_theta_zero
 
 from experiments.diagnosis.diagnose import base_settings
 from experiments.problem.fitting import build_problem, dataset_loads
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
-from solvers.diagnosis.problem import ExtendedProblem
 from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
 
 pytest.importorskip("skfem")
@@ -273,7 +273,7 @@ def test_the_refinement_check_finds_the_coarse_grids_share(solution):
 def test_the_loop_on_continuum_data_names_only_what_is_there(scenario):
     """Paper design, 15x15x3: the hidden effect (where this design can see it) is named,
     nothing else but the surrounding tissue, and the final RMS is at the noise level."""
-    from experiments.diagnosis.continuum import SCENARIOS, ContinuumStudy, run_scenario
+    from experiments.diagnosis.continuumstudy import SCENARIOS, ContinuumStudy, run_scenario
 
     # pinned to the grid these rows were verified on (docs/continuum.md, "Scenarios"):
     # the new defaults (27x27x4, 10 mm margin) run out of memory on tilted_force here

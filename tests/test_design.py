@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
+from experiments.design.predictions import NOISE_MM, base_fit, phantom_dataset
 from solvers.design.information import effect_power, fisher_information
 from solvers.diagnosis.stats import power, score_test
 from symbolic.effects.library import make_effect
@@ -67,7 +67,7 @@ def test_predictions_hold_over_200_noisy_simulations():
     predicted standard errors match the spread of the estimates within 15 % and the
     predicted power matches the rejection rate within 0.1 (magnitudes where the power
     is near 0.5; docs/design.md)."""
-    from experiments.design.calibration import calibrate
+    from experiments.design.predictions import calibrate
 
     out = calibrate(
         "diagnosis", {"heterogeneity": 0.076, "base_compliance": 80.0}, n=200, log=print

@@ -13,8 +13,8 @@ import pytest
 
 from experiments.command.cli import main as dvs
 from experiments.data.designfile import read_presses
-from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
 from experiments.design.plan import DesignSettings, dataset_presses, plan
+from experiments.design.predictions import NOISE_MM, base_fit, phantom_dataset
 from solvers.design.candidates import (
     MAX_FORCE_N,
     candidate_presses,
@@ -27,7 +27,7 @@ from solvers.design.criteria import Criterion, design_power
 from solvers.design.information import effect_power, fisher_information
 from solvers.design.pool import InformationPool
 from solvers.design.search import exhaustive, search
-from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.stats import needed_noncentrality, power
 from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.library import make_effect

@@ -154,7 +154,7 @@ def test_the_lab_keeps_each_capture_as_it_was_filmed():
     """A press adds a capture and leaves the earlier ones, and the rest, as they were."""
     pytest.importorskip("skfem")
     from experiments.design.lab import ContinuumLab
-    from experiments.diagnosis.continuum import ContinuumStudy
+    from experiments.diagnosis.continuumstudy import ContinuumStudy
     from experiments.phantom.fe import ReferenceSlab
 
     lab = ContinuumLab("compliant_base", ContinuumStudy(slab=ReferenceSlab(elements=(8, 8, 2))))

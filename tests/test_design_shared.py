@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from experiments.command.cli import main as dvs
-from experiments.design.calibration import NOISE_MM, base_fit, phantom_dataset
 from experiments.design.plan import dataset_presses
+from experiments.design.predictions import NOISE_MM, base_fit, phantom_dataset
 from experiments.diagnosis.diagnose import base_settings
 from solvers.design import shared
 from solvers.design.candidates import candidate_presses, contact_grid
-from solvers.design.loads import press_loads
+from solvers.design.pressloads import press_loads
 from solvers.diagnosis import linear
-from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.library import make_effect
 

@@ -38,9 +38,9 @@ from experiments.diagnosis.diagnose import (
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
 from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.guard import folds
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.record import SCHEMA, DiagnosisSettings
 from solvers.diagnosis.report import verdict
 from solvers.diagnosis.stats import log_chi2_sf, log_chi2_sf_series, score_test

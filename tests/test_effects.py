@@ -14,13 +14,13 @@ from experiments.phantom.simulate import (
     simulate_with_effects,
 )
 from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
-from solvers.diagnosis.problem import ExtendedProblem
 from symbolic.effects.base import surface_frame, surface_rule
 from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
 from symbolic.effects.load import basis_values
 from symbolic.effects.measurement import cayley_rotation
-from symbolic.effects.stiffening import stiffening_force
+from symbolic.effects.nonlinearity import stiffening_force
 from symbolic.effects.stiffness import PreTension, VolumetricCoupling
 
 DESIGN_NAMES = {

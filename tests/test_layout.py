@@ -170,3 +170,14 @@ def test_folders_only_import_downwards():
         graph.setdefault(target, set())
     cycles = _cycles(graph)
     assert not cycles, f"folders that import each other: {cycles}"
+
+
+def test_module_names_are_unique():
+    """A module's file name alone says which one is meant (``__init__`` and ``__main__``
+    aside): no ``report.py`` in four folders."""
+    seen: dict[str, list[str]] = {}
+    for path in _modules().values():
+        if path.name not in ("__init__.py", "__main__.py"):
+            seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
+    repeated = {name: paths for name, paths in seen.items() if len(paths) > 1}
+    assert not repeated, f"module names used more than once: {repeated}"

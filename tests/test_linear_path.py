@@ -20,8 +20,8 @@ from experiments.phantom.fe import ReferenceSlab, SlabSolution, design_cases, re
 from experiments.phantom.simulate import simulate_with_effects
 from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis import guard
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import score_test
 from symbolic.effects.library import ALL_EFFECT_NAMES, effect_library
 

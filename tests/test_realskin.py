@@ -121,8 +121,8 @@ def test_planar_problem_sees_x_and_y_but_not_z():
 @pytest.fixture(scope="module")
 def healthy_fits(shared_data):
     """Healthy skin fitted with the linear model, then with k0 added."""
-    from experiments.realskin.loop import parameter_space as _space
     from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.skinloop import parameter_space as _space
     from experiments.realskin.stages import fit_stage
 
     settings = RealSkinSettings()
@@ -159,9 +159,9 @@ def test_keloid_is_stiffer_than_its_surroundings(shared_data):
     """Keloid, membrane model (lateral ring fixed), the material placed by hand inside
     the outline (``outline_region``, not the study's default): it is stiffer (ratio > 1),
     and adding it is significant (likelihood ratio)."""
-    from experiments.realskin.loop import likelihood_ratio
-    from experiments.realskin.loop import parameter_space as _space
     from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.skinloop import likelihood_ratio
+    from experiments.realskin.skinloop import parameter_space as _space
     from experiments.realskin.stages import fit_stage
 
     settings = RealSkinSettings(boundary="lateral", outline_region=True)
@@ -183,8 +183,8 @@ def test_keloid_is_stiffer_than_its_surroundings(shared_data):
 
 
 def test_standard_errors_scale_with_the_residual(shared_data):
-    from experiments.realskin.loop import parameter_space as _space
     from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.skinloop import parameter_space as _space
     from experiments.realskin.stages import stage_solver
 
     settings = RealSkinSettings()
@@ -244,7 +244,7 @@ def test_several_starts_find_the_lower_minimum_and_skip_failed_ones(monkeypatch)
     without equilibrium is skipped; if every start fails, the error says so."""
     from types import SimpleNamespace
 
-    import experiments.realskin.loop as realskin
+    import experiments.realskin.skinloop as realskin
     from solvers.forward.equilibrium import EquilibriumError
     from solvers.inverse.space import SkinParameterSpace
 
@@ -365,7 +365,7 @@ def test_overlap_of_a_rectangle_with_a_polygon():
 # ------------------------------------------------------------------------ the full study
 @pytest.fixture(scope="module")
 def study(shared_data, tmp_path_factory):
-    from experiments.realskin import study as realskin
+    from experiments.realskin import skinstudy as realskin
 
     out = tmp_path_factory.mktemp("realskin")
     return realskin.run(out, log=lambda *_: None), out
@@ -419,7 +419,7 @@ def test_keloid_scan_finds_a_stiff_region_on_the_outline(study):
 def test_bad_study_command_line_is_one_line_and_exit_2(argv, capsys):
     from conftest import exit_code_and_stderr
 
-    from experiments.realskin.study import main
+    from experiments.realskin.skinstudy import main
 
     code, err = exit_code_and_stderr(main, argv, capsys)
     assert code == 2
@@ -457,7 +457,7 @@ def test_lookahead_keeps_the_refit_that_ends_lowest(monkeypatch):
     second; an unworthy third is not refitted; lookahead 1 takes the largest statistic."""
     from types import SimpleNamespace
 
-    import experiments.realskin.loop as realskin
+    import experiments.realskin.skinloop as realskin
     from experiments.realskin.setup import RealSkinSettings
     from experiments.realskin.stages import Score
 

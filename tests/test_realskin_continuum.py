@@ -1,4 +1,4 @@
-"""Real skin with the continuum energies (experiments/realskin/continuum.py, docs/realskin.md).
+"""Real skin with the continuum energies (experiments/realskin/skincontinuum.py, docs/realskin.md).
 
 On the measured extensometer data (``shared_data``): the continuum membrane fits the
 DIC displacements better than the paper's energy on the same slab, pads and frames,
@@ -14,9 +14,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from experiments.realskin.continuum import fit_energy, paper_fit, summary
 from experiments.realskin.setup import RealSkinSettings, build
-from experiments.realskin.study import AUTHORS
+from experiments.realskin.skincontinuum import fit_energy, paper_fit, summary
+from experiments.realskin.skinstudy import AUTHORS
 
 SETTINGS = RealSkinSettings(boundary="lateral")
 
@@ -46,7 +46,7 @@ def test_neo_hookean_membrane_against_the_authors(shared_data, case):
     Newton's path: when the nested solver moved to the shared one (2026-11-27) the
     keloid's nu went 0.414 -> 0.455 and the healthy fit no longer converged in 80
     evaluations, so that configuration is not tested (docs/realskin.md)."""
-    from experiments.realskin.continuum import BOUNDS, continuum_setup
+    from experiments.realskin.skincontinuum import BOUNDS, continuum_setup
     from experiments.realskin.stages import fit_stage
     from solvers.inverse.space import SkinParameterSpace
 
@@ -71,7 +71,7 @@ def test_the_loop_on_the_membrane_finds_strain_stiffening(shared_data, case):
     follows the force curve better without losing the DIC field (docs/realskin.md, "The
     loop on the continuum membrane"; measured force RMS 0.034 -> 0.0056 N and 0.61 ->
     0.021 N, displacement RMS 0.1134 -> 0.1131 mm and 0.356 -> 0.224 mm)."""
-    from experiments.realskin.continuum import stiffening_loop
+    from experiments.realskin.skincontinuum import stiffening_loop
 
     result = stiffening_loop(build(case, SETTINGS), SETTINGS, SETTINGS.thickness_mm, log=print)
     scores = result["rounds"][0]["scores"]

@@ -1,5 +1,5 @@
 """The strain-stiffening planar energy (``symbolic.planar_stiffening``) and its whitened fit
-(``experiments.realskin.stiffening``), docs/realskin.md "Strain stiffening on the
+(``experiments.realskin.planarstiffening``), docs/realskin.md "Strain stiffening on the
 authors' model".
 
 The energy tests need no data; the fit-level test reads the healthy frames from
@@ -16,7 +16,7 @@ import pytest
 from experiments.realskin import authors, mesh2d
 from experiments.realskin.data import load_case
 from experiments.realskin.geometry import Rect, SkinGeometry
-from experiments.realskin.stiffening import (
+from experiments.realskin.planarstiffening import (
     STIFFENING_CAP,
     WhitenedExtensometer,
     fit,

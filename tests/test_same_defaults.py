@@ -218,7 +218,7 @@ def test_when_step_0_keeps_the_papers_energy_the_map_says_whose_continuum(tissue
 
     import experiments.basemodel as basemodel
     from experiments.data.dataset import load_dataset
-    from experiments.imaging.model import SOURCES, ImagingModel, fallback_note
+    from experiments.imaging.imagemodel import SOURCES, ImagingModel, fallback_note
 
     dataset = load_dataset(tissue)
     choice = basemodel.choose_base(dataset)  # the module's shared run
@@ -241,7 +241,7 @@ def test_when_step_0_keeps_the_papers_energy_the_map_says_whose_continuum(tissue
 def test_on_phantom_data_design_keeps_the_papers_energy(tmp_path, capsys):
     """Step 0 keeps dnurbs (it fits at the noise) and the design is the one of
     ``--energy dnurbs``, press for press."""
-    from experiments.design.calibration import NOISE_MM, phantom_dataset
+    from experiments.design.predictions import NOISE_MM, phantom_dataset
 
     data = tmp_path / "phantom.npz"
     save_dataset(data, phantom_dataset({}, 1, "diagnosis", NOISE_MM))

@@ -17,11 +17,11 @@ from experiments.diagnosis.diagnose import BASE_NAMES
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.simulate import simulate_with_effects
 from experiments.problem.fitting import ENERGY_NAMES, FitSettings, build_problem, dataset_loads
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.loop import diagnose
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.record import DiagnosisSettings
-from symbolic.effects.field import MEAN_PIN, PRIOR_RMS, StiffnessFieldEffect
+from symbolic.effects.fieldeffect import MEAN_PIN, PRIOR_RMS, StiffnessFieldEffect
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 
 SIGMA = 0.02

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from experiments.phantom.forehead import TRUE_PARAMETERS, forehead_model, probe_loads
-from solvers.transient.loads import ramp_load
 from solvers.transient.modal import StepResponse, modal_basis, optimal_damping, probe_observation
+from solvers.transient.profiles import ramp_load
 from solvers.transient.steadystate import compare_with_equilibrium, run_to_steady_state
 from solvers.transient.stepping import StepSettings, transient_solver
 from solvers.transient.sundials import integrate_casadi

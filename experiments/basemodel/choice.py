@@ -59,8 +59,8 @@ from experiments.basemodel.family import (
 )
 from experiments.data.dataset import Dataset
 from experiments.problem.fitting import FitSettings, dataset_loads
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import EffectFit, fit
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import residual_test, robust_sigma
 from solvers.linalg.blas import one_thread
 from symbolic.loads import PROBE_SHAPES

@@ -17,8 +17,8 @@ import numpy as np
 from experiments.data.dataset import Dataset
 from experiments.problem.fitting import FitSettings, build_model, dataset_loads, problem_on
 from experiments.problem.surroundings import marked_lengths, marker_spacing
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import EffectFit, fit
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import residual_test
 
 MARGINS_MM = (2.5, 5.0, 10.0)

@@ -22,8 +22,14 @@ VERBS = {
     "reconstruct": ("experiments.stereo.reconstruct", "images of the marked skin -> dataset"),
     "fit": ("experiments.fit.fitcommand", "estimate parameters from a dataset, with a verdict"),
     "diagnose": ("experiments.diagnosis.diagnose", "find the effect the model lacks"),
-    "image": ("experiments.imaging.command", "Young's modulus as a field, with its uncertainty"),
-    "design": ("experiments.design.command", "choose where and how hard to press (design.json)"),
+    "image": (
+        "experiments.imaging.imagecommand",
+        "Young's modulus as a field, with its uncertainty",
+    ),
+    "design": (
+        "experiments.design.designcommand",
+        "choose where and how hard to press (design.json)",
+    ),
     "next": ("experiments.design.nextpress", "the next press of an experiment, from its data"),
     "transient": ("experiments.dynamics.transient", "transient from rest against equilibrium"),
 }
@@ -33,9 +39,15 @@ GROUPS = {
     "bench": (
         "speed and accuracy benchmarks: inverse, design, image, board",
         {
-            "inverse": ("experiments.inverse.bench", "build and solve times, memory, scaling"),
-            "design": ("experiments.design.bench", "design search: speed, gap, against by hand"),
-            "image": ("experiments.imaging.bench", "stiffness imaging: fit time against N"),
+            "inverse": (
+                "experiments.inverse.inversebench",
+                "build and solve times, memory, scaling",
+            ),
+            "design": (
+                "experiments.design.designbench",
+                "design search: speed, gap, against by hand",
+            ),
+            "image": ("experiments.imaging.imagebench", "stiffness imaging: fit time against N"),
             "board": ("experiments.stereo.boardbench", "checkerboard detection: time, accuracy"),
         },
         "inverse",
@@ -58,7 +70,7 @@ GROUPS = {
             ),
             "outoflibrary": ("experiments.diagnosis.outoflibrary", "data from a linear FE slab"),
             "continuum": (
-                "experiments.diagnosis.continuum",
+                "experiments.diagnosis.continuumstudy",
                 "the loop on scikit-fem continuum data",
             ),
             "imageweights": (
@@ -74,11 +86,11 @@ GROUPS = {
     "realskin": (
         "real in vivo skin (the extensometer data): fit, twin, checks, ...",
         {
-            "fit": ("experiments.realskin.study", "fit the real skin and close the loop"),
+            "fit": ("experiments.realskin.skinstudy", "fit the real skin and close the loop"),
             "twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
             "checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),
             "strain": ("experiments.realskin.strain", "model-free axial strain from the DIC"),
-            "continuum": ("experiments.realskin.continuum", "E and nu of the continua"),
+            "continuum": ("experiments.realskin.skincontinuum", "E and nu of the continua"),
             "authors": ("experiments.realskin.reproduce", "the authors' 2D fit, reproduced"),
             "data": ("experiments.realskin.data", "summary of the real skin measurements"),
         },

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from experiments.demo import sections
-from experiments.demo.report import Report
+from experiments.demo.markdown import Report
 from experiments.output.atomic import atomic_write_json
 
 STEPS = (

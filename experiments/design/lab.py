@@ -1,7 +1,7 @@
 """The lab the sequential loop presses on: FE continuum data, one capture per press.
 
 A ``ContinuumLab`` stands in for a subject in the chair. Its tissue is a scikit-fem
-slab of ``experiments.diagnosis.continuum`` (quadratic tetrahedra, tissue beyond the
+slab of ``experiments.diagnosis.continuumstudy`` (quadratic tetrahedra, tissue beyond the
 marked area, 9 x 9 markers) with one scenario's hidden departure (``SCENARIOS``).
 Each press is filmed once: the markers under the true load, their own noise draw
 (seed ``1000 seed + k`` for the k-th press) and the probe's occlusion. The rest capture
@@ -18,7 +18,7 @@ import numpy as np
 
 from experiments.data.captures import merge_captures
 from experiments.data.dataset import Dataset
-from experiments.diagnosis.continuum import SCENARIOS, ContinuumStudy
+from experiments.diagnosis.continuumstudy import SCENARIOS, ContinuumStudy
 
 
 class ContinuumLab:
@@ -27,7 +27,7 @@ class ContinuumLab:
     Parameters
     ----------
     scenario : str
-        A name of ``experiments.diagnosis.continuum.SCENARIOS``.
+        A name of ``experiments.diagnosis.continuumstudy.SCENARIOS``.
     study : ContinuumStudy
         The slab, the probe radius [mm], the noise [mm] and the seed.
     """

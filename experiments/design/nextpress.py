@@ -115,7 +115,7 @@ def work(args) -> int:
     from experiments.command.options import UsageError, check_output_dir
     from experiments.data.captures import merge_captures
     from experiments.data.dataset import load_dataset, save_dataset
-    from experiments.design.command import SEQUENTIAL_MODEL, model_options
+    from experiments.design.designcommand import SEQUENTIAL_MODEL, model_options
     from experiments.design.plan import DesignSettings, require_noise
     from experiments.design.sequential import SequentialSettings, step
     from experiments.fit.stepzero import refuse_model_options

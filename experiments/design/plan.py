@@ -222,7 +222,7 @@ def plan(dataset, settings: DesignSettings, grid=None, log=print, base=None, fit
     """The design of ``settings`` for ``dataset`` (``Plan``); ``base`` is the base model's
     ``FitSettings`` (default ``base_settings(grid)``, as ``dvs diagnose``) and ``fit`` its
     fit when already made (step 0's, ``solvers.diagnosis.fit.EffectFit``)."""
-    from experiments.design.calibration import base_fit
+    from experiments.design.predictions import base_fit
     from experiments.fit.stepzero import model_record
     from symbolic.effects.library import make_effect
 

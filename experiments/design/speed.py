@@ -2,7 +2,7 @@
 candidates and one step of ``dvs design --sequential``, at 27 x 27 x 4; and ``dvs next``
 with its defaults (step 0 chooses the model) on a 10-load dataset.
 
-The model is the continuum study's (``experiments.diagnosis.continuum.ContinuumStudy``:
+The model is the continuum study's (``experiments.diagnosis.continuumstudy.ContinuumStudy``:
 the linear-elastic volume spline, degrees 3 x 3 x 2, 10 mm of tissue beyond the
 markers). Each row runs in a fresh process (``experiments.command.isolation.isolated``) and
 reports its wall time, its "x floor" (the time over one factorisation of the same K,
@@ -97,7 +97,7 @@ def _verdict(value: float, target: float) -> str:
 def design_search_benchmark(scenario: str = "tilted_force", log=print) -> dict:
     """The "design search" row: ``timed_search`` on the 10-load scikit-fem dataset of
     ``scenario`` (the diagnosis row's data) at 27 x 27 x 4."""
-    from experiments.diagnosis.continuum import ContinuumStudy, timed_on_scenario
+    from experiments.diagnosis.continuumstudy import ContinuumStudy, timed_on_scenario
 
     row = timed_on_scenario(timed_search, scenario, ContinuumStudy())
     log(
@@ -113,7 +113,7 @@ def design_search_benchmark(scenario: str = "tilted_force", log=print) -> dict:
 def sequential_step_benchmark(scenario: str = "stiffness_gradient", log=print) -> dict:
     """The "one sequential step" row: ``timed_step`` on ``scenario`` at 27 x 27 x 4."""
     from experiments.command.isolation import isolated
-    from experiments.diagnosis.continuum import ContinuumStudy
+    from experiments.diagnosis.continuumstudy import ContinuumStudy
 
     row = isolated(timed_step, scenario, ContinuumStudy())
     row["scenario"] = scenario
@@ -169,7 +169,7 @@ def timed_next(path: str, study) -> dict:
 
 def next_benchmark(scenario: str = "none", log=print) -> dict:
     """The "dvs next" row: ``timed_next`` on the 10-load scikit-fem dataset of ``scenario``."""
-    from experiments.diagnosis.continuum import ContinuumStudy, timed_on_scenario
+    from experiments.diagnosis.continuumstudy import ContinuumStudy, timed_on_scenario
 
     row = timed_on_scenario(timed_next, scenario, ContinuumStudy())
     grid = "x".join(map(str, row["model"]["grid"]))

@@ -64,10 +64,10 @@ graded x1.5 beyond), forces 0.17 and 0.25 N, 0.02 mm noise, seed = the row's ind
 
 def injected_scenarios() -> dict:
     """name -> (TissuePatch changes, ``fe.Departure`` fields, the effect that names it): the
-    departures of ``experiments.diagnosis.continuum.SCENARIOS`` but ``none``. The larger
+    departures of ``experiments.diagnosis.continuumstudy.SCENARIOS`` but ``none``. The larger
     probe patch (twice the radius) is a departure only from a declared radius: its
     dataset declares 2.5 mm; the others declare none."""
-    from experiments.diagnosis.continuum import SCENARIOS
+    from experiments.diagnosis.continuumstudy import SCENARIOS
 
     return {name: value for name, value in SCENARIOS.items() if name != "none"}
 

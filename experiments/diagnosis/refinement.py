@@ -53,8 +53,8 @@ def refinement_check(diagnosis, dataset, settings) -> dict:
     The chi^2 limit is the 1-dof quantile at the loop's level (``diagnosis.level``).
     """
     from experiments.problem.fitting import build_problem, dataset_loads, model_grid
+    from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from solvers.diagnosis.problem import ExtendedProblem
     from symbolic.effects.library import make_effect
 
     grid, degrees = model_grid(dataset, settings)

@@ -72,8 +72,8 @@ def benchmark(effects: dict[str, float] | None = None, repeat: int = 3, log=prin
     case; a new dg/ds and its LU only for base_compliance, which adds state).
     """
     from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
+    from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from solvers.diagnosis.problem import ExtendedProblem
     from solvers.diagnosis.stats import score_test
     from symbolic.effects.library import effect_library
 
@@ -126,14 +126,14 @@ def diagnosis_timings(log=print) -> list[dict]:
     """
     from experiments.diagnosis.diagnose import base_settings
     from experiments.problem.fitting import build_problem, dataset_loads
+    from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from solvers.diagnosis.problem import ExtendedProblem
 
     datasets = [
         ("phantom", "dnurbs", simulate_with_effects({}, seed=0, **design_options("diagnosis")))
     ]
     try:
-        from experiments.diagnosis.continuum import ContinuumStudy, scenario_dataset
+        from experiments.diagnosis.continuumstudy import ContinuumStudy, scenario_dataset
 
         study = ContinuumStudy(grid=(9, 9, 2), degrees=(3, 3, 1))
         datasets.append(("scikit-fem slab", "linear-elastic", scenario_dataset("none", study)))

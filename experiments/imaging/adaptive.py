@@ -293,7 +293,7 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
         parse_numbers,
         run_guarded,
     )
-    from experiments.imaging.command import parse_field
+    from experiments.imaging.imagecommand import parse_field
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     args = build_parser(prog).parse_args(argv)

@@ -222,7 +222,7 @@ def effect_table(n_cases: int = 2) -> str:
 
 def _truth_states(truth, loads, uv, effects: dict[str, float]) -> list[np.ndarray]:
     """Marker positions under every load of the phantom with the effects switched on."""
-    from solvers.diagnosis.problem import ExtendedProblem
+    from solvers.diagnosis.extended import ExtendedProblem
 
     rest = truth.volume.collocation(truth.volume.outer_params(uv)) @ truth.rest
     cases = [observation_case(truth, load, rest, uv) for load in loads]

@@ -48,7 +48,7 @@ from experiments.realskin.scan import CellGrid, CellTerms, overlap, profiled_cel
 from experiments.realskin.strain import segment_strain
 
 PRIOR_RMS = 0.5
-"""tau of eq. (R1): the prior's RMS of s (as ``symbolic.effects.field.PRIOR_RMS``)."""
+"""tau of eq. (R1): the prior's RMS of s (as ``symbolic.effects.fieldeffect.PRIOR_RMS``)."""
 
 Z_LEVEL = 2.0
 """|s| / std above which a cell counts as departing from the slab's mean (about 5 %
@@ -242,7 +242,7 @@ def map_report(setup, model, stage, bounds: dict, cells, path) -> dict:
         ``significant_cells``, ``compare_strain`` at the last DIC frame and
         ``compare_outline`` (None without a keloid outline).
     """
-    from experiments.realskin.plots import plot_cell_map
+    from experiments.realskin.skinplots import plot_cell_map
 
     found = estimate_map(
         model, setup.cases, stage.names, stage.x, bounds, setup.grid, cells, stage.states

@@ -28,9 +28,9 @@ import numpy as np
 
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
-from experiments.realskin.loop import close_the_loop
 from experiments.realskin.scan import overlap, scan
 from experiments.realskin.setup import RealSkinSettings, Setup, build
+from experiments.realskin.skinloop import close_the_loop
 from experiments.realskin.twin import _quiet
 
 CHECKS = ("edges", "slip", "two-sided")

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from experiments.realskin.plots import (
+from experiments.realskin.skinplots import (
     plot_force_curves,
     plot_residual_maps,
     plot_scan_map,

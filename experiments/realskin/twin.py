@@ -29,9 +29,9 @@ import numpy as np
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
 from experiments.realskin.geometry import points_in_polygon
-from experiments.realskin.loop import close_the_loop
 from experiments.realskin.scan import SCAN, CellGrid, overlap
 from experiments.realskin.setup import RealSkinSettings, Setup, build
+from experiments.realskin.skinloop import close_the_loop
 from experiments.realskin.slab import region_indicator
 from experiments.realskin.stages import fit_stage, score_test, stage_solver
 from solvers.forward.equilibrium import EquilibriumSolver

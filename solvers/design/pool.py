@@ -30,9 +30,9 @@ import numpy as np
 
 from solvers.design import shared
 from solvers.design.candidates import Press
-from solvers.design.loads import press_loads
+from solvers.design.pressloads import press_loads
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import EffectFit
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.stats import extended_linearisation
 from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.base import Effect

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from solvers.diagnosis.problem import ExtendedProblem
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.stability import admissible, into_admissible
 from solvers.forward.equilibrium import EquilibriumError
 

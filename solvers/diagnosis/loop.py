@@ -39,9 +39,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.guard import prediction_check
-from solvers.diagnosis.problem import ExtendedProblem
 from solvers.diagnosis.record import Diagnosis, DiagnosisSettings, Step
 from solvers.diagnosis.stats import (
     ScoreTest,

@@ -1,6 +1,6 @@
 """Tests of the diagnosis: residual against noise, score tests, information criterion.
 
-Notation: rho = W r is the whitened residual of a fit (``solvers.diagnosis.problem``),
+Notation: rho = W r is the whitened residual of a fit (``solvers.diagnosis.extended``),
 with covariance sigma^2 I under pure noise; J = d rho / dp the exact reduced
 Jacobian (implicit function theorem through the equilibrium, eq. 22).
 

@@ -33,10 +33,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from solvers.forward.evaluator import casadi_to_scipy
-from solvers.transient.loads import as_load
 from solvers.transient.modal import probe_observation
-from solvers.transient.result import TransientResult, settling_time
+from solvers.transient.profiles import as_load
 from solvers.transient.schemes import SCHEMES, Scheme
+from solvers.transient.transientresult import TransientResult, settling_time
 from symbolic.model import TissueModel
 
 

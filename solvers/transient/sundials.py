@@ -6,7 +6,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.transient.loads import as_load
+from solvers.transient.profiles import as_load
 from solvers.transient.stepping import transient_solver
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse

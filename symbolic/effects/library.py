@@ -49,11 +49,11 @@ import numpy as np
 
 from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState, apply_stacked
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
-from symbolic.effects.field import StiffnessFieldEffect
+from symbolic.effects.fieldeffect import StiffnessFieldEffect
 from symbolic.effects.functions import CaseFunctions, CaseParts, StiffnessTerms
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection, load_change
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
-from symbolic.effects.stiffening import NonlinearStiffening
+from symbolic.effects.nonlinearity import NonlinearStiffening
 from symbolic.effects.stiffness import (
     Bending,
     Heterogeneity,

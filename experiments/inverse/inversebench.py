@@ -1,6 +1,6 @@
 """Benchmarks: build and solve times measured side by side in one run.
 
-Run ``python -m experiments.inverse.bench`` (or ``make bench``). Times are wall-clock
+Run ``python -m experiments.inverse.inversebench`` (or ``make bench``). Times are wall-clock
 on a shared machine; compare the ratios printed, not the absolute numbers.
 
 Every measurement runs in a fresh process, so that its peak resident memory
@@ -158,7 +158,7 @@ def _inverse_job(grid, method) -> dict:
     return row
 
 
-def build_parser(prog: str = "python -m experiments.inverse.bench"):
+def build_parser(prog: str = "python -m experiments.inverse.inversebench"):
     """The options of ``dvs bench inverse``."""
     from experiments.command.options import make_parser, path_argument
 
@@ -196,7 +196,9 @@ def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
     ]
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.bench") -> int:
+def main(
+    argv: list[str] | None = None, prog: str = "python -m experiments.inverse.inversebench"
+) -> int:
     """Print the benchmark tables (and write ``bench.json`` with ``--out``)."""
     from experiments.command.options import UsageError, check_output_dir, run_guarded
     from experiments.output.atomic import atomic_write_json
@@ -217,10 +219,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.inver
                 next_benchmark,
                 sequential_step_benchmark,
             )
-            from experiments.diagnosis.continuum import diagnosis_benchmark
+            from experiments.diagnosis.continuumstudy import diagnosis_benchmark
             from experiments.diagnosis.defaults import defaults_benchmark
             from experiments.diagnosis.study import diagnosis_timings
-            from experiments.imaging.bench import imaging_benchmark
+            from experiments.imaging.imagebench import imaging_benchmark
             from experiments.inverse.factorisation import factorisation_benchmark
 
             factorisation_benchmark()

@@ -42,8 +42,8 @@ def base_fit(dataset, grid=None, base=None):
     model's ``FitSettings`` (default ``base_settings(grid)``: the paper's energy)."""
     from experiments.diagnosis.diagnose import base_settings
     from experiments.problem.fitting import build_problem, dataset_loads
+    from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from solvers.diagnosis.problem import ExtendedProblem
 
     problem = build_problem(dataset, base or base_settings(grid))
     loads = dataset_loads(dataset, problem.model.volume)

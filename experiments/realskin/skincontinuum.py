@@ -14,7 +14,7 @@ N/mm"); E [kPa] is the modulus of a 3D slab of thickness t.
 **The loop on the continuum base** (``stiffening_loop``): the neo-Hookean membrane is
 the fibre energy of eq. (C13) at k1 = kf1 = 0 (docs/continuum.md), so strain stiffening
 and a fibre family are effects like any other of the real-skin loop
-(``experiments.realskin.loop``): score tests of k1 and kf1 at 0 (one-sided; k2 and kf2
+(``experiments.realskin.skinloop``): score tests of k1 and kf1 at 0 (one-sided; k2 and kf2
 at their default 10, the fibres along the pull), refits of the two best when
 significant and worth it (``LOOKAHEAD``), then the same for the exponent k2 (two-sided
 in log space) and the fibre angle, which have no influence until their term is in.
@@ -37,11 +37,11 @@ from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cases import load_cases
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.continuum_cells import ContinuumCells
-from experiments.realskin.loop import close_the_loop, likelihood_ratio
-from experiments.realskin.report import map_table
 from experiments.realskin.setup import RealSkinSettings, Setup, build
+from experiments.realskin.skinloop import close_the_loop, likelihood_ratio
+from experiments.realskin.skinstudy import AUTHORS
+from experiments.realskin.skintables import map_table
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
-from experiments.realskin.study import AUTHORS
 from solvers.inverse.space import SkinParameterSpace
 from symbolic.constraints import BoundaryConditions
 from symbolic.continuum import KPA
@@ -263,7 +263,7 @@ def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=p
     return document
 
 
-def build_parser(prog: str = "python -m experiments.realskin.continuum"):
+def build_parser(prog: str = "python -m experiments.realskin.skincontinuum"):
     from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Fit real skin with the continuum energies (E, nu).")
@@ -275,7 +275,7 @@ def build_parser(prog: str = "python -m experiments.realskin.continuum"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.continuum"):
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.skincontinuum"):
     from experiments.command.options import UsageError, check_output_dir, run_guarded
 
     parser = build_parser(prog)

@@ -28,14 +28,6 @@ import numpy as np
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.figures import case_figures, stage_summary
-from experiments.realskin.loop import (
-    NULL,
-    close_the_loop,
-    fit_from_starts,
-    likelihood_ratio,
-    parameter_space,
-)
-from experiments.realskin.report import report
 from experiments.realskin.scan import (
     SCAN,
     CellTerms,
@@ -45,6 +37,14 @@ from experiments.realskin.scan import (
     with_region,
 )
 from experiments.realskin.setup import STIFFENING, RealSkinSettings, Setup, build
+from experiments.realskin.skinloop import (
+    NULL,
+    close_the_loop,
+    fit_from_starts,
+    likelihood_ratio,
+    parameter_space,
+)
+from experiments.realskin.skintables import report
 from experiments.realskin.stages import LABELS, StageFit, fit_stage
 from experiments.realskin.strain import figure as strain_figure
 from symbolic.skin_slab import REGION_RATIO

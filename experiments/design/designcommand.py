@@ -133,7 +133,7 @@ def plot_map(path: Path, dataset, chosen, gains) -> None:
     plt.close(fig)
 
 
-def build_parser(prog: str = "python -m experiments.design.command"):
+def build_parser(prog: str = "python -m experiments.design.designcommand"):
     """The options of ``dvs design``."""
     from experiments.command.options import make_parser, path_argument
 
@@ -235,11 +235,11 @@ def build_parser(prog: str = "python -m experiments.design.command"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.command"):
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.designcommand"):
     """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
     from experiments.command.options import UsageError, check_output_dir, run_guarded
     from experiments.data.dataset import load_dataset
-    from experiments.design.report import report_text
+    from experiments.design.designreport import report_text
     from experiments.fit.stepzero import refuse_model_options
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
@@ -357,7 +357,7 @@ def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Pat
     from experiments.design.lab import ContinuumLab
     from experiments.design.pathreport import plot_path, report_text
     from experiments.design.sequential import SequentialSettings, run
-    from experiments.diagnosis.continuum import SCENARIOS
+    from experiments.diagnosis.continuumstudy import SCENARIOS
     from experiments.output.atomic import atomic_write_json, atomic_write_text
     from experiments.phantom.fe import require_skfem
 

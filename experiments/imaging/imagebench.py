@@ -109,7 +109,7 @@ def timed_imaging(path: str) -> dict:
     from experiments.command.isolation import factorisation_seconds, peak_mb
     from experiments.command.options import parse_degrees, parse_grid
     from experiments.data.dataset import load_dataset
-    from experiments.imaging.command import main
+    from experiments.imaging.imagecommand import main
     from experiments.problem.fitting import FitSettings, build_problem
 
     with tempfile.TemporaryDirectory() as out:
@@ -189,7 +189,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m experiments.imaging.bench"):
+def build_parser(prog: str = "python -m experiments.imaging.imagebench"):
     """The options of ``dvs bench image`` (docs/cli.md)."""
     from experiments.command.options import make_parser, path_argument
 
@@ -202,7 +202,9 @@ def build_parser(prog: str = "python -m experiments.imaging.bench"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.imaging.bench") -> int:
+def main(
+    argv: list[str] | None = None, prog: str = "python -m experiments.imaging.imagebench"
+) -> int:
     """``dvs bench image``: exit 0, or 2 with one line for bad input."""
     from experiments.command.options import (
         UsageError,

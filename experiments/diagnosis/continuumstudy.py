@@ -283,7 +283,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
+def build_parser(prog: str = "python -m experiments.diagnosis.continuumstudy"):
     """The options of ``dvs study continuum``."""
     from experiments.command.options import make_parser, path_argument
 
@@ -306,7 +306,9 @@ def build_parser(prog: str = "python -m experiments.diagnosis.continuum"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.continuum"):
+def main(
+    argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.continuumstudy"
+):
     """``dvs study continuum --out DIR``: rows.json and table.md."""
     from experiments.command.options import (
         UsageError,

@@ -2,7 +2,7 @@
 
 Writes image.json, map.png, std.png and map.vtu (ParaView) into ``--out``
 (docs/cli.md, docs/formats.md; the method in docs/imaging.md). With no model option
-(``--energy auto``) the map is made on step 0's continuum (``experiments.imaging.model``);
+(``--energy auto``) the map is made on step 0's continuum (``experiments.imaging.imagemodel``);
 ``--energy linear-elastic`` takes the volume of ``--grid``, ``--degrees`` and ``--margin``.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from experiments.imaging.run import REGULARIZERS
+from experiments.imaging.mapping import REGULARIZERS
 from solvers.imaging.estimate import SOLVERS
 
 MAX_FIELD_SIZE = 2000
@@ -59,7 +59,7 @@ def parse_weight(text: str) -> str | float:
     return beta
 
 
-def build_parser(prog: str = "python -m experiments.imaging.command"):
+def build_parser(prog: str = "python -m experiments.imaging.imagecommand"):
     """The options of ``dvs image`` (docs/cli.md)."""
     from experiments.command.options import add_margin_argument, make_parser, path_argument
 
@@ -106,7 +106,9 @@ def build_parser(prog: str = "python -m experiments.imaging.command"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.imaging.command") -> int:
+def main(
+    argv: list[str] | None = None, prog: str = "python -m experiments.imaging.imagecommand"
+) -> int:
     """``dvs image FILE.npz --out DIR``: exit 0, 2 for bad input, 3 if a solve failed."""
     import sys
     from dataclasses import replace
@@ -128,8 +130,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
 
     def work() -> int:
         from experiments.data.dataset import load_dataset
+        from experiments.imaging.mapping import ImageSettings, image_dataset
         from experiments.imaging.outputs import document, plot_maps, write_vtu
-        from experiments.imaging.run import ImageSettings, image_dataset
         from experiments.problem.fitting import FitSettings
 
         shape = parse_field(args.field, args.over)
@@ -165,7 +167,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.imagi
         log = lambda line: print(line, flush=True)  # noqa: E731
         chosen, problem = None, None
         if args.energy == "auto":
-            from experiments.imaging.model import imaging_model
+            from experiments.imaging.imagemodel import imaging_model
 
             chosen = imaging_model(dataset, log=log)
             dataset, problem = chosen.dataset(dataset), chosen.problem()

@@ -24,14 +24,14 @@ SPEED_TARGET_S = 30.0
 
 def bench_dataset(seed: int = 1):
     """The diagnosis phantom with noise, declaring its noise level."""
-    from experiments.design.calibration import NOISE_MM, phantom_dataset
+    from experiments.design.predictions import NOISE_MM, phantom_dataset
 
     return phantom_dataset({}, seed, "diagnosis", NOISE_MM)
 
 
 def time_designs(dataset, targets: dict, budget: int, log=print) -> dict:
     """``plan`` for every target, timed; the power and D figures beside the dataset's."""
-    from experiments.design.calibration import base_fit
+    from experiments.design.predictions import base_fit
 
     begin = time.perf_counter()
     base_fit(dataset)
@@ -138,7 +138,7 @@ def run(budget: int = 10, gap_budget: int = 3, log=print) -> dict:
     }
 
 
-def build_parser(prog: str = "python -m experiments.design.bench"):
+def build_parser(prog: str = "python -m experiments.design.designbench"):
     """The options of ``dvs bench design``."""
     from experiments.command.options import make_parser, path_argument
 
@@ -155,7 +155,9 @@ def build_parser(prog: str = "python -m experiments.design.bench"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.bench") -> int:
+def main(
+    argv: list[str] | None = None, prog: str = "python -m experiments.design.designbench"
+) -> int:
     """``dvs bench design [--out DIR]``."""
     from experiments.command.options import UsageError, check_output_dir, run_guarded
     from experiments.output.atomic import atomic_write_json

@@ -26,7 +26,7 @@ and k1 = E/10, and k2 s_max^2 is bounded by ``STIFFENING_CAP`` (``stiffening_sta
 Errors: sigma (S^T S)^-1/2 at the estimate (``standard_errors``); the two energies are
 compared by the likelihood ratio of their whitened costs (``likelihood_ratio``).
 
-Run: ``python -c "from experiments.realskin.stiffening import stiffening_study;
+Run: ``python -c "from experiments.realskin.planarstiffening import stiffening_study;
 stiffening_study('/tmp/out')"``; it writes ``stiffening.json``, ``stiffening.md`` and
 ``stiffening_force.png``.
 """
