@@ -91,7 +91,8 @@ def inverse_problem(grid: tuple[int, int, int]):
 
 def time_inverse(grid: tuple[int, int, int], methods=("simultaneous", "nested")) -> dict:
     """Build and solve times [s] of the inverse methods on one grid, in this process."""
-    from solvers.inverse.nested import NestedSolver, PaperNestedSolver
+    from solvers.inverse.nested import NestedSolver
+    from solvers.inverse.paperfaithful import PaperNestedSolver
     from solvers.inverse.problem import InverseProblem
     from solvers.inverse.simultaneous import SimultaneousSolver
 
