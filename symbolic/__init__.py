@@ -4,7 +4,8 @@
   ``elements`` (element-batched assembly), ``sparse`` (scipy <-> CasADi);
 - the paper's model (docs/model.md): ``energy`` (M, D and the K terms of eq. 18),
   ``stiffening`` (K(B) of eq. 1), ``loads`` (F_B, prescribed displacements),
-  ``model`` (``TissueModel``: parameters, boundary, residual);
+  ``model`` (``TissueModel``: parameters and residual), ``constraints`` (which control
+  points are held), ``unitterms`` (the stiffness as unit terms, I3 (x) sum_t c_t K_t);
 - the continua (docs/continuum.md): ``continuum`` (linear elasticity), ``hyperelastic``
   (neo-Hookean and exponential stiffening), ``continuum_model`` (their base models,
   ``ENERGIES``), ``field`` (a stiffness field, docs/imaging.md);

@@ -2,5 +2,5 @@
 
 - ``run``: the steps in order, the abstract and the conclusion (``dvs demo``);
 - ``sections``: one function per section, each computing its numbers and its text;
-- ``report``: a short paper in Markdown, with numbered, captioned figures.
+- ``markdown``: a short paper in Markdown, with numbered, captioned figures.
 """

@@ -3,5 +3,6 @@
 - ``diagnose``: a dataset's diagnosis, ``diagnosis.json`` and figures (``dvs diagnose``);
 - ``study``: every effect alone over several seeds (``dvs study diagnosis``);
 - ``detection``: how large each effect must be to meet the criteria (``dvs study detection``);
-- ``outoflibrary``: data from physics outside the library, an FE slab (``dvs study outoflibrary``).
+- ``outoflibrary``: data from physics outside the library, an FE slab (``dvs study outoflibrary``);
+- ``continuumstudy``: the loop on scikit-fem continuum data (``dvs study continuum``).
 """

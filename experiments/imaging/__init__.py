@@ -1,1 +1,5 @@
-"""Stiffness imaging from a dataset: ``dvs image`` and the imaging benchmark (docs/imaging.md)."""
+"""Stiffness imaging from a dataset (docs/imaging.md): ``mapping`` (dataset -> homogeneous
+fit -> field, weight, uncertainty), ``imagemodel`` (the continuum it images on),
+``outputs`` (image.json, PNG, VTU), ``imagecommand`` (``dvs image``), ``imagebench`` (``dvs
+bench image``), ``weightstudy`` and ``adaptive`` (``dvs study imageweights``,
+``imageadaptive``)."""

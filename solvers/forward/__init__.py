@@ -1,2 +1,13 @@
 """The forward solution: ``equilibrium`` (K(B; x)(B - B0) = F_B by Newton, docs/model.md
-eq. 22) and ``componentwise`` (the linear model on one scalar factorisation)."""
+eq. 22), ``componentwise`` (the linear model on one scalar factorisation) and
+``evaluator`` (CasADi's sparse Jacobians into scipy matrices)."""
+
+from solvers.forward.componentwise import ScalarSystem
+from solvers.forward.equilibrium import (
+    Equilibrium,
+    EquilibriumError,
+    EquilibriumSolver,
+    NewtonSettings,
+)
+
+__all__ = ["Equilibrium", "EquilibriumError", "EquilibriumSolver", "NewtonSettings", "ScalarSystem"]
