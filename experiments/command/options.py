@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from experiments.data.dataset import DatasetError
 
@@ -72,6 +73,38 @@ def one_line(error: BaseException) -> str:
 
 USER_ERRORS = (UsageError, DatasetError, ValueError, OSError)
 """Errors that mean bad input (options, paths, files): one line and exit 2."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """A ``dvs`` command as its module states it: its options and its work.
+
+    ``main`` parses the arguments and runs ``work(args)`` under the contract
+    (``run_guarded``); it is what ``experiments.command.cli`` calls with the command's
+    name, and what ``python -m MODULE`` runs.
+
+    Attributes
+    ----------
+    module : str
+        The module's dotted name (the ``prog`` of ``python -m MODULE``).
+    build_parser : callable
+        ``build_parser(prog)`` -> the command's ``argparse`` parser.
+    work : callable
+        ``work(args)`` -> exit code (None means 0): checks its input, then works.
+        ``args.prog`` holds the name the command runs under ("dvs fit"), for its
+        messages.
+    """
+
+    module: str
+    build_parser: Callable[[str], argparse.ArgumentParser]
+    work: Callable[[argparse.Namespace], int | None]
+
+    def main(self, argv: list[str] | None = None, prog: str | None = None) -> int:
+        """Parse ``argv`` and run the work: exit 0, or 2 with one line for bad input."""
+        prog = prog or f"python -m {self.module}"
+        args = self.build_parser(prog).parse_args(argv)
+        args.prog = prog
+        return run_guarded(prog, lambda: self.work(args))
 
 
 def run_guarded(prog: str, work: Callable[[], int | None]) -> int:

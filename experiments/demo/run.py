@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from experiments.command.options import Command
 from experiments.demo import sections
 from experiments.demo.markdown import Report
 from experiments.output.atomic import atomic_write_json
@@ -134,9 +135,12 @@ def build_parser(prog: str = "python -m experiments.demo"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.demo") -> int:
+def work(args) -> int:
     """``dvs demo [--out DIR]``."""
-    from experiments.command.options import check_output_dir, run_guarded
+    from experiments.command.options import check_output_dir
 
-    args = build_parser(prog).parse_args(argv)
-    return run_guarded(prog, lambda: run(check_output_dir(args.out)))
+    return run(check_output_dir(args.out))
+
+
+main = Command("experiments.demo", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import time
 
+from experiments.command.options import Command
 from experiments.design.plan import DesignSettings, plan
 
 SPEED_TARGET_S = 30.0
@@ -155,29 +156,26 @@ def build_parser(prog: str = "python -m experiments.design.designbench"):
     return parser
 
 
-def main(
-    argv: list[str] | None = None, prog: str = "python -m experiments.design.designbench"
-) -> int:
+def work(args) -> int:
     """``dvs bench design [--out DIR]``."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.output.atomic import atomic_write_json
 
-    args = build_parser(prog).parse_args(argv)
+    if not 1 <= args.budget <= 20:
+        raise UsageError(f"--budget must lie in 1-20, got {args.budget}")
+    if not 1 <= args.gap_budget <= 3:
+        raise UsageError(f"--gap-budget must lie in 1-3, got {args.gap_budget}")
+    out = None if args.out is None else check_output_dir(args.out)
+    document = run(args.budget, args.gap_budget)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(out / "designbench.json", document)
+        print(f"wrote {out / 'designbench.json'}")
+    return 0
 
-    def work() -> int:
-        if not 1 <= args.budget <= 20:
-            raise UsageError(f"--budget must lie in 1-20, got {args.budget}")
-        if not 1 <= args.gap_budget <= 3:
-            raise UsageError(f"--gap-budget must lie in 1-3, got {args.gap_budget}")
-        out = None if args.out is None else check_output_dir(args.out)
-        document = run(args.budget, args.gap_budget)
-        if out is not None:
-            out.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(out / "designbench.json", document)
-            print(f"wrote {out / 'designbench.json'}")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.design.designbench", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

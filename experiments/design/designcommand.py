@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.design.plan import DesignSettings, plan, require_noise
 from experiments.fit.stepzero import AUTO, chosen_base
 
@@ -235,79 +236,70 @@ def build_parser(prog: str = "python -m experiments.design.designcommand"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.designcommand"):
+def work(args) -> int:
     """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.data.dataset import load_dataset
     from experiments.design.designreport import report_text
     from experiments.fit.stepzero import refuse_model_options
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
-    args = build_parser(prog).parse_args(argv)
-
-    def work() -> int:
-        sequential = args.sequential is not None
-        if sequential and args.dataset is not None:
+    sequential = args.sequential is not None
+    if sequential and args.dataset is not None:
+        raise UsageError("--sequential starts from the simulator's paper design: give no DATASET")
+    if not sequential and args.dataset is None:
+        raise UsageError("give a DATASET (.npz), or --sequential SCENARIO")
+    if sequential and (args.target or args.criterion or args.augment):
+        raise UsageError("--target, --criterion and --augment do not apply to --sequential")
+    settings = DesignSettings(
+        target=parse_target(args.target or "alpha"),
+        criterion=args.criterion,
+        budget=max(args.budget, 1) if sequential else args.budget,
+        contacts=_given(args.contacts, 3 if sequential else 5),
+        tilt_deg=args.tilt,
+        azimuths=args.azimuths,
+        force_range=tuple(_given(args.force_range, (0.25, 0.25) if sequential else (0.17, 0.25))),
+        levels=_given(args.levels, 1 if sequential else 2),
+        level=args.level,
+        augment=args.augment,
+    )
+    if sequential:
+        if args.energy not in (AUTO, "linear-elastic"):
             raise UsageError(
-                "--sequential starts from the simulator's paper design: give no DATASET"
+                f"--energy {args.energy}: --sequential diagnoses with the base step 0 "
+                "chooses (auto) or with linear-elastic on --grid"
             )
-        if not sequential and args.dataset is None:
-            raise UsageError("give a DATASET (.npz), or --sequential SCENARIO")
-        if sequential and (args.target or args.criterion or args.augment):
-            raise UsageError("--target, --criterion and --augment do not apply to --sequential")
-        settings = DesignSettings(
-            target=parse_target(args.target or "alpha"),
-            criterion=args.criterion,
-            budget=max(args.budget, 1) if sequential else args.budget,
-            contacts=_given(args.contacts, 3 if sequential else 5),
-            tilt_deg=args.tilt,
-            azimuths=args.azimuths,
-            force_range=tuple(
-                _given(args.force_range, (0.25, 0.25) if sequential else (0.17, 0.25))
-            ),
-            levels=_given(args.levels, 1 if sequential else 2),
-            level=args.level,
-            augment=args.augment,
-        )
-        if sequential:
-            if args.energy not in (AUTO, "linear-elastic"):
-                raise UsageError(
-                    f"--energy {args.energy}: --sequential diagnoses with the base step 0 "
-                    "chooses (auto) or with linear-elastic on --grid"
-                )
-            model = model_options(args, SEQUENTIAL_MODEL)
-            if args.energy == AUTO:
-                degrees = None if args.degrees is None else model["degrees"]
-                refuse_model_options(
-                    model["grid"], degrees, args.margin or 0.0, "--energy linear-elastic"
-                )
-            model["energy"] = args.energy
-            return run_sequential(args.sequential, settings, args.budget, model, args.out)
-        base = base_model(args)
-        out = check_output_dir(args.out)
-        dataset = require_noise(load_dataset(args.dataset))
-        fit, base_choice = None, None
-        if base == AUTO:
-            base, fit, dataset, base_choice = chosen_base(
-                dataset, settings.level, lambda line: print(line, flush=True)
+        model = model_options(args, SEQUENTIAL_MODEL)
+        if args.energy == AUTO:
+            degrees = None if args.degrees is None else model["degrees"]
+            refuse_model_options(
+                model["grid"], degrees, args.margin or 0.0, "--energy linear-elastic"
             )
-        chosen = plan(dataset, settings, log=print, base=base, fit=fit)
-        document = chosen.document
-        document["dataset"] = str(args.dataset)
-        if base_choice is not None:
-            document["base_choice"] = base_choice
-        out.mkdir(parents=True, exist_ok=True)
-        plot_map(out / "design_map.png", dataset, chosen, contact_gains(chosen))
-        atomic_write_text(out / "report.md", report_text(document))
-        atomic_write_json(out / "design.json", document)
-        print(
-            f"{len(document['presses'])} presses ({document['criterion']}-design for "
-            f"{', '.join(document['target'])}) -> {out / 'design.json'}",
-            file=sys.stdout,
+        model["energy"] = args.energy
+        return run_sequential(args.sequential, settings, args.budget, model, args.out)
+    base = base_model(args)
+    out = check_output_dir(args.out)
+    dataset = require_noise(load_dataset(args.dataset))
+    fit, base_choice = None, None
+    if base == AUTO:
+        base, fit, dataset, base_choice = chosen_base(
+            dataset, settings.level, lambda line: print(line, flush=True)
         )
-        return 0
-
-    return run_guarded(prog, work)
+    chosen = plan(dataset, settings, log=print, base=base, fit=fit)
+    document = chosen.document
+    document["dataset"] = str(args.dataset)
+    if base_choice is not None:
+        document["base_choice"] = base_choice
+    out.mkdir(parents=True, exist_ok=True)
+    plot_map(out / "design_map.png", dataset, chosen, contact_gains(chosen))
+    atomic_write_text(out / "report.md", report_text(document))
+    atomic_write_json(out / "design.json", document)
+    print(
+        f"{len(document['presses'])} presses ({document['criterion']}-design for "
+        f"{', '.join(document['target'])}) -> {out / 'design.json'}",
+        file=sys.stdout,
+    )
+    return 0
 
 
 SEQUENTIAL_MODEL = {"grid": None, "degrees": (3, 3, 2), "margin": 10.0}
@@ -385,6 +377,10 @@ def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Pat
     atomic_write_json(out / "sequential.json", document)
     print(f"{document['verdict']} after {document['presses']} presses -> {out / 'sequential.json'}")
     return 0
+
+
+main = Command("experiments.design.designcommand", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.fit.stepzero import AUTO
 
 
@@ -100,14 +101,6 @@ def build_parser(prog: str = "python -m experiments.design.nextpress"):
     parser.add_argument("--levels", type=int, default=1, help="force magnitudes in the range")
     parser.add_argument("--level", type=float, default=0.01, help="significance level")
     return parser
-
-
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.design.nextpress"):
-    """``dvs next DATASET --budget N --out DIR``; exit 0, or 2 with one line for bad input."""
-    from experiments.command.options import run_guarded
-
-    args = build_parser(prog).parse_args(argv)
-    return run_guarded(prog, lambda: work(args))
 
 
 def work(args) -> int:
@@ -318,6 +311,10 @@ def plot_next(path: Path, document: dict, dataset) -> None:
     right.set_title("the questions the diagnosis leaves", fontsize=9)
     atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
+
+
+main = Command("experiments.design.nextpress", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

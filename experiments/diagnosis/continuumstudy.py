@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.phantom.fe import Departure, ReferenceSlab, design_cases
 
 SCENARIOS = {
@@ -306,9 +307,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.continuumstudy"):
     return parser
 
 
-def main(
-    argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.continuumstudy"
-):
+def work(args) -> int:
     """``dvs study continuum --out DIR``: rows.json and table.md."""
     from experiments.command.options import (
         UsageError,
@@ -317,49 +316,47 @@ def main(
         check_output_dir,
         parse_degrees,
         parse_grid,
-        run_guarded,
     )
     from experiments.output.atomic import atomic_write_json, atomic_write_text
     from experiments.phantom.fe import require_skfem
 
-    args = build_parser(prog).parse_args(argv)
-
-    def work() -> int:
-        names = [n.strip() for n in args.scenarios.split(",") if n.strip()]
-        unknown = sorted(set(names) - set(SCENARIOS))
-        if unknown or not names:
-            raise UsageError(f"--scenarios: unknown {unknown}; choose from {', '.join(SCENARIOS)}")
-        degrees = parse_degrees(args.degrees)
-        grid = check_grid(parse_grid(args.grid), degrees, args.grid)
-        margin = check_margin(args.margin)
-        check_output_dir(args.out)
-        require_skfem()
-        study = ContinuumStudy(design=args.design, grid=grid, degrees=degrees, margin=margin)
-        if args.model_error:
-            rows = model_error_rows(study, log=lambda line: print(line, flush=True))
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-            atomic_write_json(Path(args.out) / "model_error.json", rows)
-            atomic_write_text(Path(args.out) / "model_error.md", model_error_table(rows))
-            print(model_error_table(rows))
-            return 0
-        rows, solvers = [], {}
-        for name in names:
-            print(f"{name}: scikit-fem data, {args.design} design; the loop", flush=True)
-            rows.append(run_scenario(name, study, solvers, lambda line: print("  " + line)))
-            row = rows[-1]
-            print(
-                f"  -> {row['selected']}, {row['rms_before_um']:.1f} -> "
-                f"{row['rms_after_um']:.1f} um (noise {row['noise_rms_um']:.1f}), "
-                f"{row['wall_s']:.0f} s",
-                flush=True,
-            )
+    names = [n.strip() for n in args.scenarios.split(",") if n.strip()]
+    unknown = sorted(set(names) - set(SCENARIOS))
+    if unknown or not names:
+        raise UsageError(f"--scenarios: unknown {unknown}; choose from {', '.join(SCENARIOS)}")
+    degrees = parse_degrees(args.degrees)
+    grid = check_grid(parse_grid(args.grid), degrees, args.grid)
+    margin = check_margin(args.margin)
+    check_output_dir(args.out)
+    require_skfem()
+    study = ContinuumStudy(design=args.design, grid=grid, degrees=degrees, margin=margin)
+    if args.model_error:
+        rows = model_error_rows(study, log=lambda line: print(line, flush=True))
         Path(args.out).mkdir(parents=True, exist_ok=True)
-        atomic_write_json(Path(args.out) / "rows.json", rows)
-        atomic_write_text(Path(args.out) / "table.md", table(rows))
-        print(table(rows))
+        atomic_write_json(Path(args.out) / "model_error.json", rows)
+        atomic_write_text(Path(args.out) / "model_error.md", model_error_table(rows))
+        print(model_error_table(rows))
         return 0
+    rows, solvers = [], {}
+    for name in names:
+        print(f"{name}: scikit-fem data, {args.design} design; the loop", flush=True)
+        rows.append(run_scenario(name, study, solvers, lambda line: print("  " + line)))
+        row = rows[-1]
+        print(
+            f"  -> {row['selected']}, {row['rms_before_um']:.1f} -> "
+            f"{row['rms_after_um']:.1f} um (noise {row['noise_rms_um']:.1f}), "
+            f"{row['wall_s']:.0f} s",
+            flush=True,
+        )
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    atomic_write_json(Path(args.out) / "rows.json", rows)
+    atomic_write_text(Path(args.out) / "table.md", table(rows))
+    print(table(rows))
+    return 0
 
-    return run_guarded(prog, work)
+
+main = Command("experiments.diagnosis.continuumstudy", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from experiments.command.options import Command
 from experiments.diagnosis.diagnose import diagnose_dataset
 from experiments.phantom.designs import DESIGNS, design_options
 from experiments.phantom.simulate import simulate_with_effects
@@ -151,37 +152,35 @@ def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.detection"):
+def work(args) -> int:
     """``dvs study detection [--effects a,b] [--factors 1,2,4] --out DIR``: detection.json."""
     from experiments.command.options import (
         UsageError,
         check_output_dir,
         check_seed,
         parse_numbers,
-        run_guarded,
     )
     from experiments.output.atomic import atomic_write_json
 
-    args = build_parser(prog).parse_args(argv)
+    factors = tuple(sorted(parse_numbers(args.factors, "--factors")))
+    if not factors or min(factors) <= 0 or max(factors) > 100:
+        raise UsageError("--factors takes numbers in (0, 100], e.g. 1,2,4")
+    names = tuple(n.strip() for n in args.effects.split(",") if n.strip()) or EFFECT_NAMES
+    unknown = sorted(set(names) - set(EFFECT_NAMES))
+    if unknown:
+        raise UsageError(f"--effects: unknown {unknown}; choose from {', '.join(EFFECT_NAMES)}")
+    check_seed(args.seed)
+    out = check_output_dir(args.out)
+    results = [detection_limit(n, args.seed, args.design, factors) for n in names]
+    print_table(results)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "detection.json", {"design": args.design, "effects": results})
+    print(f"-> {out / 'detection.json'}")
+    return 0
 
-    def work() -> int:
-        factors = tuple(sorted(parse_numbers(args.factors, "--factors")))
-        if not factors or min(factors) <= 0 or max(factors) > 100:
-            raise UsageError("--factors takes numbers in (0, 100], e.g. 1,2,4")
-        names = tuple(n.strip() for n in args.effects.split(",") if n.strip()) or EFFECT_NAMES
-        unknown = sorted(set(names) - set(EFFECT_NAMES))
-        if unknown:
-            raise UsageError(f"--effects: unknown {unknown}; choose from {', '.join(EFFECT_NAMES)}")
-        check_seed(args.seed)
-        out = check_output_dir(args.out)
-        results = [detection_limit(n, args.seed, args.design, factors) for n in names]
-        print_table(results)
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(out / "detection.json", {"design": args.design, "effects": results})
-        print(f"-> {out / 'detection.json'}")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.diagnosis.detection", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from experiments.command.options import plural
+from experiments.command.options import Command, plural
 from experiments.data.dataset import Dataset, load_dataset
 from experiments.data.plausibility import dataset_warnings
 from experiments.diagnosis.design import design_note
@@ -272,9 +272,8 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.diagnose"):
+def work(args) -> int:
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
-
     from experiments.command.options import (
         UsageError,
         check_grid,
@@ -283,53 +282,51 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagn
         not_converged,
         parse_degrees,
         parse_grid,
-        run_guarded,
         verb,
     )
     from solvers.diagnosis.record import DiagnosisSettings
 
-    args = build_parser(prog).parse_args(argv)
+    most = len(EFFECT_NAMES)
+    if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= most:
+        raise UsageError(f"--level must lie in (0, 0.5] and --max-effects in 0-{most}")
+    candidates = parse_candidates(args.candidates)
+    degrees = None if args.degrees is None else parse_degrees(args.degrees)
+    grid = None
+    if args.grid != "auto":
+        checked = degrees or base_settings().degrees
+        grid = check_grid(parse_grid(args.grid), checked, args.grid)
+    margin = check_margin(args.margin)
+    if args.energy == AUTO:
+        chosen = [f"--{n}" for n, v in (("grid", grid), ("degrees", degrees)) if v is not None]
+        chosen += ["--margin"] if margin > 0 else []
+        if chosen:
+            raise UsageError(
+                f"{', '.join(chosen)} {verb(chosen)} the volume of a chosen --energy; with "
+                "--energy auto (the default) step 0 chooses the volume, or give --energy too"
+            )
+        base = AUTO
+    else:
+        base = base_settings(grid, args.energy, degrees, margin)
+    check_output_dir(args.out)
+    settings = DiagnosisSettings(
+        level=args.level,
+        max_effects=args.max_effects,
+        candidates=candidates,
+    )
+    document = run(
+        args.dataset,
+        args.out,
+        settings=settings,
+        base=base,
+        check_refinement=not args.no_refinement_check,
+    )
+    if not document["success"]:
+        return not_converged(args.prog, "a fit of the diagnosis", args.out / "diagnosis.json")
+    return 0
 
-    def work() -> int:
-        most = len(EFFECT_NAMES)
-        if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= most:
-            raise UsageError(f"--level must lie in (0, 0.5] and --max-effects in 0-{most}")
-        candidates = parse_candidates(args.candidates)
-        degrees = None if args.degrees is None else parse_degrees(args.degrees)
-        grid = None
-        if args.grid != "auto":
-            checked = degrees or base_settings().degrees
-            grid = check_grid(parse_grid(args.grid), checked, args.grid)
-        margin = check_margin(args.margin)
-        if args.energy == AUTO:
-            chosen = [f"--{n}" for n, v in (("grid", grid), ("degrees", degrees)) if v is not None]
-            chosen += ["--margin"] if margin > 0 else []
-            if chosen:
-                raise UsageError(
-                    f"{', '.join(chosen)} {verb(chosen)} the volume of a chosen --energy; with "
-                    "--energy auto (the default) step 0 chooses the volume, or give --energy too"
-                )
-            base = AUTO
-        else:
-            base = base_settings(grid, args.energy, degrees, margin)
-        check_output_dir(args.out)
-        settings = DiagnosisSettings(
-            level=args.level,
-            max_effects=args.max_effects,
-            candidates=candidates,
-        )
-        document = run(
-            args.dataset,
-            args.out,
-            settings=settings,
-            base=base,
-            check_refinement=not args.no_refinement_check,
-        )
-        if not document["success"]:
-            return not_converged(prog, "a fit of the diagnosis", args.out / "diagnosis.json")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.diagnosis.diagnose", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

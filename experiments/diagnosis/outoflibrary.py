@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
+from experiments.command.options import Command
 from experiments.data.dataset import Dataset, save_dataset
 from experiments.phantom.fe import require_skfem
 from experiments.phantom.simulate import SimulationSettings
@@ -234,30 +235,28 @@ def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.outoflibrary"):
+def work(args) -> int:
     """``dvs study outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
     from experiments.command.options import (
         check_noise,
         check_output_file,
         check_seed,
         plural,
-        run_guarded,
     )
 
-    args = build_parser(prog).parse_args(argv)
+    check_noise(args.noise)
+    check_seed(args.seed)
+    check_output_file(args.out, ".npz")
+    print("solving the linear-elastic FE slab under every load", flush=True)
+    dataset = simulate_slab(noise_mm=args.noise, seed=args.seed)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_dataset(args.out, dataset)
+    print(f"wrote {args.out}: FE slab, {plural(dataset.n_loads, 'load case')}")
+    return 0
 
-    def work() -> int:
-        check_noise(args.noise)
-        check_seed(args.seed)
-        check_output_file(args.out, ".npz")
-        print("solving the linear-elastic FE slab under every load", flush=True)
-        dataset = simulate_slab(noise_mm=args.noise, seed=args.seed)
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        save_dataset(args.out, dataset)
-        print(f"wrote {args.out}: FE slab, {plural(dataset.n_loads, 'load case')}")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.diagnosis.outoflibrary", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

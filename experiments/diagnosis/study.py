@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from experiments.command.options import Command
 from experiments.diagnosis.diagnose import BASE_NAMES, diagnose_dataset
 from experiments.phantom.designs import DESIGNS, design_options
 from experiments.phantom.simulate import simulate_with_effects
@@ -173,43 +174,41 @@ def build_parser(prog: str = "python -m experiments.diagnosis.study"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.diagnosis.study"):
+def work(args) -> int:
     """``dvs study diagnosis --out DIR``: study.json (or benchmark.json with ``--benchmark``)."""
     from experiments.command.options import (
         UsageError,
         check_output_dir,
         check_seed,
         parse_numbers,
-        run_guarded,
     )
     from experiments.output.atomic import atomic_write_json
 
-    args = build_parser(prog).parse_args(argv)
+    seeds = parse_numbers(args.seeds, "--seeds", int)
+    names = tuple(n.strip() for n in args.effects.split(",") if n.strip()) or None
+    unknown = set(names or ()) - set(EFFECT_NAMES) - {"none"}
+    if not seeds or unknown:
+        raise UsageError(
+            f"--seeds takes integers and --effects names from {', '.join(EFFECT_NAMES)}"
+        )
+    for seed in seeds:
+        check_seed(seed, "--seeds")
+    out = check_output_dir(args.out)
+    if args.benchmark:
+        document, name = benchmark(), "benchmark.json"
+    else:
+        document, name = (
+            {"design": args.design, "runs": study(seeds, print, args.design, names)},
+            "study.json",
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / name, document)
+    print(f"-> {out / name}")
+    return 0
 
-    def work() -> int:
-        seeds = parse_numbers(args.seeds, "--seeds", int)
-        names = tuple(n.strip() for n in args.effects.split(",") if n.strip()) or None
-        unknown = set(names or ()) - set(EFFECT_NAMES) - {"none"}
-        if not seeds or unknown:
-            raise UsageError(
-                f"--seeds takes integers and --effects names from {', '.join(EFFECT_NAMES)}"
-            )
-        for seed in seeds:
-            check_seed(seed, "--seeds")
-        out = check_output_dir(args.out)
-        if args.benchmark:
-            document, name = benchmark(), "benchmark.json"
-        else:
-            document, name = (
-                {"design": args.design, "runs": study(seeds, print, args.design, names)},
-                "study.json",
-            )
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(out / name, document)
-        print(f"-> {out / name}")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.diagnosis.study", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

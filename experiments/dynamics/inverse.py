@@ -29,6 +29,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from experiments.command.options import Command
 from experiments.dynamics.trajectories import (  # noqa: E402
     DEFAULT_SUBSTEPS,
     DYNAMIC_NAMES,
@@ -246,44 +247,41 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.inverse"):
+def work(args) -> int:
     """``dvs study dynamic --out DIR``: dynamic.json and dynamic.png."""
-
     from experiments.command.options import (
         UsageError,
         check_noise,
         check_output_dir,
         check_seed,
         not_converged,
-        run_guarded,
     )
 
-    args = build_parser(prog).parse_args(argv)
+    check_noise(args.noise)
+    check_seed(args.seed)
+    if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 100:
+        raise UsageError("--substeps must lie in 1-100 and --coverage in 0-100")
+    out = check_output_dir(args.out)
+    summary = run(
+        out,
+        noise_mm=args.noise,
+        seed=args.seed,
+        substeps=args.substeps,
+        simultaneous=not args.no_simultaneous,
+    )
+    if args.bias:
+        summary["bias"] = bias_study()
+    if args.coverage:
+        summary["coverage"] = coverage_study(range(args.coverage), args.noise)
+    if args.bias or args.coverage:
+        atomic_write_json(out / "dynamic.json", summary)
+    if not summary["success"]:
+        return not_converged(args.prog, "a solver", out / "dynamic.json")
+    return 0
 
-    def work() -> int:
-        check_noise(args.noise)
-        check_seed(args.seed)
-        if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 100:
-            raise UsageError("--substeps must lie in 1-100 and --coverage in 0-100")
-        out = check_output_dir(args.out)
-        summary = run(
-            out,
-            noise_mm=args.noise,
-            seed=args.seed,
-            substeps=args.substeps,
-            simultaneous=not args.no_simultaneous,
-        )
-        if args.bias:
-            summary["bias"] = bias_study()
-        if args.coverage:
-            summary["coverage"] = coverage_study(range(args.coverage), args.noise)
-        if args.bias or args.coverage:
-            atomic_write_json(out / "dynamic.json", summary)
-        if not summary["success"]:
-            return not_converged(prog, "a solver", out / "dynamic.json")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.dynamics.inverse", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

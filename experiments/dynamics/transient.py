@@ -25,6 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_savefig, atomic_write_json  # noqa: E402
 from experiments.phantom.forehead import TRUE_PARAMETERS, forehead_model, probe_loads  # noqa: E402
 from solvers.forward.equilibrium import EquilibriumSolver  # noqa: E402
@@ -238,28 +239,27 @@ def build_parser(prog: str = "python -m experiments.dynamics.transient"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.dynamics.transient"):
+def work(args) -> int:
     """``dvs transient [--out DIR]``: transient.json and transient.png."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
 
-    args = build_parser(prog).parse_args(argv)
+    if not 0 <= args.k0 <= 1000 or (args.mu is not None and not 0 < args.mu < 1):
+        raise UsageError("--k0 must lie in [0, 1000] and --mu in (0, 1) t")
+    out = check_output_dir(args.out)
+    model = forehead_model(parameters={**TRUE_PARAMETERS, "k0": args.k0})
+    summary = run(out, model, mu=args.mu)
+    print(
+        f"relative distance to equilibrium "
+        f"{summary['relative_distance_to_equilibrium']:.2e}, settling time "
+        f"{summary['settling_time_s']:.3g} s -> {out / 'transient.json'}"
+    )
+    if args.bench:
+        benchmark()
+    return 0
 
-    def work() -> int:
-        if not 0 <= args.k0 <= 1000 or (args.mu is not None and not 0 < args.mu < 1):
-            raise UsageError("--k0 must lie in [0, 1000] and --mu in (0, 1) t")
-        out = check_output_dir(args.out)
-        model = forehead_model(parameters={**TRUE_PARAMETERS, "k0": args.k0})
-        summary = run(out, model, mu=args.mu)
-        print(
-            f"relative distance to equilibrium "
-            f"{summary['relative_distance_to_equilibrium']:.2e}, settling time "
-            f"{summary['settling_time_s']:.3g} s -> {out / 'transient.json'}"
-        )
-        if args.bench:
-            benchmark()
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.dynamics.transient", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from experiments.command.options import Command
 from experiments.data.plausibility import dataset_warnings
 from experiments.problem.fitting import (
     ENERGY_NAMES,
@@ -82,7 +83,15 @@ def build_parser(prog: str = "python -m experiments.fit.fitcommand"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.fit.fitcommand") -> int:
+def _warn(prog: str, lines) -> None:
+    """Plausibility warnings on stderr, one line each."""
+    import sys
+
+    for line in lines:
+        print(f"{prog}: warning: {line}", file=sys.stderr)
+
+
+def work(args) -> int:
     """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
 
     Plausibility warnings go to stderr, one line each; the verdict is printed last.
@@ -99,102 +108,94 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.fit.f
         parse_grid,
         parse_names,
         plural,
-        run_guarded,
         verb,
     )
     from experiments.data.dataset import load_dataset
 
-    args = build_parser(prog).parse_args(argv)
-
-    def warn(lines) -> None:
-        for line in lines:
-            print(f"{prog}: warning: {line}", file=sys.stderr)
-
-    def work() -> int:
-        objective = "control_points" if args.method == "paper" else "markers"
-        energy = args.energy
-        paper = args.method == "paper" or args.objective == "control_points"
-        if args.params is not None and energy == "auto":
-            named = set(parse_names(args.params))
-            paper = paper or named <= set(ENERGY_NAMES["dnurbs"])
-            if not paper:
-                raise UsageError(
-                    f"--params {args.params} name a continuum's parameters; give --energy "
-                    "linear-elastic or neo-hookean too"
-                )
-        if energy == "auto" and paper:
-            energy = "dnurbs"  # the paper's method, objective and parameters are its model's
-        if energy == "auto":
-            chosen = [
-                f"--{name}"
-                for name, value in (("grid", args.grid != "auto"), ("degrees", args.degrees))
-                if value
-            ]
-            chosen += ["--margin"] * (check_margin(args.margin) > 0)
-            if chosen:
-                raise UsageError(
-                    f"{', '.join(chosen)} {verb(chosen)} the model of a chosen --energy; with "
-                    "--energy auto (the default) step 0 chooses it, or give --energy too"
-                )
-        degrees = parse_degrees(args.degrees or "3x3x1")
-        if check_margin(args.margin) > 0 and (args.objective or objective) != "markers":
-            raise UsageError("--margin needs --objective markers (control points follow the grid)")
-        named = "dnurbs" if energy == "auto" else energy
-        names = parse_names(args.params or ",".join(ENERGY_NAMES[named]))
-        check_energy_names(named, names)
-        settings = FitSettings(
-            names=names,
-            grid=None
-            if args.grid == "auto"
-            else check_grid(parse_grid(args.grid), degrees, args.grid),
-            degrees=degrees,
-            objective=args.objective or objective,
-            energy=named,
-            margin=check_margin(args.margin),
-        )
-        check_output_dir(args.out)
-        dataset = load_dataset(args.dataset)
-        early = dataset_warnings(dataset)
-        warn(early)
-        cases = plural(dataset.n_loads, "load case")
-        print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
-        choice = None
-        if energy == "auto":
-            from experiments.basemodel import choose_base
-
-            choice = choose_base(dataset, lambda line: print(f"  step 0: {line}", flush=True))
-            dataset, settings = choice.dataset(dataset), choice.fit_settings()
-            print(f"  {choice.line()}", flush=True)
-        grid, degrees = model_grid(dataset, settings)
-        print(
-            f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
-            f"{dataset.marker_shape[0]} x {dataset.marker_shape[1]} markers"
-        )
-        progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
-        problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
-        if choice is not None:
-            document["base_choice"] = choice.record()
-        write_fit_outputs(args.out, problem, result, document)
-        if args.method == "auto":
-            print(f"  method {result.method} ({document['method_choice']['reason']})")
-        for line in report.summary_lines():
-            print("  " + line)
-        print(
-            f"  rms {document['rms_mm'] * 1e3:.4g} um; {result.status}; {result.iterations} "
-            f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
-        )
-        if not result.success:
-            print(
-                f"{prog}: error: the solver did not converge ({result.status}); "
-                f"{args.out / 'result.json'} has success: false",
-                file=sys.stderr,
+    objective = "control_points" if args.method == "paper" else "markers"
+    energy = args.energy
+    paper = args.method == "paper" or args.objective == "control_points"
+    if args.params is not None and energy == "auto":
+        named = set(parse_names(args.params))
+        paper = paper or named <= set(ENERGY_NAMES["dnurbs"])
+        if not paper:
+            raise UsageError(
+                f"--params {args.params} name a continuum's parameters; give --energy "
+                "linear-elastic or neo-hookean too"
             )
-            return EXIT_NOT_CONVERGED
-        print(f"  verdict: {document['verdict']['summary']}")
-        warn(document["warnings"][len(early) :])
-        return 0
+    if energy == "auto" and paper:
+        energy = "dnurbs"  # the paper's method, objective and parameters are its model's
+    if energy == "auto":
+        chosen = [
+            f"--{name}"
+            for name, value in (("grid", args.grid != "auto"), ("degrees", args.degrees))
+            if value
+        ]
+        chosen += ["--margin"] * (check_margin(args.margin) > 0)
+        if chosen:
+            raise UsageError(
+                f"{', '.join(chosen)} {verb(chosen)} the model of a chosen --energy; with "
+                "--energy auto (the default) step 0 chooses it, or give --energy too"
+            )
+    degrees = parse_degrees(args.degrees or "3x3x1")
+    if check_margin(args.margin) > 0 and (args.objective or objective) != "markers":
+        raise UsageError("--margin needs --objective markers (control points follow the grid)")
+    named = "dnurbs" if energy == "auto" else energy
+    names = parse_names(args.params or ",".join(ENERGY_NAMES[named]))
+    check_energy_names(named, names)
+    settings = FitSettings(
+        names=names,
+        grid=None if args.grid == "auto" else check_grid(parse_grid(args.grid), degrees, args.grid),
+        degrees=degrees,
+        objective=args.objective or objective,
+        energy=named,
+        margin=check_margin(args.margin),
+    )
+    check_output_dir(args.out)
+    dataset = load_dataset(args.dataset)
+    early = dataset_warnings(dataset)
+    _warn(args.prog, early)
+    cases = plural(dataset.n_loads, "load case")
+    print(f"fitting {args.dataset} ({cases}), {args.method} method", flush=True)
+    choice = None
+    if energy == "auto":
+        from experiments.basemodel import choose_base
 
-    return run_guarded(prog, work)
+        choice = choose_base(dataset, lambda line: print(f"  step 0: {line}", flush=True))
+        dataset, settings = choice.dataset(dataset), choice.fit_settings()
+        print(f"  {choice.line()}", flush=True)
+    grid, degrees = model_grid(dataset, settings)
+    print(
+        f"  control grid {'x'.join(map(str, grid))}, degrees {degrees}, for "
+        f"{dataset.marker_shape[0]} x {dataset.marker_shape[1]} markers"
+    )
+    progress = lambda line: print(f"  {line}", flush=True)  # noqa: E731
+    problem, result, report, document = fit_dataset(dataset, settings, args.method, progress)
+    if choice is not None:
+        document["base_choice"] = choice.record()
+    write_fit_outputs(args.out, problem, result, document)
+    if args.method == "auto":
+        print(f"  method {result.method} ({document['method_choice']['reason']})")
+    for line in report.summary_lines():
+        print("  " + line)
+    print(
+        f"  rms {document['rms_mm'] * 1e3:.4g} um; {result.status}; {result.iterations} "
+        f"iterations, {result.forward_solves} forward solves -> {args.out / 'result.json'}"
+    )
+    if not result.success:
+        print(
+            f"{args.prog}: error: the solver did not converge ({result.status}); "
+            f"{args.out / 'result.json'} has success: false",
+            file=sys.stderr,
+        )
+        return EXIT_NOT_CONVERGED
+    print(f"  verdict: {document['verdict']['summary']}")
+    _warn(args.prog, document["warnings"][len(early) :])
+    return 0
+
+
+main = Command("experiments.fit.fitcommand", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

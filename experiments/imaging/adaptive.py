@@ -29,6 +29,7 @@ import time
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.imaging.weightstudy import (
     DIAMETER_MM,
     MARKED_HALF_MM,
@@ -282,7 +283,7 @@ def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
     return parser
 
 
-def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int:
+def work(args) -> int:
     """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
     from experiments.command.options import (
         UsageError,
@@ -291,36 +292,34 @@ def main(argv=None, prog: str = "python -m experiments.imaging.adaptive") -> int
         check_seed,
         parse_grid,
         parse_numbers,
-        run_guarded,
     )
     from experiments.imaging.imagecommand import parse_field
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
-    args = build_parser(prog).parse_args(argv)
+    seeds = [check_seed(s) for s in parse_numbers(args.seeds, "--seeds", int)]
+    if not seeds:
+        raise UsageError("--seeds takes a comma list of seeds, e.g. 17,18")
+    if args.draws < 0:
+        raise UsageError(f"--draws must be at least 0, got {args.draws}")
+    grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
+    shape = parse_field(args.field, "surface")
+    out = check_output_dir(args.out)
+    results = []
+    for seed in seeds:
+        results.append(
+            study_place(seed, grid, args.draws, lambda line: print(line, flush=True), shape)
+        )
+        print(table(results[-1:]).splitlines()[-1], flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    document = {"schema": "dvs-adaptive-imaging/1", "field": list(shape), "places": results}
+    atomic_write_json(out / "adaptive.json", document)
+    atomic_write_text(out / "adaptive.md", table(results) + "\n")
+    print(table(results))
+    return 0
 
-    def work() -> int:
-        seeds = [check_seed(s) for s in parse_numbers(args.seeds, "--seeds", int)]
-        if not seeds:
-            raise UsageError("--seeds takes a comma list of seeds, e.g. 17,18")
-        if args.draws < 0:
-            raise UsageError(f"--draws must be at least 0, got {args.draws}")
-        grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
-        shape = parse_field(args.field, "surface")
-        out = check_output_dir(args.out)
-        results = []
-        for seed in seeds:
-            results.append(
-                study_place(seed, grid, args.draws, lambda line: print(line, flush=True), shape)
-            )
-            print(table(results[-1:]).splitlines()[-1], flush=True)
-        out.mkdir(parents=True, exist_ok=True)
-        document = {"schema": "dvs-adaptive-imaging/1", "field": list(shape), "places": results}
-        atomic_write_json(out / "adaptive.json", document)
-        atomic_write_text(out / "adaptive.md", table(results) + "\n")
-        print(table(results))
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.imaging.adaptive", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -15,6 +15,8 @@ import time
 
 import numpy as np
 
+from experiments.command.options import Command
+
 METHODS = ("simultaneous", "nested-adjoint", "nested-sensitivity")
 WEIGHT_MM2 = 1000.0
 """beta of every run [mm^2]: the same problem for every method."""
@@ -202,50 +204,46 @@ def build_parser(prog: str = "python -m experiments.imaging.imagebench"):
     return parser
 
 
-def main(
-    argv: list[str] | None = None, prog: str = "python -m experiments.imaging.imagebench"
-) -> int:
+def work(args) -> int:
     """``dvs bench image``: exit 0, or 2 with one line for bad input."""
     from experiments.command.options import (
         UsageError,
         check_output_dir,
         parse_grid,
         parse_numbers,
-        run_guarded,
     )
 
-    args = build_parser(prog).parse_args(argv)
+    grids = [parse_grid(g, "--grids") for g in args.grids.split(",") if g.strip()]
+    if not grids:
+        raise UsageError("--grids needs at least one grid, e.g. 9x9x2")
+    sizes = parse_numbers(args.sizes, "--sizes", int)
+    if any(n < 4 or n > 4096 or round(np.sqrt(n)) ** 2 != n for n in sizes):
+        raise UsageError(f"--sizes must be squares in 4-4096, got {args.sizes!r}")
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise UsageError(f"--methods: unknown {', '.join(unknown)}; use {', '.join(METHODS)}")
+    if not args.budget > 0:
+        raise UsageError(f"--budget must be positive seconds, got {args.budget}")
+    if args.out is not None:
+        check_output_dir(args.out)
+    from experiments.phantom.fe import require_skfem
 
-    def work() -> int:
-        grids = [parse_grid(g, "--grids") for g in args.grids.split(",") if g.strip()]
-        if not grids:
-            raise UsageError("--grids needs at least one grid, e.g. 9x9x2")
-        sizes = parse_numbers(args.sizes, "--sizes", int)
-        if any(n < 4 or n > 4096 or round(np.sqrt(n)) ** 2 != n for n in sizes):
-            raise UsageError(f"--sizes must be squares in 4-4096, got {args.sizes!r}")
-        methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-        unknown = sorted(set(methods) - set(METHODS))
-        if unknown:
-            raise UsageError(f"--methods: unknown {', '.join(unknown)}; use {', '.join(METHODS)}")
-        if not args.budget > 0:
-            raise UsageError(f"--budget must be positive seconds, got {args.budget}")
-        if args.out is not None:
-            check_output_dir(args.out)
-        from experiments.phantom.fe import require_skfem
+    require_skfem()
+    rows = run(grids, sizes, methods, args.budget, log=lambda line: print(line, flush=True))
+    text = table(rows)
+    print(text)
+    if args.out is not None:
+        from experiments.output.atomic import atomic_write_json, atomic_write_text
 
-        require_skfem()
-        rows = run(grids, sizes, methods, args.budget, log=lambda line: print(line, flush=True))
-        text = table(rows)
-        print(text)
-        if args.out is not None:
-            from experiments.output.atomic import atomic_write_json, atomic_write_text
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(args.out / "imagebench.json", rows)
+        atomic_write_text(args.out / "imagebench.md", text + "\n")
+    return 0
 
-            args.out.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(args.out / "imagebench.json", rows)
-            atomic_write_text(args.out / "imagebench.md", text + "\n")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.imaging.imagebench", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

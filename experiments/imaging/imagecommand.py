@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+from experiments.command.options import Command
 from experiments.imaging.mapping import REGULARIZERS
 from solvers.imaging.estimate import SOLVERS
 
@@ -106,9 +107,7 @@ def build_parser(prog: str = "python -m experiments.imaging.imagecommand"):
     return parser
 
 
-def main(
-    argv: list[str] | None = None, prog: str = "python -m experiments.imaging.imagecommand"
-) -> int:
+def work(args) -> int:
     """``dvs image FILE.npz --out DIR``: exit 0, 2 for bad input, 3 if a solve failed."""
     import sys
     from dataclasses import replace
@@ -122,102 +121,99 @@ def main(
         check_output_dir,
         parse_degrees,
         parse_grid,
-        run_guarded,
     )
+    from experiments.data.dataset import load_dataset
     from experiments.fit.stepzero import model_record, refuse_model_options
+    from experiments.imaging.mapping import ImageSettings, image_dataset
+    from experiments.imaging.outputs import document, plot_maps, write_vtu
+    from experiments.problem.fitting import FitSettings
 
-    args = build_parser(prog).parse_args(argv)
-
-    def work() -> int:
-        from experiments.data.dataset import load_dataset
-        from experiments.imaging.mapping import ImageSettings, image_dataset
-        from experiments.imaging.outputs import document, plot_maps, write_vtu
-        from experiments.problem.fitting import FitSettings
-
-        shape = parse_field(args.field, args.over)
-        weight = parse_weight(args.weight)
-        degrees = None if args.degrees is None else parse_degrees(args.degrees)
-        grid = None
-        if args.grid != "auto":
-            grid = check_grid(parse_grid(args.grid), degrees or DEGREES, args.grid)
-        margin = check_margin(args.margin)
-        if args.energy == "auto":
-            refuse_model_options(grid, degrees, margin, "--energy linear-elastic")
-        noise = None if args.noise is None else check_noise(args.noise)
-        if noise == 0:
-            raise UsageError("--noise must be positive: the misfit is whitened by it")
-        fit = FitSettings(
-            names=("E", "nu"),
-            energy="linear-elastic",
-            grid=grid,
-            degrees=degrees or DEGREES,
-            margin=margin,
+    shape = parse_field(args.field, args.over)
+    weight = parse_weight(args.weight)
+    degrees = None if args.degrees is None else parse_degrees(args.degrees)
+    grid = None
+    if args.grid != "auto":
+        grid = check_grid(parse_grid(args.grid), degrees or DEGREES, args.grid)
+    margin = check_margin(args.margin)
+    if args.energy == "auto":
+        refuse_model_options(grid, degrees, margin, "--energy linear-elastic")
+    noise = None if args.noise is None else check_noise(args.noise)
+    if noise == 0:
+        raise UsageError("--noise must be positive: the misfit is whitened by it")
+    fit = FitSettings(
+        names=("E", "nu"),
+        energy="linear-elastic",
+        grid=grid,
+        degrees=degrees or DEGREES,
+        margin=margin,
+    )
+    settings = ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit)
+    check_output_dir(args.out)
+    dataset = load_dataset(args.dataset)
+    if noise is not None:
+        dataset = replace(dataset, noise_mm=noise)
+    if not dataset.noise_mm or dataset.noise_mm <= 0:
+        raise UsageError(
+            f"{args.dataset} declares no noise level; give it with --noise MM "
+            "(the misfit is whitened by it)"
         )
-        settings = ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit)
-        check_output_dir(args.out)
-        dataset = load_dataset(args.dataset)
-        if noise is not None:
-            dataset = replace(dataset, noise_mm=noise)
-        if not dataset.noise_mm or dataset.noise_mm <= 0:
-            raise UsageError(
-                f"{args.dataset} declares no noise level; give it with --noise MM "
-                "(the misfit is whitened by it)"
-            )
-        print(f"imaging {args.dataset} ({dataset.n_loads} load cases)", flush=True)
-        log = lambda line: print(line, flush=True)  # noqa: E731
-        chosen, problem = None, None
-        if args.energy == "auto":
-            from experiments.imaging.imagemodel import imaging_model
+    print(f"imaging {args.dataset} ({dataset.n_loads} load cases)", flush=True)
+    log = lambda line: print(line, flush=True)  # noqa: E731
+    chosen, problem = None, None
+    if args.energy == "auto":
+        from experiments.imaging.imagemodel import imaging_model
 
-            chosen = imaging_model(dataset, log=log)
-            dataset, problem = chosen.dataset(dataset), chosen.problem()
-            settings = replace(settings, fit=chosen.settings())
-        image = image_dataset(dataset, settings, log=log, problem=problem)
-        model = model_record(image.field_problem.problem.model, settings.fit.margin, dataset)
-        if chosen is None:
-            model.update(source="options", note="", resolution=[])
-        else:
-            model.update(source=chosen.source, note=chosen.note, resolution=chosen.resolution)
-        base_choice = None if chosen is None else chosen.base_choice
-        record = document(image, str(args.dataset), dataset.outer_rest, model, base_choice)
-        args.out.mkdir(parents=True, exist_ok=True)
-        plot_maps(image, dataset.outer_rest, args.out / "map.png", args.out / "std.png")
-        if not write_vtu(image, args.out / "map.vtu"):
-            print(f"{prog}: warning: map.vtu not written: pip install meshio", file=sys.stderr)
-        from experiments.output.atomic import atomic_write_json
+        chosen = imaging_model(dataset, log=log)
+        dataset, problem = chosen.dataset(dataset), chosen.problem()
+        settings = replace(settings, fit=chosen.settings())
+    image = image_dataset(dataset, settings, log=log, problem=problem)
+    model = model_record(image.field_problem.problem.model, settings.fit.margin, dataset)
+    if chosen is None:
+        model.update(source="options", note="", resolution=[])
+    else:
+        model.update(source=chosen.source, note=chosen.note, resolution=chosen.resolution)
+    base_choice = None if chosen is None else chosen.base_choice
+    record = document(image, str(args.dataset), dataset.outer_rest, model, base_choice)
+    args.out.mkdir(parents=True, exist_ok=True)
+    plot_maps(image, dataset.outer_rest, args.out / "map.png", args.out / "std.png")
+    if not write_vtu(image, args.out / "map.vtu"):
+        print(f"{args.prog}: warning: map.vtu not written: pip install meshio", file=sys.stderr)
+    from experiments.output.atomic import atomic_write_json
 
-        atomic_write_json(args.out / "image.json", record)
-        residual, strongest = record["residual"], record["strongest_departure"]
+    atomic_write_json(args.out / "image.json", record)
+    residual, strongest = record["residual"], record["strongest_departure"]
+    print(
+        f"  beta {record['weight']['beta_mm2']:.3g} mm^2 ({record['weight']['note']}), "
+        f"chi2/n {residual['chi2_over_n']:.3f}, rms {residual['rms_um']:.1f} um, "
+        f"{record['effective_dof']:.1f} effective dof; E "
+        f"{min(record['field']['E_kPa']):.3g}-{max(record['field']['E_kPa']):.3g} kPa"
+    )
+    verdict = "significant" if strongest["significant"] else "not significant"
+    print(
+        f"  strongest departure: E x {strongest['E_ratio_to_mean']:.2f} of the mean at "
+        f"({strongest['node_xyz_mm'][0]:.1f}, {strongest['node_xyz_mm'][1]:.1f}) mm, "
+        f"{strongest['z']:.1f} std ({verdict}) -> {args.out / 'image.json'}"
+    )
+    if not record["weight"]["reached"] and residual["chi2_over_n"] > 1.0:
         print(
-            f"  beta {record['weight']['beta_mm2']:.3g} mm^2 ({record['weight']['note']}), "
-            f"chi2/n {residual['chi2_over_n']:.3f}, rms {residual['rms_um']:.1f} um, "
-            f"{record['effective_dof']:.1f} effective dof; E "
-            f"{min(record['field']['E_kPa']):.3g}-{max(record['field']['E_kPa']):.3g} kPa"
+            f"{args.prog}: warning: no field brings the residual down to the noise "
+            f"(chi2/n {residual['chi2_over_n']:.2f} at the smallest weight): the model "
+            "lacks something and the map absorbs it (docs/imaging.md; dvs diagnose "
+            "names what)",
+            file=sys.stderr,
         )
-        verdict = "significant" if strongest["significant"] else "not significant"
+    if not record["success"]:
         print(
-            f"  strongest departure: E x {strongest['E_ratio_to_mean']:.2f} of the mean at "
-            f"({strongest['node_xyz_mm'][0]:.1f}, {strongest['node_xyz_mm'][1]:.1f}) mm, "
-            f"{strongest['z']:.1f} std ({verdict}) -> {args.out / 'image.json'}"
+            f"{args.prog}: error: the field estimate did not converge ({record['message']}); "
+            f"{args.out / 'image.json'} has success: false",
+            file=sys.stderr,
         )
-        if not record["weight"]["reached"] and residual["chi2_over_n"] > 1.0:
-            print(
-                f"{prog}: warning: no field brings the residual down to the noise "
-                f"(chi2/n {residual['chi2_over_n']:.2f} at the smallest weight): the model "
-                "lacks something and the map absorbs it (docs/imaging.md; dvs diagnose "
-                "names what)",
-                file=sys.stderr,
-            )
-        if not record["success"]:
-            print(
-                f"{prog}: error: the field estimate did not converge ({record['message']}); "
-                f"{args.out / 'image.json'} has success: false",
-                file=sys.stderr,
-            )
-            return EXIT_NOT_CONVERGED
-        return 0
+        return EXIT_NOT_CONVERGED
+    return 0
 
-    return run_guarded(prog, work)
+
+main = Command("experiments.imaging.imagecommand", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

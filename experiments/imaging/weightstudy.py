@@ -29,6 +29,8 @@ import time
 
 import numpy as np
 
+from experiments.command.options import Command
+
 DIAMETER_MM = 8.0
 RATIO = 2.0
 BETAS = np.logspace(1.0, 9.0, 33)
@@ -357,7 +359,7 @@ def places_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> int:
+def work(args) -> int:
     """Print the rules' rates and the fixed weights' (``dvs study imageweights``), for each
     seed; for several, the places table at the end."""
     from experiments.command.options import (
@@ -366,46 +368,44 @@ def main(argv=None, prog: str = "python -m experiments.imaging.weightstudy") -> 
         check_seed,
         parse_grid,
         parse_numbers,
-        run_guarded,
     )
 
-    args = build_parser(prog).parse_args(argv)
+    if args.draws < 1:
+        raise UsageError(f"--draws must be at least 1, got {args.draws}")
+    if args.oracle_press is not None and not 0.0 <= args.oracle_press <= 30.0:
+        raise UsageError(f"--oracle-press must be 0 to 30 mm, got {args.oracle_press}")
+    seeds = [check_seed(s) for s in parse_numbers(args.seed, "--seed", int)]
+    if not seeds:
+        raise UsageError("--seed takes one seed or a comma list of seeds, e.g. 7,8,9")
+    grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
+    rows = []
+    for seed in seeds:
+        begin = time.perf_counter()
+        disc, none, centre = inclusion_datasets(seed, args.oracle_press)
+        print(f"seed {seed}: disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
+        parts = linearise(disc, none, grid)
+        regularizer = study_regularizer(parts, args.regularizer)
+        study = LinearStudy(parts, centre, regularizer=regularizer)
+        own = study.own_draw(parts["r0"])
+        result = monte_carlo(study, args.draws)
+        print("the dataset's own noise draw:", json.dumps(own))
+        print(json.dumps(result["rules"], indent=1))
+        for row in result["fixed_beta"][::2]:
+            print(
+                f"  beta {row['beta_mm2']:9.3g}: dof {row['dof']:6.1f}, median contrast "
+                f"{row['median_contrast']:.2f}, all criteria met {row['all_ok']:.2f}"
+            )
+        seconds = time.perf_counter() - begin
+        print(f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {seconds:.0f} s")
+        rows.append(place_row(seed, centre, result, args.oracle_press))
+    if len(rows) > 1:
+        print("\nall three criteria met, fraction of the draws:")
+        print(places_table(rows))
+    return 0
 
-    def work() -> int:
-        if args.draws < 1:
-            raise UsageError(f"--draws must be at least 1, got {args.draws}")
-        if args.oracle_press is not None and not 0.0 <= args.oracle_press <= 30.0:
-            raise UsageError(f"--oracle-press must be 0 to 30 mm, got {args.oracle_press}")
-        seeds = [check_seed(s) for s in parse_numbers(args.seed, "--seed", int)]
-        if not seeds:
-            raise UsageError("--seed takes one seed or a comma list of seeds, e.g. 7,8,9")
-        grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
-        rows = []
-        for seed in seeds:
-            begin = time.perf_counter()
-            disc, none, centre = inclusion_datasets(seed, args.oracle_press)
-            print(f"seed {seed}: disc at ({centre[0]:.2f}, {centre[1]:.2f}) mm", flush=True)
-            parts = linearise(disc, none, grid)
-            regularizer = study_regularizer(parts, args.regularizer)
-            study = LinearStudy(parts, centre, regularizer=regularizer)
-            own = study.own_draw(parts["r0"])
-            result = monte_carlo(study, args.draws)
-            print("the dataset's own noise draw:", json.dumps(own))
-            print(json.dumps(result["rules"], indent=1))
-            for row in result["fixed_beta"][::2]:
-                print(
-                    f"  beta {row['beta_mm2']:9.3g}: dof {row['dof']:6.1f}, median contrast "
-                    f"{row['median_contrast']:.2f}, all criteria met {row['all_ok']:.2f}"
-                )
-            seconds = time.perf_counter() - begin
-            print(f"signal chi2 {result['signal_chi2']:.1f} on n = {result['n']}; {seconds:.0f} s")
-            rows.append(place_row(seed, centre, result, args.oracle_press))
-        if len(rows) > 1:
-            print("\nall three criteria met, fraction of the draws:")
-            print(places_table(rows))
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.imaging.weightstudy", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
+
 ALPHAS = ("alpha_u", "alpha_v", "alpha_w")
 
 
@@ -113,38 +115,37 @@ def build_parser(prog: str = "python -m experiments.inverse.batch"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.batch") -> int:
+def work(args) -> int:
     """Command line for the batch studies."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.output.atomic import atomic_write_json
     from experiments.phantom.forehead import TRUE_PARAMETERS
 
-    args = build_parser(prog).parse_args(argv)
+    if not 1 <= args.count <= 10_000 or not 1 <= args.workers <= 64:
+        raise UsageError("--count must lie in 1-10000 and --workers in 1-64")
+    if args.out is not None:
+        check_output_dir(args.out)
+    print(f"{args.study}: {args.count} runs on {args.workers} workers", flush=True)
+    if args.study == "coverage":
+        results = run_batch(coverage_task, range(args.count), args.scheduler, args.workers)
+        summary = coverage_summary(results, TRUE_PARAMETERS)
+        print(json.dumps(summary, indent=2))
+    else:
+        rng = np.random.default_rng(0)
+        starts = np.exp(rng.uniform(np.log(1e-2), np.log(1e2), (args.count, 3)))
+        results = run_batch(multistart_task, starts.tolist(), args.scheduler, args.workers)
+        best = min(r["cost"] for r in results)
+        hits = sum(r["success"] and r["cost"] <= best * (1 + 1e-6) for r in results)
+        summary = {"starts": len(results), "best_cost": best, "hits": hits}
+        print(f"{hits}/{len(results)} starts reached the best cost {best:.6g}")
+    if args.out is not None:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        atomic_write_json(Path(args.out) / "batch.json", {"study": args.study, **summary})
+    return 0
 
-    def work() -> int:
-        if not 1 <= args.count <= 10_000 or not 1 <= args.workers <= 64:
-            raise UsageError("--count must lie in 1-10000 and --workers in 1-64")
-        if args.out is not None:
-            check_output_dir(args.out)
-        print(f"{args.study}: {args.count} runs on {args.workers} workers", flush=True)
-        if args.study == "coverage":
-            results = run_batch(coverage_task, range(args.count), args.scheduler, args.workers)
-            summary = coverage_summary(results, TRUE_PARAMETERS)
-            print(json.dumps(summary, indent=2))
-        else:
-            rng = np.random.default_rng(0)
-            starts = np.exp(rng.uniform(np.log(1e-2), np.log(1e2), (args.count, 3)))
-            results = run_batch(multistart_task, starts.tolist(), args.scheduler, args.workers)
-            best = min(r["cost"] for r in results)
-            hits = sum(r["success"] and r["cost"] <= best * (1 + 1e-6) for r in results)
-            summary = {"starts": len(results), "best_cost": best, "hits": hits}
-            print(f"{hits}/{len(results)} starts reached the best cost {best:.6g}")
-        if args.out is not None:
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-            atomic_write_json(Path(args.out) / "batch.json", {"study": args.study, **summary})
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.inverse.batch", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

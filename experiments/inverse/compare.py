@@ -20,6 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_savefig, atomic_write_json, atomic_write_text  # noqa: E402
 from experiments.problem.fitting import FitSettings, build_problem  # noqa: E402
 from solvers.inverse.nested import NestedSolver
@@ -202,32 +203,30 @@ def build_parser(prog: str = "python -m experiments.inverse.compare"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.compare"):
+def work(args) -> int:
     """``dvs study compare [FILE.npz] --out DIR``; exit 2 with one line for bad input."""
-
-    from experiments.command.options import UsageError, check_output_dir, not_converged, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, not_converged
     from experiments.phantom.forehead import TRUE_PARAMETERS
     from experiments.phantom.simulate import simulate
 
-    args = build_parser(prog).parse_args(argv)
+    if not 1 <= args.starts <= MAX_STARTS or not 0 <= args.paper_starts <= MAX_STARTS:
+        raise UsageError(
+            f"--starts must lie in 1-{MAX_STARTS} and --paper-starts in 0-{MAX_STARTS}"
+        )
+    check_output_dir(args.out)
+    dataset = args.dataset or simulate()
+    truth = None if args.dataset else TRUE_PARAMETERS
+    rows = run(dataset, args.out, args.starts, args.paper_starts, truth)
+    print(table(rows))
+    if not rows["success"]:
+        failed = [n for n, r in rows.items() if isinstance(r, dict) and not r["success"]]
+        what = f"{', '.join(failed)} from the paper's start"
+        return not_converged(args.prog, what, args.out / "compare.json")
+    return 0
 
-    def work() -> int:
-        if not 1 <= args.starts <= MAX_STARTS or not 0 <= args.paper_starts <= MAX_STARTS:
-            raise UsageError(
-                f"--starts must lie in 1-{MAX_STARTS} and --paper-starts in 0-{MAX_STARTS}"
-            )
-        check_output_dir(args.out)
-        dataset = args.dataset or simulate()
-        truth = None if args.dataset else TRUE_PARAMETERS
-        rows = run(dataset, args.out, args.starts, args.paper_starts, truth)
-        print(table(rows))
-        if not rows["success"]:
-            failed = [n for n, r in rows.items() if isinstance(r, dict) and not r["success"]]
-            what = f"{', '.join(failed)} from the paper's start"
-            return not_converged(prog, what, args.out / "compare.json")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.inverse.compare", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

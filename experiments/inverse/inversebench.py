@@ -17,6 +17,7 @@ import casadi as ca
 import numpy as np
 
 from experiments.command.isolation import isolated, peak_mb
+from experiments.command.options import Command
 from experiments.inverse.benchtables import (
     REPEATS,
     ForwardTiming,
@@ -197,69 +198,66 @@ def _grids(text: str, option: str) -> list[tuple[int, int, int]]:
     ]
 
 
-def main(
-    argv: list[str] | None = None, prog: str = "python -m experiments.inverse.inversebench"
-) -> int:
+def work(args) -> int:
     """Print the benchmark tables (and write ``bench.json`` with ``--out``)."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.output.atomic import atomic_write_json
 
-    args = build_parser(prog).parse_args(argv)
+    if args.out is not None:  # first: the grids' check imports the fitting stack
+        check_output_dir(args.out)
+    grids = _grids(args.grids, "--grids")
+    paper_grids = _grids(args.paper_grids, "--paper-grids")
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if not methods or set(methods) - {"simultaneous", "nested", "paper"}:
+        raise UsageError(f"--methods takes simultaneous,nested,paper; got {args.methods!r}")
+    if args.diagnose:
+        from experiments.design.speed import (
+            design_search_benchmark,
+            next_benchmark,
+            sequential_step_benchmark,
+        )
+        from experiments.diagnosis.continuumstudy import diagnosis_benchmark
+        from experiments.diagnosis.defaults import defaults_benchmark
+        from experiments.diagnosis.study import diagnosis_timings
+        from experiments.imaging.imagebench import imaging_benchmark
+        from experiments.inverse.factorisation import factorisation_benchmark
 
-    def work() -> int:
-        if args.out is not None:  # first: the grids' check imports the fitting stack
-            check_output_dir(args.out)
-        grids = _grids(args.grids, "--grids")
-        paper_grids = _grids(args.paper_grids, "--paper-grids")
-        methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-        if not methods or set(methods) - {"simultaneous", "nested", "paper"}:
-            raise UsageError(f"--methods takes simultaneous,nested,paper; got {args.methods!r}")
-        if args.diagnose:
-            from experiments.design.speed import (
-                design_search_benchmark,
-                next_benchmark,
-                sequential_step_benchmark,
-            )
-            from experiments.diagnosis.continuumstudy import diagnosis_benchmark
-            from experiments.diagnosis.defaults import defaults_benchmark
-            from experiments.diagnosis.study import diagnosis_timings
-            from experiments.imaging.imagebench import imaging_benchmark
-            from experiments.inverse.factorisation import factorisation_benchmark
-
-            factorisation_benchmark()
-            diagnosis_timings()
-            diagnosis_benchmark()
-            defaults_benchmark()
-            imaging_benchmark()
-            design_search_benchmark()
-            sequential_step_benchmark()
-            next_benchmark()
-            return 0
-        print("Forward model (build = TissueModel + residual and Jacobian Functions)", flush=True)
-        forward = [isolated(_forward_job, grid, args.k0) for grid in GRIDS]
-        factorisations = {timing.grid: timing.factorisation for timing in forward}
-        print_forward(forward)
-        print("\nInverse, two load cases, alpha_u, alpha_v, alpha_w, from the paper's start")
-        results = {}
-        for grid in grids:
-            chosen = methods + (("paper",) if grid in paper_grids and not args.skip_paper else ())
-            results[grid] = {m: isolated(_inverse_job, grid, m) for m in dict.fromkeys(chosen)}
-            print_inverse(grid, results[grid], factorisations.get(grid, float("nan")))
-        if len(results) >= 2:
-            print("\nScaling")
-            print_scaling(results)
-        print_targets(forward, results)
-        if args.out is not None:
-            document = {
-                "forward": [vars(row) for row in forward],
-                "inverse": {"x".join(map(str, g)): rows for g, rows in results.items()},
-            }
-            args.out.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(args.out / "bench.json", document)
-            print(f"-> {args.out / 'bench.json'}")
+        factorisation_benchmark()
+        diagnosis_timings()
+        diagnosis_benchmark()
+        defaults_benchmark()
+        imaging_benchmark()
+        design_search_benchmark()
+        sequential_step_benchmark()
+        next_benchmark()
         return 0
+    print("Forward model (build = TissueModel + residual and Jacobian Functions)", flush=True)
+    forward = [isolated(_forward_job, grid, args.k0) for grid in GRIDS]
+    factorisations = {timing.grid: timing.factorisation for timing in forward}
+    print_forward(forward)
+    print("\nInverse, two load cases, alpha_u, alpha_v, alpha_w, from the paper's start")
+    results = {}
+    for grid in grids:
+        chosen = methods + (("paper",) if grid in paper_grids and not args.skip_paper else ())
+        results[grid] = {m: isolated(_inverse_job, grid, m) for m in dict.fromkeys(chosen)}
+        print_inverse(grid, results[grid], factorisations.get(grid, float("nan")))
+    if len(results) >= 2:
+        print("\nScaling")
+        print_scaling(results)
+    print_targets(forward, results)
+    if args.out is not None:
+        document = {
+            "forward": [vars(row) for row in forward],
+            "inverse": {"x".join(map(str, g)): rows for g, rows in results.items()},
+        }
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(args.out / "bench.json", document)
+        print(f"-> {args.out / 'bench.json'}")
+    return 0
 
-    return run_guarded(prog, work)
+
+main = Command("experiments.inverse.inversebench", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.phantom.forehead import TRUE_PARAMETERS
 from experiments.phantom.simulate import SimulationSettings, simulate
@@ -140,21 +141,20 @@ def build_parser(prog: str = "python -m experiments.inverse.paper"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.inverse.paper"):
+def work(args) -> int:
     """``dvs study paper --out DIR``: table1.md and paper.json."""
-    from experiments.command.options import check_noise, check_output_dir, check_seed, run_guarded
+    from experiments.command.options import check_noise, check_output_dir, check_seed
 
-    args = build_parser(prog).parse_args(argv)
+    check_noise(args.noise)
+    check_seed(args.seed)
+    check_output_dir(args.out)
+    print(f"fitting data sets 1, 2 and both (noise {args.noise} mm, seed {args.seed})")
+    print(run(args.out, args.noise, args.seed)["markdown"])
+    return 0
 
-    def work() -> int:
-        check_noise(args.noise)
-        check_seed(args.seed)
-        check_output_dir(args.out)
-        print(f"fitting data sets 1, 2 and both (noise {args.noise} mm, seed {args.seed})")
-        print(run(args.out, args.noise, args.seed)["markdown"])
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.inverse.paper", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_write_json
 from experiments.output.plots import plot_deformation
 from experiments.phantom.forehead import PhantomSettings, forehead_model, probe_loads
@@ -68,19 +69,18 @@ def build_parser(prog: str = "python -m experiments.phantom.forward"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.forward"):
+def work(args) -> int:
     """``dvs study forward --out DIR [--force N] [--k0 K]``."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
 
-    args = build_parser(prog).parse_args(argv)
+    if not 0 < args.force <= 5 or not 0 <= args.k0 <= 1000:
+        raise UsageError("--force must lie in (0, 5] N and --k0 in [0, 1000]")
+    run(check_output_dir(args.out), args.force, args.k0)
+    return 0
 
-    def work() -> int:
-        if not 0 < args.force <= 5 or not 0 <= args.k0 <= 1000:
-            raise UsageError("--force must lie in (0, 5] N and --k0 in [0, 1000]")
-        run(check_output_dir(args.out), args.force, args.k0)
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.phantom.forward", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

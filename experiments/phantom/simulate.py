@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.dataset import Dataset
 from experiments.phantom.designs import DESIGNS, design_loads, design_options, press_loads
 from experiments.phantom.forehead import (
@@ -335,7 +336,7 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.phantom.simulate"):
+def work(args) -> int:
     """``dvs simulate [--effect NAME[=VALUE] ...] --out FILE.npz``."""
     from experiments.command.options import (
         UsageError,
@@ -343,38 +344,36 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.phant
         check_output_file,
         check_seed,
         plural,
-        run_guarded,
     )
     from experiments.data.dataset import save_dataset
 
-    args = build_parser(prog).parse_args(argv)
+    check_noise(args.noise)
+    check_seed(args.seed)
+    check_output_file(args.out, ".npz")
+    options = design_options(args.design)
+    if "presses" in options:
+        n_cases = len(options["presses"])
+    else:
+        n_cases = len(options.get("contacts", [None])) * len(PhantomSettings().forces)
+    effects = parse_effect_specs(args.effect, n_cases)
+    try:
+        dataset = simulate_with_effects(effects, noise_mm=args.noise, seed=args.seed, **options)
+    except EquilibriumError:
+        raise UsageError(
+            f"the phantom has no equilibrium with {effects}; lower the effect magnitudes"
+        ) from None
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_dataset(args.out, dataset)
+    print(
+        f"wrote {args.out}: {plural(dataset.n_loads, 'load case')} ({args.design} design), "
+        f"{dataset.outer_rest.shape[0]}x{dataset.outer_rest.shape[1]} markers, "
+        f"noise {args.noise} mm, seed {args.seed}"
+    )
+    return 0
 
-    def work() -> int:
-        check_noise(args.noise)
-        check_seed(args.seed)
-        check_output_file(args.out, ".npz")
-        options = design_options(args.design)
-        if "presses" in options:
-            n_cases = len(options["presses"])
-        else:
-            n_cases = len(options.get("contacts", [None])) * len(PhantomSettings().forces)
-        effects = parse_effect_specs(args.effect, n_cases)
-        try:
-            dataset = simulate_with_effects(effects, noise_mm=args.noise, seed=args.seed, **options)
-        except EquilibriumError:
-            raise UsageError(
-                f"the phantom has no equilibrium with {effects}; lower the effect magnitudes"
-            ) from None
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        save_dataset(args.out, dataset)
-        print(
-            f"wrote {args.out}: {plural(dataset.n_loads, 'load case')} ({args.design} design), "
-            f"{dataset.outer_rest.shape[0]}x{dataset.outer_rest.shape[1]} markers, "
-            f"noise {args.noise} mm, seed {args.seed}"
-        )
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.phantom.simulate", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ import dataclasses
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
 from experiments.realskin.scan import overlap, scan
@@ -164,34 +165,33 @@ def build_parser(prog: str = "python -m experiments.realskin.checks"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.checks") -> int:
+def work(args) -> int:
     """``dvs realskin checks [--check a,b]``; one line and exit 2 on bad input."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.output.atomic import atomic_write_json
 
-    args = build_parser(prog).parse_args(argv)
+    names = [c.strip() for c in args.check.split(",") if c.strip()]
+    unknown = [c for c in names if c not in CHECKS]
+    if not names or unknown:
+        raise UsageError(f"--check takes a comma list of {', '.join(CHECKS)}")
+    if args.out is not None:
+        check_output_dir(args.out)
+    if not (shared_data_dir() / "skin-extensometer" / "keloid").is_dir():
+        raise UsageError("keloid data not found (set DVS_SHARED_DATA)")
+    settings = RealSkinSettings()
+    real = build("keloid", settings)
+    results = {}
+    for name in names:
+        results[name] = run_check(name, settings, real, print if args.verbose else _quiet)
+        print(line(results[name]), flush=True)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(args.out / "checks.json", results)
+    return 0
 
-    def work() -> int:
-        names = [c.strip() for c in args.check.split(",") if c.strip()]
-        unknown = [c for c in names if c not in CHECKS]
-        if not names or unknown:
-            raise UsageError(f"--check takes a comma list of {', '.join(CHECKS)}")
-        if args.out is not None:
-            check_output_dir(args.out)
-        if not (shared_data_dir() / "skin-extensometer" / "keloid").is_dir():
-            raise UsageError("keloid data not found (set DVS_SHARED_DATA)")
-        settings = RealSkinSettings()
-        real = build("keloid", settings)
-        results = {}
-        for name in names:
-            results[name] = run_check(name, settings, real, print if args.verbose else _quiet)
-            print(line(results[name]), flush=True)
-        if args.out is not None:
-            args.out.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(args.out / "checks.json", results)
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.checks", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.dicnoise import (
     _MAD,
@@ -305,18 +306,16 @@ def build_parser(prog: str = "python -m experiments.realskin.data"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.data") -> int:
+def work(args) -> int:
     """Print :func:`summary` for the cases (``dvs realskin data``)."""
-    from experiments.command.options import run_guarded
 
-    args = build_parser(prog).parse_args(argv)
+    for name in args.case or CASES:
+        print(summary(load_case(name)))
+    return 0
 
-    def work() -> int:
-        for name in args.case or CASES:
-            print(summary(load_case(name)))
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.data", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

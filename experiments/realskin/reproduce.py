@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin import authors, mesh2d
 from experiments.realskin.data import load_case
@@ -373,33 +374,29 @@ def parse_variants(text: str) -> tuple[str, ...]:
     return names
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.reproduce"):
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+def work(args) -> int:
+    from experiments.command.options import UsageError, check_output_dir
 
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
+    out = check_output_dir(args.out)
+    names = parse_variants(args.variants)
+    if not (np.isfinite(args.mesh_size) and 0.3 <= args.mesh_size <= 4.0):
+        raise UsageError(f"--mesh-size must lie in 0.3-4 mm, got {args.mesh_size}")
+    if args.gap is not None and not (np.isfinite(args.gap) and 20.0 <= args.gap <= 60.0):
+        raise UsageError(f"--gap must lie in 20-60 mm, got {args.gap}")
+    assumptions = Assumptions(args.plane, args.fix_ring, args.force)
+    setting = Setting(
+        args.case, args.travel, assumptions, gap_mm=args.gap, mesh_size_mm=args.mesh_size
+    )
+    try:
+        problem(setting, authors.HELD_SKIN[args.travel])  # the DIC lies in the mesh
+    except ValueError as error:
+        raise UsageError(f"--gap {args.gap:g} mm: {error}" if args.gap else str(error)) from None
+    run(setting, out, names)
+    return 0
 
-    def work() -> int:
-        out = check_output_dir(args.out)
-        names = parse_variants(args.variants)
-        if not (np.isfinite(args.mesh_size) and 0.3 <= args.mesh_size <= 4.0):
-            raise UsageError(f"--mesh-size must lie in 0.3-4 mm, got {args.mesh_size}")
-        if args.gap is not None and not (np.isfinite(args.gap) and 20.0 <= args.gap <= 60.0):
-            raise UsageError(f"--gap must lie in 20-60 mm, got {args.gap}")
-        assumptions = Assumptions(args.plane, args.fix_ring, args.force)
-        setting = Setting(
-            args.case, args.travel, assumptions, gap_mm=args.gap, mesh_size_mm=args.mesh_size
-        )
-        try:
-            problem(setting, authors.HELD_SKIN[args.travel])  # the DIC lies in the mesh
-        except ValueError as error:
-            raise UsageError(
-                f"--gap {args.gap:g} mm: {error}" if args.gap else str(error)
-            ) from None
-        run(setting, out, names)
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.reproduce", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

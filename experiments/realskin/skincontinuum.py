@@ -33,6 +33,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cases import load_cases
 from experiments.realskin.cellmap import map_report
@@ -275,23 +276,21 @@ def build_parser(prog: str = "python -m experiments.realskin.skincontinuum"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.skincontinuum"):
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+def work(args) -> int:
+    from experiments.command.options import UsageError, check_output_dir
 
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
+    cases = tuple(c.strip() for c in args.cases.split(",") if c.strip())
+    unknown = [c for c in cases if c not in AUTHORS]
+    if unknown or not cases:
+        raise UsageError(f"--cases must name healthy and/or keloid, got {args.cases!r}")
+    if not (0.1 <= args.thickness <= 10.0):
+        raise UsageError(f"--thickness must lie in 0.1-10 mm, got {args.thickness}")
+    run(check_output_dir(args.out), cases, args.thickness)
+    return 0
 
-    def work() -> int:
-        cases = tuple(c.strip() for c in args.cases.split(",") if c.strip())
-        unknown = [c for c in cases if c not in AUTHORS]
-        if unknown or not cases:
-            raise UsageError(f"--cases must name healthy and/or keloid, got {args.cases!r}")
-        if not (0.1 <= args.thickness <= 10.0):
-            raise UsageError(f"--thickness must lie in 0.1-10 mm, got {args.thickness}")
-        run(check_output_dir(args.out), cases, args.thickness)
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.skincontinuum", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.figures import case_figures, stage_summary
@@ -240,36 +241,34 @@ def build_parser(prog: str = "python -m experiments.realskin"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin") -> int:
+def work(args) -> int:
     """``dvs realskin fit --out DIR [--boundary lateral] [--case keloid]``."""
     from experiments.command.options import (
         UsageError,
         check_output_dir,
         parse_grid,
         parse_numbers,
-        run_guarded,
     )
 
-    args = build_parser(prog).parse_args(argv)
+    low, high = RealSkinSettings().bounds["k0"]
+    k0_starts = parse_numbers(args.k0_starts, "--k0-starts")
+    if not all(low <= v <= high for v in k0_starts):
+        raise UsageError(f"--k0-starts takes numbers in [{low:g}, {high:g}]")
+    grid = parse_grid(args.grid, sizes=2)
+    if not all(4 <= size <= 101 for size in grid):
+        raise UsageError(f"--grid takes MxN with M and N in 4-101, got {args.grid!r}")
+    settings = RealSkinSettings(
+        boundary=args.boundary,
+        stiffening=args.stiffening,
+        grid=grid,
+        starts={"k0": k0_starts} if k0_starts else {},
+    )
+    run(check_output_dir(args.out), settings, tuple(args.case or ("healthy", "keloid")))
+    return 0
 
-    def work() -> int:
-        low, high = RealSkinSettings().bounds["k0"]
-        k0_starts = parse_numbers(args.k0_starts, "--k0-starts")
-        if not all(low <= v <= high for v in k0_starts):
-            raise UsageError(f"--k0-starts takes numbers in [{low:g}, {high:g}]")
-        grid = parse_grid(args.grid, sizes=2)
-        if not all(4 <= size <= 101 for size in grid):
-            raise UsageError(f"--grid takes MxN with M and N in 4-101, got {args.grid!r}")
-        settings = RealSkinSettings(
-            boundary=args.boundary,
-            stiffening=args.stiffening,
-            grid=grid,
-            starts={"k0": k0_starts} if k0_starts else {},
-        )
-        run(check_output_dir(args.out), settings, tuple(args.case or ("healthy", "keloid")))
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.skinstudy", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

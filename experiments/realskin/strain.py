@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.realskin.data import SkinCase, load_case
 
 SEGMENTS_MM = (29.6, 40.0, 50.0, 60.0, 70.4)
@@ -142,33 +143,31 @@ def build_parser(prog: str = "python -m experiments.realskin.strain"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.strain") -> int:
+def work(args) -> int:
     """``dvs realskin strain [--case healthy] [--frames 14,42]``; exit 2 on bad input."""
     from experiments.command.options import (
         UsageError,
         check_output_file,
         parse_numbers,
-        run_guarded,
     )
 
-    args = build_parser(prog).parse_args(argv)
+    frames = list(parse_numbers(args.frames, "--frames", int))
+    if not frames:
+        raise UsageError(f"--frames takes a comma list of integers, got {args.frames!r}")
+    if args.figure is not None:
+        check_output_file(args.figure, ".png", "--figure")
+    case = load_case(args.case)
+    edges = SEGMENTS_MM if args.case == "keloid" else quarters(case)
+    print(table(case, frames, edges))
+    if args.figure:
+        from experiments.realskin.setup import pad_rects
 
-    def work() -> int:
-        frames = list(parse_numbers(args.frames, "--frames", int))
-        if not frames:
-            raise UsageError(f"--frames takes a comma list of integers, got {args.frames!r}")
-        if args.figure is not None:
-            check_output_file(args.figure, ".png", "--figure")
-        case = load_case(args.case)
-        edges = SEGMENTS_MM if args.case == "keloid" else quarters(case)
-        print(table(case, frames, edges))
-        if args.figure:
-            from experiments.realskin.setup import pad_rects
+        figure(case, frames, args.figure, pads=pad_rects(case))
+    return 0
 
-            figure(case, frames, args.figure, pads=pad_rects(case))
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.strain", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.cases import force_weight, load_cases
 from experiments.realskin.geometry import points_in_polygon
@@ -308,53 +309,52 @@ def build_parser(prog: str = "python -m experiments.realskin.twin"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.realskin.twin") -> int:
+def work(args) -> int:
     """``dvs realskin twin [--ratios 3.5,23] [--seeds 0,1,2]``; one line and exit 2 on bad input."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
     from experiments.output.atomic import atomic_write_json
 
-    args = build_parser(prog).parse_args(argv)
+    settings = RealSkinSettings()
+    ratios = _numbers(args.ratios, float, "--ratios")
+    seeds = _numbers(args.seeds, int, "--seeds")
+    if not (np.isfinite(args.force_noise) and args.force_noise >= 0):
+        raise UsageError(f"--force-noise must be >= 0 N, got {args.force_noise}")
+    if not (np.isfinite(args.k0) and 0 <= args.k0 <= settings.bounds["k0"][1]):
+        raise UsageError(f"--k0 must be in [0, {settings.bounds['k0'][1]:g}], got {args.k0}")
+    if args.out is not None:
+        check_output_dir(args.out)
+    data = shared_data_dir() / "skin-extensometer" / "keloid"
+    if not data.is_dir():
+        raise UsageError(f"keloid data not found at {data} (set DVS_SHARED_DATA)")
+    runs = []
+    real = build("keloid", settings)  # data and model once, for every ratio and seed
+    for ratio in ratios:
+        for seed in seeds:
+            run = run_twin(
+                ratio,
+                seed,
+                settings,
+                force_noise_n=args.force_noise,
+                base=args.base,
+                log=print if args.verbose else _quiet,
+                real=real,
+                k0=args.k0,
+            )
+            print(line(run), flush=True)
+            runs.append(run)
+    print(table(runs))
+    print(
+        f"truth: k0 {args.k0:g}, outline region; base {args.base}; DIC noise "
+        f"{runs[0]['dic_noise_mm']:.4f} mm, force noise {args.force_noise:g} N"
+    )
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(args.out / "twin.json", {"k0": args.k0, "runs": runs})
+    return 0
 
-    def work() -> int:
-        settings = RealSkinSettings()
-        ratios = _numbers(args.ratios, float, "--ratios")
-        seeds = _numbers(args.seeds, int, "--seeds")
-        if not (np.isfinite(args.force_noise) and args.force_noise >= 0):
-            raise UsageError(f"--force-noise must be >= 0 N, got {args.force_noise}")
-        if not (np.isfinite(args.k0) and 0 <= args.k0 <= settings.bounds["k0"][1]):
-            raise UsageError(f"--k0 must be in [0, {settings.bounds['k0'][1]:g}], got {args.k0}")
-        if args.out is not None:
-            check_output_dir(args.out)
-        data = shared_data_dir() / "skin-extensometer" / "keloid"
-        if not data.is_dir():
-            raise UsageError(f"keloid data not found at {data} (set DVS_SHARED_DATA)")
-        runs = []
-        real = build("keloid", settings)  # data and model once, for every ratio and seed
-        for ratio in ratios:
-            for seed in seeds:
-                run = run_twin(
-                    ratio,
-                    seed,
-                    settings,
-                    force_noise_n=args.force_noise,
-                    base=args.base,
-                    log=print if args.verbose else _quiet,
-                    real=real,
-                    k0=args.k0,
-                )
-                print(line(run), flush=True)
-                runs.append(run)
-        print(table(runs))
-        print(
-            f"truth: k0 {args.k0:g}, outline region; base {args.base}; DIC noise "
-            f"{runs[0]['dic_noise_mm']:.4f} mm, force noise {args.force_noise:g} N"
-        )
-        if args.out is not None:
-            args.out.mkdir(parents=True, exist_ok=True)
-            atomic_write_json(args.out / "twin.json", {"k0": args.k0, "runs": runs})
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.realskin.twin", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.paths import shared_data_dir
 
 from .calibration import calibrate_camera
@@ -158,25 +159,24 @@ def build_parser(prog: str = "python -m experiments.stereo.boardbench"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.boardbench"):
+def work(args) -> int:
     """Print the benchmark; exit 0 (the targets are reported, not enforced)."""
-    from experiments.command.options import UsageError, run_guarded
+    from experiments.command.options import UsageError
 
-    args = build_parser(prog).parse_args(argv)
+    if not 1 <= args.full_size_images <= 26:  # the options first, then the data
+        raise UsageError("--full-size-images must lie in 1-26")
+    data = (args.data or shared_data_dir()) / "opencv-stereo"
+    if not data.is_dir():
+        raise UsageError(f"OpenCV's stereo sample not found at {data}; give --data DIR")
+    sample = opencv_sample(data, args.full_size_images)
+    rendered = rendered_boards()
+    for line in report(sample, rendered):
+        print(line, flush=True)
+    return 0
 
-    def work() -> int:
-        if not 1 <= args.full_size_images <= 26:  # the options first, then the data
-            raise UsageError("--full-size-images must lie in 1-26")
-        data = (args.data or shared_data_dir()) / "opencv-stereo"
-        if not data.is_dir():
-            raise UsageError(f"OpenCV's stereo sample not found at {data}; give --data DIR")
-        sample = opencv_sample(data, args.full_size_images)
-        rendered = rendered_boards()
-        for line in report(sample, rendered):
-            print(line, flush=True)
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.stereo.boardbench", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

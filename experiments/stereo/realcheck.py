@@ -25,6 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.paths import shared_data_dir
 
 from . import holdout
@@ -272,76 +273,75 @@ def build_parser(prog: str = "python -m experiments.stereo.realcheck"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.realcheck"):
+def work(args) -> int:
     """``dvs study realcheck --out DIR``: realcheck.json and realcheck.png."""
-    from experiments.command.options import UsageError, check_output_dir, run_guarded
+    from experiments.command.options import UsageError, check_output_dir
 
-    args = build_parser(prog).parse_args(argv)
-
-    def work() -> int:
-        data = args.data or shared_data_dir()
-        if not data.is_dir():
-            raise UsageError(f"real data not found at {data}; give --data DIR")
-        check_output_dir(args.out)
-        args.out.mkdir(parents=True, exist_ok=True)
-        cv = check_opencv_stereo(data / "opencv-stereo")
+    data = args.data or shared_data_dir()
+    if not data.is_dir():
+        raise UsageError(f"real data not found at {data}; give --data DIR")
+    check_output_dir(args.out)
+    args.out.mkdir(parents=True, exist_ok=True)
+    cv = check_opencv_stereo(data / "opencv-stereo")
+    print(
+        f"opencv-stereo: {cv['pairs_detected']}/{cv['pairs']} pairs detected; RMS left "
+        f"{cv['left_rms_px']:.3f} px, right {cv['right_rms_px']:.3f} px, stereo "
+        f"{cv['stereo_rms_px']:.3f} px"
+    )
+    print(
+        f"opencv-stereo: neighbouring corners {cv['neighbour_mean_squares']:.4f} squares "
+        f"apart (RMS deviation {100 * cv['neighbour_rms_dev']:.2f}%, worst pair mean "
+        f"{100 * cv['neighbour_pair_mean_max_dev']:.2f}%, max single "
+        f"{100 * cv['neighbour_max_dev']:.1f}%, {100 * cv['neighbour_frac_over_2pct']:.1f}% "
+        "of distances off by > 2%)"
+    )
+    mdr, artefacts = check_multidic(data / "multidic-calibration-object")
+    for name in ("201", "202"):
+        r = mdr[name]
         print(
-            f"opencv-stereo: {cv['pairs_detected']}/{cv['pairs']} pairs detected; RMS left "
-            f"{cv['left_rms_px']:.3f} px, right {cv['right_rms_px']:.3f} px, stereo "
-            f"{cv['stereo_rms_px']:.3f} px"
+            f"multidic {name}: {r['visible_labelled_ok']}/{r['visible']} visible dots "
+            f"detected and correctly indexed ({100 * r['visible_frac']:.1f}%); whole dot "
+            f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
+            f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)"
         )
+    for name in ("201", "202"):
+        c = mdr[name]["calibration"]
         print(
-            f"opencv-stereo: neighbouring corners {cv['neighbour_mean_squares']:.4f} squares "
-            f"apart (RMS deviation {100 * cv['neighbour_rms_dev']:.2f}%, worst pair mean "
-            f"{100 * cv['neighbour_pair_mean_max_dev']:.2f}%, max single "
-            f"{100 * cv['neighbour_max_dev']:.1f}%, {100 * cv['neighbour_frac_over_2pct']:.1f}% "
-            "of distances off by > 2%)"
-        )
-        mdr, artefacts = check_multidic(data / "multidic-calibration-object")
-        for name in ("201", "202"):
-            r = mdr[name]
-            print(
-                f"multidic {name}: {r['visible_labelled_ok']}/{r['visible']} visible dots "
-                f"detected and correctly indexed ({100 * r['visible_frac']:.1f}%); whole dot "
-                f"facing: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']}; "
-                f"calibration RMS {r['calib_rms_px']:.3f} px (DLT {r['dlt_rms_px']:.2f} px)"
+            f"multidic {name}: lens model {c['model']} (spatial hold-out); principal point "
+            f"({c['principal_point_px'][0]:.0f}, {c['principal_point_px'][1]:.0f}) px, "
+            "spatial std ({:.1f}, {:.1f}) px [covariance ({:.1f}, {:.1f}), half the "
+            "ends' difference ({:.1f}, {:.1f})]".format(
+                *c["principal_point_std_px"],
+                *c["principal_point_cov_std_px"],
+                *c["principal_point_half_spread_px"],
             )
-        for name in ("201", "202"):
-            c = mdr[name]["calibration"]
-            print(
-                f"multidic {name}: lens model {c['model']} (spatial hold-out); principal point "
-                f"({c['principal_point_px'][0]:.0f}, {c['principal_point_px'][1]:.0f}) px, "
-                "spatial std ({:.1f}, {:.1f}) px [covariance ({:.1f}, {:.1f}), half the "
-                "ends' difference ({:.1f}, {:.1f})]".format(
-                    *c["principal_point_std_px"],
-                    *c["principal_point_cov_std_px"],
-                    *c["principal_point_half_spread_px"],
-                )
-            )
-            if c["warning"]:
-                print(f"warning: multidic {name}: {c['warning']}")
-        s = mdr["stereo"]
-        print(
-            f"multidic stereo, {s['n_dots']} dots: RMS 3D error {s['rms_3d_mm']:.4f} mm "
-            f"in-sample (max {s['max_3d_mm']:.3f} mm); spatial hold-out "
-            f"{s['spatial_holdout_blocks_rms_3d_mm']:.4f} mm (one of 12 blocks left out at a "
-            f"time), {s['spatial_holdout_ends_rms_3d_mm']:.4f} mm (one end from the other); "
-            f"interleaved halves {s['interleaved_holdout_rms_3d_mm']:.4f} mm"
         )
-        print(
-            f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
-            f"residual RMS {s['surface_rms_mm']:.4f} mm (max {s['surface_max_mm']:.3f} mm); "
-            f"ICP to the true surface RMS {s['icp_to_true_surface_rms_mm']:.4f} mm"
-        )
-        numbers = {"opencv_stereo": cv, "multidic": mdr}
-        _write_atomic(
-            args.out / "realcheck.json", lambda fh: fh.write(json.dumps(numbers, indent=2).encode())
-        )
-        make_figure(artefacts, args.out / "realcheck.png")
-        print(f"wrote {args.out / 'realcheck.json'} and {args.out / 'realcheck.png'}")
-        return 0
+        if c["warning"]:
+            print(f"warning: multidic {name}: {c['warning']}")
+    s = mdr["stereo"]
+    print(
+        f"multidic stereo, {s['n_dots']} dots: RMS 3D error {s['rms_3d_mm']:.4f} mm "
+        f"in-sample (max {s['max_3d_mm']:.3f} mm); spatial hold-out "
+        f"{s['spatial_holdout_blocks_rms_3d_mm']:.4f} mm (one of 12 blocks left out at a "
+        f"time), {s['spatial_holdout_ends_rms_3d_mm']:.4f} mm (one end from the other); "
+        f"interleaved halves {s['interleaved_holdout_rms_3d_mm']:.4f} mm"
+    )
+    print(
+        f"multidic surface: bicubic {s['surface_grid'][0]}x{s['surface_grid'][1]} fit "
+        f"residual RMS {s['surface_rms_mm']:.4f} mm (max {s['surface_max_mm']:.3f} mm); "
+        f"ICP to the true surface RMS {s['icp_to_true_surface_rms_mm']:.4f} mm"
+    )
+    numbers = {"opencv_stereo": cv, "multidic": mdr}
+    _write_atomic(
+        args.out / "realcheck.json", lambda fh: fh.write(json.dumps(numbers, indent=2).encode())
+    )
+    make_figure(artefacts, args.out / "realcheck.png")
+    print(f"wrote {args.out / 'realcheck.json'} and {args.out / 'realcheck.png'}")
+    return 0
 
-    return run_guarded(prog, work)
+
+main = Command("experiments.stereo.realcheck", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

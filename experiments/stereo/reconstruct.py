@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.data.dataset import Dataset, save_dataset, validate
 from experiments.stereo.correspondence import (
     label_rest,
@@ -267,38 +268,37 @@ def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.reconstruct"):
+def work(args) -> int:
     """``dvs reconstruct FOLDER --out FILE.npz [--intrinsics FILE]``; exit 2 on bad input."""
-    from experiments.command.options import check_output_file, run_guarded
+    from experiments.command.options import check_output_file
 
-    args = build_parser(prog).parse_args(argv)
+    check_output_file(args.out, ".npz")
+    intrinsics = None
+    if args.intrinsics is not None:
+        from .intrinsics import load_intrinsics
 
-    def work() -> int:
-        check_output_file(args.out, ".npz")
-        intrinsics = None
-        if args.intrinsics is not None:
-            from .intrinsics import load_intrinsics
-
-            intrinsics = load_intrinsics(args.intrinsics)
-        try:
-            rec = reconstruct(
-                args.folder, progress=lambda m: print(m, flush=True), intrinsics=intrinsics
-            )
-        except cv2.error as error:
-            raise ValueError(" ".join(str(error).split())) from None
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        save_dataset(args.out, rec.dataset)
-        seen = rec.views[1:].astype(bool).sum(axis=(1, 2)).tolist()
-        reg = rec.registration_rms_mm
-        registration = "" if reg is None else f", rest markers {reg * 1e3:.1f} um from segmentation"
-        print(
-            f"wrote {args.out}: {rec.views.shape[1]} x {rec.views.shape[2]} markers, seen under "
-            f"load {seen}, reprojection RMS {np.round(rec.reprojection_rms_px, 3).tolist()} px"
-            + registration
+        intrinsics = load_intrinsics(args.intrinsics)
+    try:
+        rec = reconstruct(
+            args.folder, progress=lambda m: print(m, flush=True), intrinsics=intrinsics
         )
-        return 0
+    except cv2.error as error:
+        raise ValueError(" ".join(str(error).split())) from None
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_dataset(args.out, rec.dataset)
+    seen = rec.views[1:].astype(bool).sum(axis=(1, 2)).tolist()
+    reg = rec.registration_rms_mm
+    registration = "" if reg is None else f", rest markers {reg * 1e3:.1f} um from segmentation"
+    print(
+        f"wrote {args.out}: {rec.views.shape[1]} x {rec.views.shape[2]} markers, seen under "
+        f"load {seen}, reprojection RMS {np.round(rec.reprojection_rms_px, 3).tolist()} px"
+        + registration
+    )
+    return 0
 
-    return run_guarded(prog, work)
+
+main = Command("experiments.stereo.reconstruct", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from experiments.command.options import Command
 from experiments.output.atomic import atomic_save_npz, atomic_write_bytes, atomic_write_text
 from experiments.phantom.forehead import PhantomSettings
 from experiments.stereo.imageops import _box_filter, _square_wave, _undistortion_map
@@ -378,24 +379,23 @@ def build_parser(prog: str = "python -m experiments.stereo.render"):
     return parser
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m experiments.stereo.render"):
+def work(args) -> int:
     """``dvs study render FOLDER [--scale S] [--boards N] [--seed N]``."""
-    from experiments.command.options import UsageError, check_output_dir, check_seed, run_guarded
+    from experiments.command.options import UsageError, check_output_dir, check_seed
 
-    args = build_parser(prog).parse_args(argv)
+    if not 0.1 <= args.scale <= 2 or not 3 <= args.boards <= 50:
+        raise UsageError("--scale must lie in [0.1, 2] and --boards in 3-50")
+    check_seed(args.seed)
+    check_output_dir(args.folder, "FOLDER")
+    print(f"rendering {args.boards} board poses and the experiment into {args.folder}")
+    rig = RigSettings(scale=args.scale)
+    write_synthetic_experiment(args.folder, rig=rig, n_boards=args.boards, seed=args.seed)
+    print(f"wrote {args.folder}")
+    return 0
 
-    def work() -> int:
-        if not 0.1 <= args.scale <= 2 or not 3 <= args.boards <= 50:
-            raise UsageError("--scale must lie in [0.1, 2] and --boards in 3-50")
-        check_seed(args.seed)
-        check_output_dir(args.folder, "FOLDER")
-        print(f"rendering {args.boards} board poses and the experiment into {args.folder}")
-        rig = RigSettings(scale=args.scale)
-        write_synthetic_experiment(args.folder, rig=rig, n_boards=args.boards, seed=args.seed)
-        print(f"wrote {args.folder}")
-        return 0
 
-    return run_guarded(prog, work)
+main = Command("experiments.stereo.render", build_parser, work).main
+"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":
