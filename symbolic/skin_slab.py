@@ -23,8 +23,9 @@ import scipy.sparse as sp
 
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.energy import Field, quadrature, weighted_gram
-from symbolic.model import PARAMETERS, TissueModel, check_parameters, term_parameter
+from symbolic.model import PARAMETERS, TissueModel, check_parameters
 from symbolic.sparse import to_casadi_sparse
+from symbolic.unitterms import term_parameter
 
 REGION_RATIO = "region_ratio"
 """Name of the stiffness ratio 1 + theta of the second material (inside / outside) [1]."""

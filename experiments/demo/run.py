@@ -143,4 +143,3 @@ def work(args) -> int:
 
 
 main = Command("experiments.demo", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""

@@ -380,7 +380,6 @@ def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Pat
 
 
 main = Command("experiments.design.designcommand", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

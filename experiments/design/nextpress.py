@@ -314,7 +314,6 @@ def plot_next(path: Path, document: dict, dataset) -> None:
 
 
 main = Command("experiments.design.nextpress", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -256,7 +256,6 @@ def work(args) -> int:
 
 
 main = Command("experiments.diagnosis.outoflibrary", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -195,7 +195,6 @@ def work(args) -> int:
 
 
 main = Command("experiments.fit.fitcommand", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

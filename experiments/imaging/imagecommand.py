@@ -213,7 +213,6 @@ def work(args) -> int:
 
 
 main = Command("experiments.imaging.imagecommand", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

@@ -405,7 +405,6 @@ def work(args) -> int:
 
 
 main = Command("experiments.imaging.weightstudy", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

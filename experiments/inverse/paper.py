@@ -154,7 +154,6 @@ def work(args) -> int:
 
 
 main = Command("experiments.inverse.paper", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

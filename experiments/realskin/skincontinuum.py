@@ -290,7 +290,6 @@ def work(args) -> int:
 
 
 main = Command("experiments.realskin.skincontinuum", build_parser, work).main
-"""The command's entry point (``experiments.command.options.Command``)."""
 
 
 if __name__ == "__main__":

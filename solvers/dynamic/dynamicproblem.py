@@ -43,7 +43,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.inverse.space import ParameterSpace
-from symbolic.model import TissueModel, term_parameter
+from symbolic.model import TissueModel
+from symbolic.unitterms import term_parameter
 
 STEP_SNAP = 1e-10
 """Relative tolerance below which two step sizes of the grid count as one."""

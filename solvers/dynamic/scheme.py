@@ -28,7 +28,8 @@ import scipy.sparse.linalg as spla
 
 from solvers.dynamic.dynamicproblem import TimeGrid, parameter_values, unit_matrices
 from solvers.forward.evaluator import casadi_to_scipy
-from symbolic.model import TissueModel, term_parameter
+from symbolic.model import TissueModel
+from symbolic.unitterms import term_parameter
 
 
 class SchemeError(RuntimeError):

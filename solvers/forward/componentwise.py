@@ -32,8 +32,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from symbolic.model import TissueModel, term_parameter
+from symbolic.model import TissueModel
 from symbolic.sparse import pattern_entries
+from symbolic.unitterms import term_parameter
 
 ORDERING = {"permc_spec": "MMD_AT_PLUS_A", "options": {"SymmetricMode": True}}
 """SuperLU options of the scalar factorisation: symmetric ordering, diagonal pivots."""

@@ -30,8 +30,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from symbolic.model import TissueModel, term_parameter
+from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
+from symbolic.unitterms import term_parameter
 
 
 @dataclass(frozen=True)
