@@ -20,6 +20,23 @@ def shared_data():
     return path
 
 
+@pytest.fixture(scope="session")
+def imaging_problem():
+    """The imaging tests' linear-elastic problem at 7 x 7 x 2: diagnosis-design FE data of a
+    12 x 12 x 2 slab with a stiffness gradient, 0.02 mm noise (built once per session)."""
+    from experiments.diagnosis.diagnose import base_settings
+    from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
+    from experiments.phantom.simulate import SimulationSettings
+    from experiments.problem.fitting import build_problem
+
+    slab = ReferenceSlab(elements=(12, 12, 2), gradient=0.5)
+    forces, contacts = design_cases("diagnosis", slab)
+    data = reference_dataset(
+        slab, forces, contacts, 4.0, (7, 7), SimulationSettings(noise_mm=0.02, seed=3)
+    )
+    return build_problem(data, base_settings((7, 7, 2), "linear-elastic"))
+
+
 def exit_code_and_stderr(main, argv, capsys) -> tuple[int, str]:
     """Run a command line's ``main(argv)``; its exit code (argparse exits included) and
     what it wrote to stderr."""

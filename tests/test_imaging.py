@@ -6,16 +6,18 @@ so they hold on any data; the data are only made honest.
 """
 
 import copy
+from functools import partial
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from experiments.diagnosis.diagnose import base_settings
-from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
-from experiments.phantom.simulate import SimulationSettings
-from experiments.problem.fitting import build_problem
-from solvers.imaging.estimate import gauss_newton, lbfgs, secant_update, simultaneous
+from solvers.imaging.estimate import (
+    FieldSimultaneousSolver,
+    GaussNewtonSolver,
+    LbfgsSolver,
+    secant_update,
+)
 from solvers.imaging.fieldproblem import FieldProblem
 from solvers.imaging.laplace import laplace
 from solvers.imaging.regularization import Tikhonov, TotalVariation
@@ -26,14 +28,8 @@ LENGTHS = (40.0, 40.0, 5.0)
 
 
 @pytest.fixture(scope="module")
-def field_problem():
-    slab = ReferenceSlab(elements=(12, 12, 2), gradient=0.5)
-    forces, contacts = design_cases("diagnosis", slab)
-    data = reference_dataset(
-        slab, forces, contacts, 4.0, (7, 7), SimulationSettings(noise_mm=0.02, seed=3)
-    )
-    problem = build_problem(data, base_settings((7, 7, 2), "linear-elastic"))
-    return FieldProblem(problem, StiffnessField((4, 4)))
+def field_problem(imaging_problem):
+    return FieldProblem(imaging_problem, StiffnessField((4, 4)))
 
 
 def test_field_basis_is_a_partition_of_unity_with_nodal_coefficients():
@@ -91,7 +87,7 @@ def test_the_band_marginal_over_nu_is_the_joint_hessians_field_block(field_probl
     assert np.linalg.norm(column - central) <= 1e-7 * np.linalg.norm(central)
     regularizer = Tikhonov(fp.field, LENGTHS)
     beta = 1e5  # mm^2: the low-rank form is accurate here (at 10 mm^2 it is not, nu or no nu)
-    estimate = gauss_newton(fp, regularizer, beta, c, "sensitivity")
+    estimate = GaussNewtonSolver(fp, regularizer, "sensitivity").solve(beta, c)
     column = fp.poisson_sensitivity(estimate.coefficients)
     fresh = fp.sensitivities(estimate.coefficients)
     # the J the sensitivity route formed at its last iterate is the estimate's, kept
@@ -128,10 +124,10 @@ def test_simultaneous_and_nested_give_the_same_map(field_problem):
     regularizer = Tikhonov(fp.field, LENGTHS)
     weight = 100.0
     maps = {
-        "adjoint": gauss_newton(fp, regularizer, weight, hessian="adjoint"),
-        "sensitivity": gauss_newton(fp, regularizer, weight, hessian="sensitivity"),
-        "l-bfgs-b": lbfgs(fp, regularizer, weight),
-        "simultaneous": simultaneous(fp, regularizer, weight),
+        "adjoint": GaussNewtonSolver(fp, regularizer, "adjoint").solve(weight),
+        "sensitivity": GaussNewtonSolver(fp, regularizer, "sensitivity").solve(weight),
+        "l-bfgs-b": LbfgsSolver(fp, regularizer).solve(weight),
+        "simultaneous": FieldSimultaneousSolver(fp, regularizer).solve(weight),
     }
     assert all(m.success for m in maps.values()), {k: m.message for k, m in maps.items()}
     reference = maps["simultaneous"].coefficients
@@ -163,8 +159,8 @@ def test_the_secant_term_cuts_gauss_newtons_iterations_on_data_with_model_error(
     """On the fixture's FE data (model error at 7 x 7 x 2) Gauss-Newton converges
     linearly; with the secant term it reaches the same map in fewer iterations."""
     regularizer = Tikhonov(field_problem.field, LENGTHS)
-    plain = gauss_newton(field_problem, regularizer, 100.0, hessian="sensitivity", secant=False)
-    augmented = gauss_newton(field_problem, regularizer, 100.0, hessian="sensitivity")
+    plain = GaussNewtonSolver(field_problem, regularizer, "sensitivity", secant=False).solve(100.0)
+    augmented = GaussNewtonSolver(field_problem, regularizer, "sensitivity").solve(100.0)
     assert plain.success and augmented.success
     print(
         f"iterations: Gauss-Newton {plain.iterations}, with the secant term {augmented.iterations}"
@@ -216,7 +212,7 @@ def test_lcurve_corner_lies_inside_its_range_and_near_the_noise(field_problem):
     and the pointwise standard deviation at the nodes is the Laplace std itself."""
     fp = reachable(field_problem, 2.0 * truth_field(field_problem.field), seed=5)
     regularizer = Tikhonov(fp.field, LENGTHS)
-    solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    solve = partial(GaussNewtonSolver, hessian="sensitivity")
     choice = lcurve_weight(fp, regularizer, solve)
     betas = [beta for beta, _ in choice.path]
     assert min(betas) < choice.estimate.weight < max(betas)
@@ -231,7 +227,7 @@ def test_gcv_asks_for_no_field_on_homogeneous_data(field_problem):
     field; ``reached`` False), and the map is flat within its own band."""
     fp = reachable(field_problem, np.zeros(field_problem.size), seed=6)
     regularizer = Tikhonov(fp.field, LENGTHS)
-    solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    solve = partial(GaussNewtonSolver, hessian="sensitivity")
     choice = gcv_weight(fp, regularizer, solve, bounds=(1e-2, 1e8))
     assert not choice.reached and choice.estimate.weight == pytest.approx(1e8)
     posterior = laplace(fp, regularizer, choice.estimate)
@@ -247,7 +243,7 @@ def test_gcv_minimum_is_interior_and_its_value_is_eq_I10(field_problem):
     side."""
     fp = reachable(field_problem, 2.0 * truth_field(field_problem.field), seed=5)
     regularizer = Tikhonov(fp.field, LENGTHS)
-    solve = lambda *a: gauss_newton(*a, hessian="sensitivity")  # noqa: E731
+    solve = partial(GaussNewtonSolver, hessian="sensitivity")
     sweep = gcv_weight(fp, regularizer, solve, predict=False)
     assert sweep.reached, sweep.note
     betas = sorted(beta for beta, _ in sweep.path)
@@ -264,8 +260,8 @@ def test_gcv_minimum_is_interior_and_its_value_is_eq_I10(field_problem):
 
     best = gcv(choice.estimate)
     for factor in (10**-0.2, 10**0.2):
-        other = solve(
-            fp, regularizer, choice.estimate.weight * factor, choice.estimate.coefficients
+        other = solve(fp, regularizer).solve(
+            choice.estimate.weight * factor, choice.estimate.coefficients
         )
         assert best <= gcv(other) * (1 + 1e-6)
 
@@ -275,7 +271,7 @@ def test_predicted_gcv_equals_eq_I10_at_the_estimates_own_weight(field_problem, 
     """Eq. (I10') about an estimate, evaluated at that estimate's weight, is eq. (I10):
     the Gauss-Newton step there is zero and its dof is the Laplace dof."""
     regularizer = kind(field_problem.field, LENGTHS)
-    estimate = gauss_newton(field_problem, regularizer, 300.0, hessian="sensitivity")
+    estimate = GaussNewtonSolver(field_problem, regularizer, "sensitivity").solve(300.0)
     assert estimate.success and estimate.jacobian is not None
     n = field_problem.n_residuals
     dof = laplace(field_problem, regularizer, estimate).effective_dof

@@ -10,10 +10,6 @@ import pytest
 import scipy.sparse as sp
 
 import solvers.inverse.nested as nested
-from experiments.diagnosis.diagnose import base_settings
-from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
-from experiments.phantom.simulate import SimulationSettings
-from experiments.problem.fitting import build_problem
 from solvers.imaging.estimate import SOLVERS
 from solvers.imaging.fieldproblem import Factor, FieldProblem
 from solvers.imaging.regularization import Tikhonov
@@ -24,18 +20,8 @@ LENGTHS = (40.0, 40.0, 5.0)
 
 
 @pytest.fixture(scope="module")
-def problem():
-    slab = ReferenceSlab(elements=(12, 12, 2), gradient=0.5)
-    forces, contacts = design_cases("diagnosis", slab)
-    data = reference_dataset(
-        slab, forces, contacts, 4.0, (7, 7), SimulationSettings(noise_mm=0.02, seed=3)
-    )
-    return build_problem(data, base_settings((7, 7, 2), "linear-elastic"))
-
-
-@pytest.fixture(scope="module")
-def field_problem(problem):
-    return FieldProblem(problem, StiffnessField((4, 4)))
+def field_problem(imaging_problem):
+    return FieldProblem(imaging_problem, StiffnessField((4, 4)))
 
 
 def test_stiffness_from_the_elasticity_blocks_is_eq_I2(field_problem):
@@ -62,18 +48,18 @@ def test_dense_triangular_solves_equal_superlus(field_problem):
     assert np.abs(matrix @ dense - right).max() <= 1e-8 * np.abs(right).max()
 
 
-def plain_bisection(fp, regularizer, solve, target, bounds=(1e-2, 1e10), tolerance=0.02):
+def plain_bisection(fp, regularizer, method, target, bounds=(1e-2, 1e10), tolerance=0.02):
     """Morozov's search as it was before the predictions: every comparison a solve."""
-    high = bounds[1]
-    above = below = solve(fp, regularizer, high, None)
+    solve, high = method(fp, regularizer).solve, bounds[1]
+    above = below = solve(high)
     low = high
     while below.chi2 > target:
         high, above = low, below
         low /= 10.0
-        below = solve(fp, regularizer, low, above.coefficients)
+        below = solve(low, above.coefficients)
     while np.log10(high / low) > tolerance:
         middle = np.sqrt(high * low)
-        estimate = solve(fp, regularizer, middle, below.coefficients)
+        estimate = solve(middle, below.coefficients)
         if estimate.chi2 > target:
             high, above = middle, estimate
         else:
@@ -91,9 +77,9 @@ def test_predicted_morozov_search_gives_the_bisections_weight_and_map(field_prob
     fp.b = [-(a @ s) + rng.normal(0.0, fp.sigma, a.shape[0]) for a, s in zip(fp.A, states)]
     fp.whitening = sp.identity(fp.n_residuals, format="csr") / fp.sigma
     regularizer = Tikhonov(fp.field, LENGTHS)
-    solve = SOLVERS["nested-sensitivity"]
-    reference = plain_bisection(fp, regularizer, solve, float(fp.n_residuals))
-    choice = discrepancy_weight(fp, regularizer, solve)
+    method = SOLVERS["nested-sensitivity"]
+    reference = plain_bisection(fp, regularizer, method, float(fp.n_residuals))
+    choice = discrepancy_weight(fp, regularizer, method)
     assert choice.reached
     assert choice.estimate.weight == reference.weight
     scale = np.abs(reference.coefficients).max()
@@ -101,7 +87,8 @@ def test_predicted_morozov_search_gives_the_bisections_weight_and_map(field_prob
     assert len(choice.path) < 10  # the bisection made 14 solves here
 
 
-def test_homogeneous_fit_by_one_factorisation_equals_the_newton_path(problem, monkeypatch):
+def test_homogeneous_fit_by_one_factorisation_equals_the_newton_path(imaging_problem, monkeypatch):
+    problem = imaging_problem
     z = problem.space.to_internal(np.array([18.0, 0.42]))
     fast = nested.NestedSolver(problem)
     assert fast.continuum is not None

@@ -15,6 +15,7 @@ from experiments.phantom.simulate import SimulationSettings, simulate
 from experiments.problem.fitting import FitSettings, build_problem
 from solvers.forward.equilibrium import EquilibriumSolver
 from solvers.inverse.identifiability import analyse
+from solvers.inverse.methods import FullSpaceSolver, ReducedSpaceSolver
 from solvers.inverse.nested import NestedSolver
 from solvers.inverse.problem import InverseProblem, observation_case
 from solvers.inverse.simultaneous import (
@@ -58,6 +59,21 @@ def test_simultaneous_and_nested_agree(noisy):
     assert simultaneous.success and nested.success
     assert np.allclose(simultaneous.x, nested.x, rtol=1e-6, atol=0)
     assert simultaneous.cost == pytest.approx(nested.cost, rel=1e-8)
+
+
+def test_the_results_states_are_the_equilibria_at_its_estimate(noisy):
+    """Both methods return, with x, the states at x (the nested Newton path, k0, included:
+    trf's last trial may be a rejected point, and the states must not be that point's)."""
+    problem = InverseProblem(
+        noisy.model, noisy.cases, ParameterSpace.create(ALPHAS + ("k0",)), 0.02
+    )
+    for solver in (NestedSolver(problem), SimultaneousSolver(problem)):
+        result = solver.solve()
+        assert isinstance(solver, ReducedSpaceSolver | FullSpaceSolver)
+        forward = EquilibriumSolver(problem.model, problem.names, residual=problem.g)
+        for case, state in zip(problem.cases, result.states):
+            expected = forward.solve(case.force, result.x, case.prescribed).state
+            assert np.abs(state - expected).max() <= 1e-6 * np.abs(expected).max(), solver.name
 
 
 @pytest.mark.parametrize("solver", [SimultaneousSolver, NestedSolver])

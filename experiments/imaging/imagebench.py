@@ -65,7 +65,7 @@ def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list
                     log(f"  {'x'.join(map(str, grid))} N={fp.size} {method}: skipped (budget)")
                     continue
                 begin = time.perf_counter()
-                estimate = SOLVERS[method](fp, regularizer, WEIGHT_MM2, None)
+                estimate = SOLVERS[method](fp, regularizer).solve(WEIGHT_MM2)
                 seconds = time.perf_counter() - begin
                 maps[method] = estimate.coefficients
                 if seconds > budget:

@@ -131,7 +131,7 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print, problem=
         choice = lcurve_weight(fp, regularizer, estimator, log=log)
     else:
         beta = float(settings.weight)
-        estimate = estimator(fp, regularizer, beta, None)
+        estimate = estimator(fp, regularizer).solve(beta)
         choice = WeightChoice(
             estimate, float(fp.n_residuals), True, [(beta, estimate.chi2)], "given", "given"
         )

@@ -41,7 +41,7 @@ import scipy.sparse as sp
 
 from solvers.dynamic.dynamicproblem import DynamicProblem
 from solvers.dynamic.scheme import TrapezoidalScheme
-from solvers.inverse.result import InverseResult
+from solvers.inverse.methods import FullSpaceSolver
 from solvers.inverse.simultaneous import IpoptSettings
 from symbolic.sparse import to_casadi_sparse
 
@@ -210,7 +210,7 @@ def state_blocks(problem: DynamicProblem) -> list[Block]:
     ]
 
 
-class DynamicSimultaneousSolver:
+class DynamicSimultaneousSolver(FullSpaceSolver):
     """Fit and discretised dynamics of all load cases in one NLP, solved by IPOPT.
 
     Parameters
@@ -222,8 +222,6 @@ class DynamicSimultaneousSolver:
     parameter_step : float
         sigma of the NLP parameter variable zeta = z / sigma [log units].
     """
-
-    name = "simultaneous"
 
     def __init__(
         self,
@@ -304,42 +302,17 @@ class DynamicSimultaneousSolver:
                 parts.append(observe @ u[:, i * n : (i + 1) * n].ravel() + offsets[c])
         return np.concatenate(parts)
 
-    def solve(self, start: np.ndarray | None = None) -> InverseResult:
-        """Solve from ``start`` (natural units; default: the space's start values)."""
-        problem, space = self.problem, self.problem.space
-        x0 = space.start if start is None else np.asarray(start, dtype=float)
-        lower, upper = space.internal_bounds()
-        begin = time.perf_counter()
+    def initial(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``warm_start(x0)`` and the bounds of zeta = z / sigma."""
         guess = self.warm_start(x0)
-        p = len(space.names)
-        lbx, ubx = np.full(guess.size, -np.inf), np.full(guess.size, np.inf)
-        lbx[:p], ubx[:p] = lower / self.parameter_step, upper / self.parameter_step
-        solution = self.solver(x0=guess, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
-        elapsed = time.perf_counter() - begin
-        stats = self.solver.stats()
-        values = solution["x"].full().ravel()
+        return (guess, *self.bounds(guess, self.parameter_step))
+
+    def unpack(self, values: np.ndarray) -> tuple[np.ndarray, list, dict]:
+        """x, u at the frames of every case, and the whole trajectories."""
         trajectories = self._trajectories(values)
-        frames = problem.grid.frame_nodes
-        residual = np.concatenate(
-            [problem.case_residual(c, u[frames]) for c, u in zip(problem.cases, trajectories)]
-        )
-        return InverseResult(
-            method=self.name,
-            names=space.names,
-            x=space.to_natural(self.parameter_step * values[:p]),
-            cost=0.5 * float(residual @ residual),
-            states=[u[frames] for u in trajectories],
-            success=bool(stats["success"]),
-            status=str(stats["return_status"]),
-            iterations=int(stats["iter_count"]),
-            forward_solves=len(problem.cases),
-            build_time_s=self.build_time,
-            solve_time_s=elapsed,
-            extra={
-                "constraint_violation": float(np.abs(solution["g"].full()).max()),
-                "trajectories": trajectories,
-            },
-        )
+        x = self.problem.space.to_natural(self.parameter_step * values[: len(self.problem.names)])
+        frames = self.problem.grid.frame_nodes
+        return x, [u[frames] for u in trajectories], {"trajectories": trajectories}
 
     def _trajectories(self, values: np.ndarray) -> list[np.ndarray]:
         """u at every node, (N + 1, 3 n_free) per case, from the NLP variables."""

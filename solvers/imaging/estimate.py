@@ -7,14 +7,18 @@ The estimate minimises (docs/imaging.md)
 over the N field coefficients (``solvers.imaging.fieldproblem``,
 ``solvers.imaging.regularization``).
 
-- ``gauss_newton(..., hessian="adjoint")``: nested, matrix-free. Each Gauss-Newton
+Every method has the inverse's shape (``solvers.inverse.methods``): built once on the
+problem, here the ``FieldProblem`` and its regulariser, ``solve(weight, start)`` returns a
+``FieldEstimate``; ``SOLVERS`` names them (``dvs image --method``).
+
+- ``GaussNewtonSolver(..., hessian="adjoint")``: nested, matrix-free. Each Gauss-Newton
   step solves (J^T J + beta R'') p = -grad by conjugate gradients, each product
   J^T J v costing one forward and one adjoint solve per case with the factorisation
   of the current c; the N-column sensitivity is never formed.
-- ``gauss_newton(..., hessian="sensitivity")``: nested, implicit-function route: J
+- ``GaussNewtonSolver(..., hessian="sensitivity")``: nested, implicit-function route: J
   formed column by column (N solves per case), the step by a dense solve.
-- ``lbfgs``: nested, L-BFGS-B on J(c) with the adjoint gradient.
-- ``simultaneous``: the coefficients and every case's state are the variables of one
+- ``LbfgsSolver``: nested, L-BFGS-B on J(c) with the adjoint gradient.
+- ``FieldSimultaneousSolver``: the coefficients and every case's state are the variables of one
   IPOPT NLP, the equilibria (eq. I3) its equality constraints.
 
 ``solvers.imaging.laplace`` gives the posterior standard deviations around an estimate; the weight
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
 import casadi as ca
 import numpy as np
@@ -74,40 +79,66 @@ class FieldEstimate:
     route), so that ``laplace`` need not form it again; else None."""
 
 
-def objective(fp: FieldProblem, regularizer, weight: float, c: np.ndarray) -> float:
-    """J(c) of eq. (I8)."""
-    return fp.forward(c).misfit + weight * regularizer.value(c)
+class FieldSolver:
+    """What every imaging method shares: the problem it is built on, J(c) and its result.
 
+    Parameters
+    ----------
+    fp : FieldProblem
+        The field behind the markers and their data.
+    regularizer : Tikhonov or TotalVariation
+        R(c).
+    """
 
-def _estimate(
-    fp, regularizer, weight, c, iterations, begin, method, success, message, jacobian=None
-):
-    return FieldEstimate(
-        np.asarray(c, dtype=float).copy(),
-        float(weight),
-        2.0 * fp.forward(c).misfit,
-        float(regularizer.value(c)),
-        fp.rms_um(c),
-        int(iterations),
-        time.perf_counter() - begin,
-        method,
-        bool(success),
-        message,
-        jacobian,
-    )
+    name = ""
+
+    def __init__(self, fp: FieldProblem, regularizer):
+        self.problem, self.regularizer = fp, regularizer
+
+    def solve(self, weight: float, start: np.ndarray | None = None) -> FieldEstimate:
+        """The estimate at beta = ``weight`` [mm^2] from ``start`` (default c = 0)."""
+        raise NotImplementedError
+
+    def objective(self, weight: float, c: np.ndarray) -> float:
+        """J(c) of eq. (I8)."""
+        return self.problem.forward(c).misfit + weight * self.regularizer.value(c)
+
+    def safe_objective(self, weight: float, c: np.ndarray) -> float:
+        """J(c), or infinity where the equilibrium cannot be solved (E under- or
+        overflows)."""
+        try:
+            value = self.objective(weight, c)
+        except RuntimeError:  # SuperLU: "Factor is exactly singular"
+            return np.inf
+        return value if np.isfinite(value) else np.inf
+
+    def start(self, start: np.ndarray | None) -> np.ndarray:
+        """c at the start: a copy of ``start``, or the homogeneous field."""
+        size = self.problem.size
+        return np.zeros(size) if start is None else np.asarray(start, dtype=float).copy()
+
+    def estimate(
+        self, weight, c, iterations, begin, success, message, jacobian=None
+    ) -> FieldEstimate:
+        """The ``FieldEstimate`` at c, timed from ``begin``."""
+        fp = self.problem
+        return FieldEstimate(
+            np.asarray(c, dtype=float).copy(),
+            float(weight),
+            2.0 * fp.forward(c).misfit,
+            float(self.regularizer.value(c)),
+            fp.rms_um(c),
+            int(iterations),
+            time.perf_counter() - begin,
+            self.name,
+            bool(success),
+            message,
+            jacobian,
+        )
 
 
 MAX_STEP = 1.0
 """Largest change of s = log(E / E_ref) at any node in one Gauss-Newton step (E x e)."""
-
-
-def _safe_objective(fp, regularizer, weight, c) -> float:
-    """J(c), or infinity where the equilibrium cannot be solved (E under- or overflows)."""
-    try:
-        value = objective(fp, regularizer, weight, c)
-    except RuntimeError:  # SuperLU: "Factor is exactly singular"
-        return np.inf
-    return value if np.isfinite(value) else np.inf
 
 
 def secant_update(S: np.ndarray, step, y, y_sharp) -> np.ndarray:
@@ -146,16 +177,7 @@ def _cg_step(fp, state, prior, curvature, gradient, forcing) -> np.ndarray:
     return step
 
 
-def gauss_newton(
-    fp: FieldProblem,
-    regularizer,
-    weight: float,
-    start: np.ndarray | None = None,
-    hessian: str = "adjoint",
-    tolerance: float = 1e-13,
-    max_iterations: int = 200,
-    secant: bool = True,
-) -> FieldEstimate:
+class GaussNewtonSolver(FieldSolver):
     """Gauss-Newton on eq. (I8) with a backtracking line search.
 
     Stops when the Newton decrement -grad . p / 2 falls below ``tolerance`` times
@@ -166,139 +188,165 @@ def gauss_newton(
     (J^T J + S + beta R'') p = -grad with S from ``secant_update`` whenever that
     model predicted the last step's decrease better than Gauss-Newton's (the adaptive
     choice of NL2SOL), and plain Gauss-Newton otherwise or when the augmented step is
-    not a descent direction. A step
-    is shortened to ``MAX_STEP`` at its largest node, and a trial whose equilibrium
-    cannot be solved counts as an increase.
+    not a descent direction. A step is shortened to ``MAX_STEP`` at its largest node,
+    and a trial whose equilibrium cannot be solved counts as an increase.
+
+    Parameters
+    ----------
+    fp, regularizer
+        As ``FieldSolver``.
+    hessian : {"adjoint", "sensitivity"}
+        J^T J v matrix-free by CG, or J formed and the step by a dense solve.
+    tolerance : float
+        Relative Newton decrement at which it stops.
+    max_iterations : int
+        Cap on Gauss-Newton steps.
+    secant : bool
+        The NL2SOL residual-curvature term.
     """
-    if hessian not in ("adjoint", "sensitivity"):
-        raise ValueError("hessian must be 'adjoint' or 'sensitivity'")
-    begin = time.perf_counter()
-    c = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float).copy()
-    value = objective(fp, regularizer, weight, c)
 
-    def finish(iterations: int, success: bool, message: str, at_c=None) -> FieldEstimate:
-        method = f"gn-{hessian}"
-        return _estimate(
-            fp, regularizer, weight, c, iterations, begin, method, success, message, at_c
-        )
-
-    first, last, augmented = None, None, False
-    curvature = np.zeros((fp.size, fp.size)) if secant else None
-    for iteration in range(1, max_iterations + 1):
-        # the factorisation at c is kept: the line search's trials replace the problem's
-        # cached one, and the secant update needs the previous c's as well
-        state = fp.forward(c)
-        prior = weight * regularizer.hessian(c)
-        jac = fp.sensitivities(c) if hessian == "sensitivity" else None
-        misfit_gradient = (
-            fp.vjp_at(state, state.residual) if jac is None else jac.T @ state.residual
-        )
-        if secant and last is not None:
-            old_c, old_state, old_jac, old_gradient = last
-            old_product = (
-                fp.vjp_at(old_state, state.residual)
-                if old_jac is None
-                else old_jac.T @ state.residual
-            )
-            curvature = secant_update(
-                curvature, c - old_c, misfit_gradient - old_gradient, misfit_gradient - old_product
-            )
-        last = (c.copy(), state, jac, misfit_gradient)
-        gradient = misfit_gradient + weight * regularizer.gradient(c)
-        extra = curvature if augmented else None
-        if hessian == "sensitivity":
-            base = jac.T @ jac + prior.toarray()
-            step = np.linalg.solve(base if extra is None else base + extra, -gradient)
-            if float(gradient @ step) >= 0:  # not a descent direction: plain GN
-                step, augmented = np.linalg.solve(base, -gradient), False
-        else:
-            first = np.linalg.norm(gradient) if first is None else first
-            forcing = min(0.1, np.sqrt(np.linalg.norm(gradient) / first))
-            step = _cg_step(fp, state, prior, extra, gradient, forcing)
-            if extra is not None and float(gradient @ step) >= 0:  # indefinite: plain GN
-                step, augmented = _cg_step(fp, state, prior, None, gradient, forcing), False
-        decrement = -0.5 * float(gradient @ step)
-        if decrement <= tolerance * max(value, 1.0):
-            return finish(iteration, True, "converged", jac)
-        length = min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))
-        while length > 1e-8:
-            trial = c + length * step
-            trial_value = _safe_objective(fp, regularizer, weight, trial)
-            if trial_value <= value - 1e-4 * length * 2.0 * decrement:
-                break
-            length *= 0.5
-        else:
-            return finish(iteration, False, "line search failed", jac)
-        if secant:  # the next step uses the model that predicted this one's decrease better
-            taken = length * step
-            linear = jac @ taken if jac is not None else fp.jvp_at(state, taken)
-            plain = float(gradient @ taken + 0.5 * (linear @ linear + taken @ (prior @ taken)))
-            with_s = plain + 0.5 * float(taken @ curvature @ taken)
-            actual = trial_value - value
-            augmented = abs(with_s - actual) < abs(plain - actual)
-        c, value = trial, trial_value
-    return finish(max_iterations, False, "iteration limit")
-
-
-def lbfgs(fp, regularizer, weight, start=None, tolerance=1e-12, max_iterations=2000):
-    """L-BFGS-B on eq. (I8) with the adjoint gradient (no bounds)."""
-    begin = time.perf_counter()
-    c0 = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float)
-
-    def value_and_gradient(c):
-        total = objective(fp, regularizer, weight, c)
-        return total, fp.gradient(c) + weight * regularizer.gradient(c)
-
-    result = so.minimize(
-        value_and_gradient,
-        c0,
-        jac=True,
-        method="L-BFGS-B",
-        options={"ftol": tolerance, "gtol": 1e-9, "maxiter": max_iterations, "maxcor": 30},
-    )
-    return _estimate(
-        fp,
+    def __init__(
+        self,
+        fp: FieldProblem,
         regularizer,
-        weight,
-        result.x,
-        result.nit,
-        begin,
-        "l-bfgs-b",
-        result.success,
-        str(result.message),
-    )
+        hessian: str = "adjoint",
+        tolerance: float = 1e-13,
+        max_iterations: int = 200,
+        secant: bool = True,
+    ):
+        if hessian not in ("adjoint", "sensitivity"):
+            raise ValueError("hessian must be 'adjoint' or 'sensitivity'")
+        super().__init__(fp, regularizer)
+        self.hessian, self.tolerance = hessian, tolerance
+        self.max_iterations, self.secant = max_iterations, secant
+        self.name = f"gn-{hessian}"
+
+    def solve(self, weight: float, start: np.ndarray | None = None) -> FieldEstimate:
+        """The estimate at beta = ``weight`` [mm^2] from ``start`` (default c = 0)."""
+        fp, begin, c = self.problem, time.perf_counter(), self.start(start)
+        value = self.objective(weight, c)
+
+        def finish(iterations: int, success: bool, message: str, at_c=None) -> FieldEstimate:
+            return self.estimate(weight, c, iterations, begin, success, message, at_c)
+
+        first, last, augmented = None, None, False
+        curvature = np.zeros((fp.size, fp.size)) if self.secant else None
+        for iteration in range(1, self.max_iterations + 1):
+            # the factorisation at c is kept: the line search's trials replace the problem's
+            # cached one, and the secant update needs the previous c's as well
+            state = fp.forward(c)
+            prior = weight * self.regularizer.hessian(c)
+            jac = fp.sensitivities(c) if self.hessian == "sensitivity" else None
+            misfit_gradient = (
+                fp.vjp_at(state, state.residual) if jac is None else jac.T @ state.residual
+            )
+            if self.secant and last is not None:
+                old_c, old_state, old_jac, old_gradient = last
+                old_product = (
+                    fp.vjp_at(old_state, state.residual)
+                    if old_jac is None
+                    else old_jac.T @ state.residual
+                )
+                curvature = secant_update(
+                    curvature,
+                    c - old_c,
+                    misfit_gradient - old_gradient,
+                    misfit_gradient - old_product,
+                )
+            last = (c.copy(), state, jac, misfit_gradient)
+            gradient = misfit_gradient + weight * self.regularizer.gradient(c)
+            extra = curvature if augmented else None
+            if self.hessian == "sensitivity":
+                base = jac.T @ jac + prior.toarray()
+                step = np.linalg.solve(base if extra is None else base + extra, -gradient)
+                if float(gradient @ step) >= 0:  # not a descent direction: plain GN
+                    step, augmented = np.linalg.solve(base, -gradient), False
+            else:
+                first = np.linalg.norm(gradient) if first is None else first
+                forcing = min(0.1, np.sqrt(np.linalg.norm(gradient) / first))
+                step = _cg_step(fp, state, prior, extra, gradient, forcing)
+                if extra is not None and float(gradient @ step) >= 0:  # indefinite: plain GN
+                    step, augmented = _cg_step(fp, state, prior, None, gradient, forcing), False
+            decrement = -0.5 * float(gradient @ step)
+            if decrement <= self.tolerance * max(value, 1.0):
+                return finish(iteration, True, "converged", jac)
+            length = min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))
+            while length > 1e-8:
+                trial = c + length * step
+                trial_value = self.safe_objective(weight, trial)
+                if trial_value <= value - 1e-4 * length * 2.0 * decrement:
+                    break
+                length *= 0.5
+            else:
+                return finish(iteration, False, "line search failed", jac)
+            if self.secant:  # the next step: the model that predicted this decrease better
+                taken = length * step
+                linear = jac @ taken if jac is not None else fp.jvp_at(state, taken)
+                plain = float(gradient @ taken + 0.5 * (linear @ linear + taken @ (prior @ taken)))
+                with_s = plain + 0.5 * float(taken @ curvature @ taken)
+                actual = trial_value - value
+                augmented = abs(with_s - actual) < abs(plain - actual)
+            c, value = trial, trial_value
+        return finish(self.max_iterations, False, "iteration limit")
 
 
-def simultaneous(fp, regularizer, weight, start=None, tolerance=1e-10, options=None):
+class LbfgsSolver(FieldSolver):
+    """L-BFGS-B on eq. (I8) with the adjoint gradient (no bounds)."""
+
+    name = "l-bfgs-b"
+
+    def __init__(self, fp, regularizer, tolerance=1e-12, max_iterations=2000):
+        super().__init__(fp, regularizer)
+        self.tolerance, self.max_iterations = tolerance, max_iterations
+
+    def solve(self, weight: float, start: np.ndarray | None = None) -> FieldEstimate:
+        """The estimate at beta = ``weight`` [mm^2] from ``start`` (default c = 0)."""
+        begin, gradient = time.perf_counter(), self.regularizer.gradient
+
+        def value_and_gradient(c):
+            total = self.objective(weight, c)
+            return total, self.problem.gradient(c) + weight * gradient(c)
+
+        options = {"ftol": self.tolerance, "gtol": 1e-9, "maxiter": self.max_iterations}
+        result = so.minimize(
+            value_and_gradient,
+            self.start(start),
+            jac=True,
+            method="L-BFGS-B",
+            options={**options, "maxcor": 30},
+        )
+        message = str(result.message)
+        return self.estimate(weight, result.x, result.nit, begin, result.success, message)
+
+
+class FieldSimultaneousSolver(FieldSolver):
     """One IPOPT NLP over c and every case's state s_k, eq. (I3) as constraints.
 
     The NLP takes beta as a parameter, so it is built once per problem, regulariser
     and options (kept in ``fp.nlp_cache``) and reused for every weight Morozov tries.
     """
-    begin = time.perf_counter()
-    c0 = np.zeros(fp.size) if start is None else np.asarray(start, dtype=float)
-    key = (id(regularizer), tolerance, repr(sorted((options or {}).items())))
-    if key not in fp.nlp_cache:
-        fp.nlp_cache[key] = (regularizer, _imaging_nlp(fp, regularizer, tolerance, options))
-    solver = fp.nlp_cache[key][1]
-    start_state = fp.forward(c0)
-    x0 = np.concatenate(
-        [c0, np.ravel(np.column_stack(start_state.states), order="F"), start_state.raw]
-    )
-    solution = solver(x0=x0, p=weight, lbg=0.0, ubg=0.0)
-    stats = solver.stats()
-    coefficients = np.asarray(solution["x"]).ravel()[: fp.size]
-    return _estimate(
-        fp,
-        regularizer,
-        weight,
-        coefficients,
-        stats["iter_count"],
-        begin,
-        "simultaneous",
-        stats["success"],
-        stats["return_status"],
-    )
+
+    name = "simultaneous"
+
+    def __init__(self, fp, regularizer, tolerance=1e-10, options=None):
+        super().__init__(fp, regularizer)
+        key = (id(regularizer), tolerance, repr(sorted((options or {}).items())))
+        if key not in fp.nlp_cache:
+            fp.nlp_cache[key] = (regularizer, _imaging_nlp(fp, regularizer, tolerance, options))
+        self.solver = fp.nlp_cache[key][1]
+
+    def solve(self, weight: float, start: np.ndarray | None = None) -> FieldEstimate:
+        """The estimate at beta = ``weight`` [mm^2] from ``start`` (default c = 0)."""
+        begin, c0 = time.perf_counter(), self.start(start)
+        at_start = self.problem.forward(c0)
+        states = np.ravel(np.column_stack(at_start.states), order="F")
+        solution = self.solver(
+            x0=np.concatenate([c0, states, at_start.raw]), p=weight, lbg=0.0, ubg=0.0
+        )
+        stats = self.solver.stats()
+        c = np.asarray(solution["x"]).ravel()[: self.problem.size]
+        success, message = stats["success"], stats["return_status"]
+        return self.estimate(weight, c, stats["iter_count"], begin, success, message)
 
 
 def _imaging_nlp(fp, regularizer, tolerance, options) -> ca.Function:
@@ -348,9 +396,9 @@ def _imaging_nlp(fp, regularizer, tolerance, options) -> ca.Function:
 
 
 SOLVERS = {
-    "simultaneous": simultaneous,
-    "nested-adjoint": lambda fp, r, w, start=None: gauss_newton(fp, r, w, start, "adjoint"),
-    "nested-sensitivity": lambda fp, r, w, start=None: gauss_newton(fp, r, w, start, "sensitivity"),
-    "l-bfgs-b": lbfgs,
+    "simultaneous": FieldSimultaneousSolver,
+    "nested-adjoint": partial(GaussNewtonSolver, hessian="adjoint"),
+    "nested-sensitivity": partial(GaussNewtonSolver, hessian="sensitivity"),
+    "l-bfgs-b": LbfgsSolver,
 }
-"""The formulations by name (``dvs image --method``)."""
+"""The methods by name (``dvs image --method``): ``SOLVERS[name](fp, regularizer)``."""

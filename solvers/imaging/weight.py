@@ -16,6 +16,10 @@ generalised cross-validation, or the L-curve.
   "Which weight").
 - ``lcurve_weight``: the corner of the curve (log chi^2, log R) traced over beta, the
   point of largest curvature; it needs no noise level and serves as a check on it.
+
+Each takes the estimate's ``method``: a method of ``solvers.imaging.estimate.SOLVERS``
+(default the adjoint Gauss-Newton), built once on (fp, regularizer) and solved at every
+weight it tries.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ class WeightChoice:
 def discrepancy_weight(
     fp: FieldProblem,
     regularizer,
-    solve=None,
+    method=None,
     target: float | None = None,
     bounds: tuple[float, float] = (1e-2, 1e10),
     tolerance: float = 0.02,
@@ -69,14 +73,14 @@ def discrepancy_weight(
     unknown comparison is solved, as in plain bisection. The answer is the bisection's:
     the same bracket, its end nearer the target, typically from 3 solves instead of 10-15.
     """
-    solve = solve or SOLVERS["nested-adjoint"]
+    solver = (method or SOLVERS["nested-adjoint"])(fp, regularizer)
     target = float(fp.n_residuals if target is None else target)
     path, solved, models = [], {}, {}
 
     def run(beta):
         nearest = min(solved, key=lambda b: abs(np.log10(b / beta)), default=None)
         start = None if nearest is None else solved[nearest].coefficients
-        estimate = solve(fp, regularizer, beta, start)
+        estimate = solver.solve(beta, start)
         solved[beta] = estimate
         path.append((beta, estimate.chi2))
         if log:
@@ -191,7 +195,7 @@ def _chi2_model(regularizer, estimate: FieldEstimate):
 def lcurve_weight(
     fp: FieldProblem,
     regularizer,
-    solve=None,
+    method=None,
     bounds: tuple[float, float] = (1e-2, 1e10),
     per_decade: int = 2,
     log=None,
@@ -202,12 +206,12 @@ def lcurve_weight(
     last; the curvature of the parametric curve (x(t), y(t)), t = log10 beta, is
     |x'y'' - y'x''| / (x'^2 + y'^2)^(3/2) by finite differences. Ends are excluded.
     """
-    solve = solve or SOLVERS["nested-adjoint"]
+    solver = (method or SOLVERS["nested-adjoint"])(fp, regularizer)
     count = int(round(np.log10(bounds[1] / bounds[0]) * per_decade)) + 1
     betas = np.logspace(np.log10(bounds[1]), np.log10(bounds[0]), count)
     estimates, start = [], None
     for beta in betas:
-        estimate = solve(fp, regularizer, beta, start)
+        estimate = solver.solve(beta, start)
         estimates.append(estimate)
         start = estimate.coefficients
         if log:
@@ -259,7 +263,7 @@ def linear_gcv(fp: FieldProblem, regularizer, estimate: FieldEstimate, jac, ts) 
 def gcv_weight(
     fp: FieldProblem,
     regularizer,
-    solve=None,
+    method=None,
     bounds: tuple[float, float] = (1e-2, 1e10),
     rank: int | None = None,
     tolerance: float = 0.1,
@@ -286,7 +290,7 @@ def gcv_weight(
     Laplace approximation's effective dof at each estimate (``rank`` as in
     ``solvers.imaging.laplace.laplace``).
     """
-    solve = solve or SOLVERS["nested-adjoint"]
+    solver = (method or SOLVERS["nested-adjoint"])(fp, regularizer)
     n = float(fp.n_residuals)
     path, found = [], {}
 
@@ -295,7 +299,7 @@ def gcv_weight(
         if t in found:
             return found[t][0]
         beta = float(10.0**t)
-        estimate = solve(fp, regularizer, beta, start)
+        estimate = solver.solve(beta, start)
         if rank is None and estimate.jacobian is None:
             estimate = replace(estimate, jacobian=fp.sensitivities(estimate.coefficients))
         dof = laplace(fp, regularizer, estimate, rank).effective_dof

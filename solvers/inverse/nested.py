@@ -19,35 +19,16 @@ import time
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import least_squares
 
 from solvers.forward.componentwise import ScalarSystem
 from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings
 from solvers.forward.evaluator import casadi_to_scipy
 from solvers.inverse.continuumfit import ContinuumSystem
+from solvers.inverse.methods import ReducedSpaceSolver
 from solvers.inverse.problem import InverseProblem
-from solvers.inverse.result import InverseResult
 
 
-def _result(solver, z, residual, success, status, evaluations, elapsed) -> InverseResult:
-    """The InverseResult of a nested solver at internal coordinates z."""
-    space = solver.problem.space
-    return InverseResult(
-        method=solver.name,
-        names=space.names,
-        x=space.to_natural(z),
-        cost=0.5 * float(residual @ residual),
-        states=list(solver._states),
-        success=bool(success),
-        status=str(status),
-        iterations=int(evaluations),
-        forward_solves=solver.forward_solves,
-        build_time_s=solver.build_time,
-        solve_time_s=elapsed,
-    )
-
-
-class NestedSolver:
+class NestedSolver(ReducedSpaceSolver):
     """Reduced-space least squares with exact sensitivities.
 
     For the linear model (``TissueModel.componentwise``) every evaluation factorises the
@@ -61,20 +42,14 @@ class NestedSolver:
     ----------
     problem : InverseProblem
         The problem.
-    method : {"trf", "lm"}
-        scipy least-squares method; "lm" ignores the bounds.
-    tolerance : float
-        ftol = xtol = gtol of least_squares.
-    max_evaluations : int
-        Cap on residual evaluations.
+    method, tolerance, max_evaluations
+        The outer least squares (``ReducedSpaceSolver``).
     failures : {"raise", "shrink"}
         A load case without equilibrium during the fit: "raise" ends the fit as failed;
         "shrink" returns a non-finite residual, on which trf shortens its step (the
         stiffening fits of real skin, docs/realskin.md). A first evaluation that fails
         from rest is retried by load continuation either way.
     """
-
-    name = "nested"
 
     def __init__(
         self,
@@ -84,16 +59,11 @@ class NestedSolver:
         max_evaluations=200,
         failures="raise",
     ):
-        if method not in ("trf", "lm"):
-            raise ValueError(f"method must be 'trf' or 'lm', got {method!r}")
         if failures not in ("raise", "shrink"):
             raise ValueError(f"failures must be 'raise' or 'shrink', got {failures!r}")
-        self.failures = failures
         start = time.perf_counter()
-        self.problem = problem
-        self.method = method
-        self.tolerance = tolerance
-        self.max_evaluations = max_evaluations
+        super().__init__(problem, method, tolerance, max_evaluations)
+        self.failures = failures
         model = problem.model
         self.scalar = self.continuum = self.equilibrium = None
         if model.componentwise and model.is_linear(problem.names):
@@ -106,11 +76,7 @@ class NestedSolver:
             self._g_x = None
         self.observation_jacobians = [problem.case_residual_jacobian(c) for c in problem.cases]
         self.build_time = time.perf_counter() - start
-        self.forward_solves = 0
-        self._states = [None] * len(problem.cases)
-        self._memory: list[tuple | None] = [None] * len(problem.cases)
-        self._cache: tuple | None = None
-        self._pending: tuple | None = None  # (z, r, x, equilibria) without sensitivities
+        self.reset()
 
     @property
     def states(self) -> list:
@@ -167,10 +133,12 @@ class NestedSolver:
         ``evaluate`` at the same z: trf asks for the Jacobian only at the points it
         accepts (on real skin a quarter of the points it tries are rejected)."""
         if self._cache is not None and _same(self._cache[0], z):
+            self._states = list(self._cache[3])
             return self._cache[1]
         if self.equilibrium is None:
             return self.evaluate(z)[0]
         if self._pending is not None and _same(self._pending[0], z):
+            self._states = [result.state for result in self._pending[3]]
             return self._pending[1]
         problem = self.problem
         x = problem.space.to_natural(z)
@@ -194,6 +162,7 @@ class NestedSolver:
     def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual r(z) and its exact Jacobian dr/dz."""
         if self._cache is not None and _same(self._cache[0], z):
+            self._states = list(self._cache[3])
             return self._cache[1], self._cache[2]
         problem = self.problem
         x = problem.space.to_natural(z)
@@ -227,7 +196,7 @@ class NestedSolver:
                 for observe, sensitivity in zip(self.observation_jacobians, sensitivities)
             ]
         )
-        self._cache = (np.array(z), r, jac)
+        self._cache = (np.array(z), r, jac, list(self._states))
         return r, jac
 
     @property
@@ -239,28 +208,13 @@ class NestedSolver:
             return self.problem.model.influential(self.problem.names)
         return self.problem.active
 
-    def solve(self, start: np.ndarray | None = None) -> InverseResult:
-        """Run least_squares from ``start`` (natural units; default: the space's start)."""
+    def reset(self) -> None:
+        """Forget the previous solve: counters, Newton's warm starts and the caches."""
         self.forward_solves = 0
         self._states = [None] * len(self.problem.cases)
-        self._memory = [None] * len(self.problem.cases)
-        self._pending = None
-        z, success, status, nfev, elapsed = least_squares_fit(
-            self.evaluate,
-            self.problem.space,
-            start,
-            self.active,
-            self.method,
-            self.tolerance,
-            self.max_evaluations,
-            self.residual,
-        )
-        residual = self.evaluate(z)[0]
-        if not np.all(np.isfinite(residual)):  # failures="shrink" and no equilibrium at z
-            raise EquilibriumError(
-                f"no equilibrium at the end of the fit ({status}); try another start"
-            )
-        return _result(self, z, residual, success, status, nfev, elapsed)
+        self._memory: list[tuple | None] = [None] * len(self.problem.cases)
+        self._cache: tuple | None = None  # (z, r, dr/dz, states)
+        self._pending: tuple | None = None  # (z, r, x, equilibria) without sensitivities
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
@@ -271,61 +225,3 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
 def _loads(case) -> tuple:
     """(F_B, d) of a load case, as the residual takes them."""
     return case.force, case.prescribed
-
-
-def least_squares_fit(
-    evaluate,
-    space,
-    start,
-    active=None,
-    method="trf",
-    tolerance=1e-12,
-    max_evaluations=200,
-    residual=None,
-):
-    """The outer loop shared by the exact nested solvers.
-
-    ``evaluate(z) -> (r, dr/dz)`` over every internal coordinate (``residual(z) -> r``,
-    if given, where only r is asked for); parameters not in ``active`` (mu and gamma at
-    steady state) stay at their start values. A failed forward solve ends the start
-    with ``success = False``.
-
-    Returns
-    -------
-    z, success, status, evaluations, elapsed
-        Internal coordinates at the end, the verdict, scipy's message, residual
-        evaluations and wall time [s].
-    """
-    z_full = space.to_internal(space.start if start is None else start)
-    active = np.ones(len(z_full), dtype=bool) if active is None else np.asarray(active)
-    lower, upper = (b[active] for b in space.internal_bounds())
-
-    def full(z_active: np.ndarray) -> np.ndarray:
-        z = z_full.copy()
-        z[active] = z_active
-        return z
-
-    begin = time.perf_counter()
-    kwargs = {} if method == "lm" else {"bounds": (lower, upper)}
-    try:
-        fit = least_squares(
-            lambda z: residual(full(z)) if residual else evaluate(full(z))[0],
-            np.clip(z_full[active], lower, upper),
-            jac=lambda z: evaluate(full(z))[1][:, active],
-            method=method,
-            ftol=tolerance,
-            xtol=tolerance,
-            gtol=tolerance,
-            max_nfev=max_evaluations,
-            x_scale=1.0,
-            **kwargs,
-        )
-        outcome = full(fit.x), fit.status > 0, status_text(fit.message), fit.nfev
-    except Exception as error:  # noqa: BLE001  a failed forward solve ends this start
-        outcome = z_full, False, f"failed: {error}", 0
-    return (*outcome, time.perf_counter() - begin)
-
-
-def status_text(message: str) -> str:
-    """scipy's least_squares message without its backticks and final full stop."""
-    return message.replace("`", "").strip().rstrip(".")

@@ -6,14 +6,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from solvers.inverse.nested import _result, status_text
+from solvers.inverse.methods import ReducedSpaceSolver
 from solvers.inverse.problem import InverseProblem
-from solvers.inverse.result import InverseResult
 
 
-class PaperNestedSolver:
+class PaperNestedSolver(ReducedSpaceSolver):
     """The paper's method: least squares with finite-difference Jacobians, where each
     forward solve integrates the dynamics (eq. 22) from rest to steady state.
 
@@ -36,6 +34,7 @@ class PaperNestedSolver:
     """
 
     name = "paper"
+    finite_differences = True
     DYNAMICS = {"mu": 1e-4, "gamma": 15.0}
 
     def __init__(
@@ -49,14 +48,12 @@ class PaperNestedSolver:
         from solvers.transient.stepping import TransientSolver
 
         start = time.perf_counter()
-        self.problem = problem
+        super().__init__(problem, "trf", 1e-10, max_evaluations)
         self.steady_tol = steady_tol
         self.t_max = t_max
-        self.max_evaluations = max_evaluations
         # generalised-alpha (rho_inf = 0) damps the stiff modes; Newmark's do not decay
         self.transient = TransientSolver(problem.model, problem.names, "generalized_alpha")
         self.build_time = time.perf_counter() - start
-        self.forward_solves = 0
         self.log = log
         self._states: list = [None] * len(problem.cases)
 
@@ -80,27 +77,7 @@ class PaperNestedSolver:
             )
         return residual
 
-    def solve(self, start: np.ndarray | None = None) -> InverseResult:
-        """lsqnonlin-style solve from ``start`` (natural units; default the space's start)."""
-        space = self.problem.space
-        z0 = space.to_internal(space.start if start is None else start)
-        lower, upper = space.internal_bounds()
-        self.forward_solves = 0
-        begin = time.perf_counter()
-        try:
-            fit = least_squares(
-                self.residual,
-                np.clip(z0, lower, upper),
-                jac="2-point",
-                bounds=(lower, upper),
-                method="trf",
-                ftol=1e-10,
-                xtol=1e-10,
-                gtol=1e-10,
-                max_nfev=self.max_evaluations,
-            )
-            z, success, status, nfev = fit.x, fit.status > 0, status_text(fit.message), fit.nfev
-        except Exception as error:  # noqa: BLE001  a failed transient ends this start
-            z, success, status, nfev = z0, False, f"failed: {error}", 0
-        elapsed = time.perf_counter() - begin
-        return _result(self, z, self.residual(z), success, status, nfev, elapsed)
+    @property
+    def states(self) -> list:
+        """The steady state of every case at the last evaluation."""
+        return list(self._states)

@@ -27,8 +27,8 @@ import numpy as np
 
 from solvers.forward.equilibrium import EquilibriumSolver
 from solvers.inverse.lagrangian import constraint_jacobian, lagrangian_hessian
+from solvers.inverse.methods import FullSpaceSolver
 from solvers.inverse.problem import InverseProblem
-from solvers.inverse.result import InverseResult
 from symbolic.sparse import to_casadi_sparse
 
 
@@ -141,7 +141,7 @@ def static_defaults(n_variables: int) -> dict:
     }
 
 
-class SimultaneousSolver:
+class SimultaneousSolver(FullSpaceSolver):
     """Fit and equilibrium of all load cases in one NLP, solved by IPOPT.
 
     Parameters
@@ -151,8 +151,6 @@ class SimultaneousSolver:
     settings : IpoptSettings
         Options.
     """
-
-    name = "simultaneous"
 
     def __init__(self, problem: InverseProblem, settings: IpoptSettings | None = None):
         start = time.perf_counter()
@@ -200,60 +198,16 @@ class SimultaneousSolver:
             self.warm.solve(case.force, x, case.prescribed).state for case in self.problem.cases
         ]
 
-    def solve(self, start: np.ndarray | None = None) -> InverseResult:
-        """Solve from ``start`` (natural units; default: the space's start values)."""
-        space, problem = self.problem.space, self.problem
-        x0 = space.start if start is None else np.asarray(start, dtype=float)
-        lower, upper = space.internal_bounds()
-        begin = time.perf_counter()
-        try:
-            states0 = self.warm_start(x0)
-        except Exception as error:  # noqa: BLE001  no equilibrium at this start
-            return self._failed(x0, f"warm start failed: {error}", begin)
-        guess = [space.to_internal(x0)]
-        guess = np.concatenate(guess + states0)
-        n_x = len(space.names)
-        lbx = np.full(guess.size, -np.inf)
-        ubx = np.full(guess.size, np.inf)
-        lbx[:n_x], ubx[:n_x] = lower, upper
-        # parameters absent from the equilibrium (mu, gamma) stay at their start values
-        inactive = ~problem.active
-        lbx[:n_x][inactive] = ubx[:n_x][inactive] = guess[:n_x][inactive]
-        solution = self.solver(x0=guess, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0)
-        elapsed = time.perf_counter() - begin
-        stats = self.solver.stats()
-        blocks = np.split(solution["x"].full().ravel(), np.cumsum(self.block_sizes)[:-1])
-        states = blocks[1:]
-        residual = np.concatenate(
-            [problem.case_residual(c, s) for c, s in zip(problem.cases, states)]
-        )
-        variables = blocks[0]
-        return InverseResult(
-            method=self.name,
-            names=space.names,
-            x=space.to_natural(variables),
-            cost=0.5 * float(residual @ residual),
-            states=list(states),
-            success=bool(stats["success"]),
-            status=str(stats["return_status"]),
-            iterations=int(stats["iter_count"]),
-            forward_solves=len(problem.cases),
-            build_time_s=self.build_time,
-            solve_time_s=elapsed,
-            extra={"constraint_violation": float(np.abs(solution["g"].full()).max())},
-        )
+    def initial(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(z, s_1..s_K) at x0 with the states on the equilibrium, and the bounds; the
+        parameters absent from the equilibrium (mu, gamma) are fixed at x0."""
+        guess = np.concatenate([self.problem.space.to_internal(x0), *self.warm_start(x0)])
+        lbx, ubx = self.bounds(guess)
+        inactive = np.flatnonzero(~self.problem.active)
+        lbx[inactive] = ubx[inactive] = guess[inactive]
+        return guess, lbx, ubx
 
-    def _failed(self, x0, status, begin) -> InverseResult:
-        return InverseResult(
-            self.name,
-            self.problem.space.names,
-            np.asarray(x0),
-            np.inf,
-            [],
-            False,
-            status,
-            0,
-            0,
-            self.build_time,
-            time.perf_counter() - begin,
-        )
+    def unpack(self, values: np.ndarray) -> tuple[np.ndarray, list, dict]:
+        """x and the equilibrium state of every case."""
+        blocks = np.split(values, np.cumsum(self.block_sizes)[:-1])
+        return self.problem.space.to_natural(blocks[0]), blocks[1:], {}
