@@ -16,11 +16,11 @@ from experiments.phantom.simulate import (
 from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
-from symbolic.effects.base import surface_frame, surface_rule
 from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
 from symbolic.effects.load import basis_values
 from symbolic.effects.measurement import cayley_rotation
 from symbolic.effects.nonlinearity import stiffening_force
+from symbolic.effects.skinrules import surface_frame, surface_rule
 from symbolic.effects.stiffness import PreTension, VolumetricCoupling
 
 DESIGN_NAMES = {
@@ -325,14 +325,15 @@ def test_simulated_effects_are_not_declared():
 
 
 def test_the_per_model_stores_let_a_model_go():
-    """The module-level stores (``symbolic.effects.base.per_model``: frames and patches;
+    """The module-level stores (``symbolic.effects.base.per_model``: frames, in
+    ``symbolic.effects.skinrules``, and patches;
     ``symbolic.loads.surface_points``) hold a model or volume weakly: once the caller
     drops it, it is collected and its entries go. They held it strongly, and every model
     of every diagnosis stayed in memory (a notebook grew by 0.3-0.5 GB per diagnosis)."""
     import gc
     import weakref
 
-    import symbolic.effects.base as base
+    import symbolic.effects.skinrules as skinrules
     import symbolic.loads as loads
     from symbolic.continuum import box_volume
     from symbolic.continuum_model import ContinuumModel
@@ -344,7 +345,7 @@ def test_the_per_model_stores_let_a_model_go():
     alive, owners = weakref.ref(model), (id(model), id(model.volume))
 
     def entries():  # the stores' keys start with the id of their model or volume
-        stored = list(base._FRAMES) + list(loads._SURFACE_POINTS)
+        stored = list(skinrules._FRAMES) + list(loads._SURFACE_POINTS)
         return [key for key in stored if key[0] in owners]
 
     assert len(entries()) == 2

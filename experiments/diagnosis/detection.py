@@ -24,8 +24,15 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from experiments.command.options import Command
+from experiments.command.options import (
+    Command,
+    UsageError,
+    check_output_dir,
+    check_seed,
+    parse_numbers,
+)
 from experiments.diagnosis.diagnose import diagnose_dataset
+from experiments.output.atomic import atomic_write_json
 from experiments.phantom.designs import DESIGNS, design_options
 from experiments.phantom.simulate import simulate_with_effects
 from symbolic.effects.library import EFFECT_NAMES, make_effect
@@ -154,14 +161,6 @@ def build_parser(prog: str = "python -m experiments.diagnosis.detection"):
 
 def work(args) -> int:
     """``dvs study detection [--effects a,b] [--factors 1,2,4] --out DIR``: detection.json."""
-    from experiments.command.options import (
-        UsageError,
-        check_output_dir,
-        check_seed,
-        parse_numbers,
-    )
-    from experiments.output.atomic import atomic_write_json
-
     factors = tuple(sorted(parse_numbers(args.factors, "--factors")))
     if not factors or min(factors) <= 0 or max(factors) > 100:
         raise UsageError("--factors takes numbers in (0, 100], e.g. 1,2,4")

@@ -12,8 +12,15 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from experiments.command.options import Command
+from experiments.command.options import (
+    Command,
+    UsageError,
+    check_output_dir,
+    check_seed,
+    parse_numbers,
+)
 from experiments.diagnosis.diagnose import BASE_NAMES, diagnose_dataset
+from experiments.output.atomic import atomic_write_json
 from experiments.phantom.designs import DESIGNS, design_options
 from experiments.phantom.simulate import simulate_with_effects
 from symbolic.effects.library import EFFECT_NAMES, make_effect
@@ -176,14 +183,6 @@ def build_parser(prog: str = "python -m experiments.diagnosis.study"):
 
 def work(args) -> int:
     """``dvs study diagnosis --out DIR``: study.json (or benchmark.json with ``--benchmark``)."""
-    from experiments.command.options import (
-        UsageError,
-        check_output_dir,
-        check_seed,
-        parse_numbers,
-    )
-    from experiments.output.atomic import atomic_write_json
-
     seeds = parse_numbers(args.seeds, "--seeds", int)
     names = tuple(n.strip() for n in args.effects.split(",") if n.strip()) or None
     unknown = set(names or ()) - set(EFFECT_NAMES) - {"none"}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.phantom.forehead import PhantomSettings, probe_loads
-from symbolic.effects.base import surface_frame
+from symbolic.effects.skinrules import surface_frame
 from symbolic.loads import PointForce
 
 DIAGNOSIS_CONTACTS = ((0.5, 0.5), (0.3, 0.3), (0.7, 0.3), (0.3, 0.7), (0.7, 0.7))

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from symbolic.effects.base import surface_frame
+from symbolic.effects.skinrules import surface_frame
 from symbolic.loads import PointForce, ProbeForce
 
 MAX_FORCE_N = 0.5

@@ -73,17 +73,8 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor, columns=None, 
 
     Parameters
     ----------
-    problem : ExtendedProblem
-        A problem on the linear path (``linear_state``).
-    p : numpy.ndarray
-        Parameters (natural units).
-    states : numpy.ndarray
-        Solved states, (n_state, n_cases).
-    factor : StateJacobian
-        The factorisation of K(p).
-    columns : array of int, optional
-        The entries of p whose sensitivities are wanted (default all); the others'
-        columns are zero.
+    problem, p, states, factor, columns
+        As ``solvers.diagnosis.linear.linearise``.
     adjoint : bool, optional
         Eq. (D9) (True) or the forward path (False); default: eq. (D9) when K is
         symmetric and it takes fewer solves.

@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from symbolic.effects.declaration import Magnitude
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 from symbolic.unitterms import term_parameter
@@ -138,18 +139,16 @@ class Effect:
     ----------------
     name : str
         Effect name (docs/diagnosis.md, "The effects").
-    parameter_names, units : tuple of str
-        Names and units of theta (one case's block for a per-case effect).
-    scales : tuple of float
-        Typical magnitude of each parameter: the unit of its internal coordinate.
-    lower, upper : tuple of float
-        Bounds in natural units; a lower bound of 0 makes the score test one-sided.
+    parameters : tuple of Parameter
+        theta's parameters (one case's block for a per-case effect): name, unit, scale
+        and bounds. ``parameter_names``, ``units``, ``scales``, ``lower`` and ``upper``
+        are their columns, set from it for every subclass.
     per_case : bool
         One block of theta per load case instead of one shared block.
-    default_magnitude : float
-        A realistic magnitude for synthetic data (``true_parameters``).
-    magnitude_unit : str
-        Unit of that magnitude.
+    magnitude : Magnitude
+        A realistic magnitude for synthetic data, its unit and direction
+        (``true_parameters``); ``default_magnitude`` and ``magnitude_unit`` are set
+        from it.
     equation : str
         The added term, for reports.
     energies : tuple of str
@@ -171,6 +170,7 @@ class Effect:
     lower: tuple[float, ...] = ()
     upper: tuple[float, ...] = ()
     per_case = False
+    magnitude = Magnitude(0.0, "")
     default_magnitude = 0.0
     magnitude_unit = ""
     equation = ""
@@ -184,6 +184,15 @@ class Effect:
 
     def __init__(self) -> None:
         self._cache: dict = {}
+
+    def __init_subclass__(cls, **kwargs):
+        """The columns of ``parameters`` and ``magnitude`` as class attributes."""
+        super().__init_subclass__(**kwargs)
+        if "parameters" in cls.__dict__:
+            columns = zip(*[(p.name, p.unit, p.scale, p.lower, p.upper) for p in cls.parameters])
+            cls.parameter_names, cls.units, cls.scales, cls.lower, cls.upper = map(tuple, columns)
+        if "magnitude" in cls.__dict__:
+            cls.default_magnitude, cls.magnitude_unit = cls.magnitude.value, cls.magnitude.unit
 
     # ----------------------------------------------------------------- layout
     @property
@@ -227,8 +236,9 @@ class Effect:
         return float(low), float(high)
 
     def direction(self) -> tuple[float, ...]:
-        """Unit pattern of theta that a scalar magnitude scales."""
-        return (1.0,) * self.dim
+        """Unit pattern of theta that a scalar magnitude scales (``Magnitude.direction``)."""
+        given = self.magnitude.direction
+        return (1.0,) * self.dim if given is None else given
 
     def case_factor(self, k: int) -> float:
         """Per-case variation of synthetic values (per-case effects only)."""
@@ -366,49 +376,3 @@ def stacked_free_block(model: TissueModel, matrix: sp.spmatrix) -> sp.csr_matrix
     n = model.rest.shape[0]
     index = np.concatenate([model.free + k * n for k in range(3)])
     return sp.csr_matrix(matrix)[index][:, index]
-
-
-def surface_frame(model: TissueModel, uv: np.ndarray) -> tuple[np.ndarray, ...]:
-    """At (u, v) on the rest skin: V_u, V_v [mm], unit tangents e1, e2 and normal n."""
-    key = tuple(np.asarray(uv, dtype=float).ravel())
-    return per_model(_FRAMES, model, key, lambda: _surface_frame(model, uv))
-
-
-_FRAMES: dict = {}
-
-
-def _surface_frame(model: TissueModel, uv: np.ndarray) -> tuple[np.ndarray, ...]:
-    params = model.volume.outer_params(np.asarray(uv, dtype=float)[None])
-    du = model.volume.evaluate(params, (1, 0, 0))[0]
-    dv = model.volume.evaluate(params, (0, 1, 0))[0]
-    normal = model.volume.outer_normal(np.asarray(uv, dtype=float)[None])[0]
-    e1 = du / np.linalg.norm(du)
-    e2 = np.cross(normal, e1)
-    return du, dv, e1, e2, normal
-
-
-def face_rule(model: TissueModel, axis: int, value: float, points_per_span: int | None = None):
-    """Gauss points on the face where parameter ``axis`` equals ``value``.
-
-    Returns the points (n, 3), their physical area weights [mm^2] and the two
-    tangent derivatives of the volume along the face's parameters, in (u, v, w) order.
-    """
-    from symbolic.basis import gauss_rule
-
-    first, second = (a for a in range(3) if a != axis)
-    bases = model.volume.basis.bases
-    (s, ws), (t, wt) = (gauss_rule(bases[a], points_per_span) for a in (first, second))
-    ss, tt = np.meshgrid(s, t, indexing="ij")
-    params = np.empty((ss.size, 3))
-    params[:, axis], params[:, first], params[:, second] = value, ss.ravel(), tt.ravel()
-    d_first, d_second = (
-        model.volume.evaluate(params, tuple(int(a == b) for b in range(3))) for a in (first, second)
-    )
-    area = np.linalg.norm(np.cross(d_first, d_second), axis=1)
-    return params, np.outer(ws, wt).ravel() * area, d_first, d_second
-
-
-def surface_rule(model: TissueModel, w: float, points_per_span: int | None = None):
-    """Gauss points (u, v, w) on the surface w = const with physical area weights [mm^2],
-    and V_u, V_v there."""
-    return face_rule(model, 2, w, points_per_span)

@@ -28,10 +28,10 @@ from symbolic.effects.base import (
     Effect,
     OneTermStiffness,
     componentwise,
-    face_rule,
     linear_coefficient,
-    surface_rule,
 )
+from symbolic.effects.declaration import Magnitude, Parameter
+from symbolic.effects.skinrules import face_rule, surface_rule
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -45,13 +45,8 @@ class BaseCompliance(Effect):
 
     energies = ("dnurbs", "linear-elastic")  # couples through the linear K
     name = "base_compliance"
-    parameter_names = ("compliance",)
-    units = ("mm^3/N",)
-    scales = (1.0,)
-    lower = (0.0,)
-    upper = (1e4,)
-    default_magnitude = 5.0
-    magnitude_unit = "mm^3/N"
+    parameters = (Parameter("compliance", "mm^3/N", 1.0, 0.0, 10000.0),)
+    magnitude = Magnitude(5.0, "mm^3/N")
     equation = "c (K Delta)_I + M_I Delta_I = 0, c = 1/k_b"
     unit_terms = True
 
@@ -205,13 +200,8 @@ class SurroundingTissue(OneTermStiffness, Effect):
     """
 
     name = "surrounding_tissue"
-    parameter_names = ("k_s",)
-    units = ("N/mm^3",)
-    scales = (1e-3,)
-    lower = (0.0,)
-    upper = (10.0,)
-    default_magnitude = 0.002
-    magnitude_unit = "N/mm^3"
+    parameters = (Parameter("k_s", "N/mm^3", 0.001, 0.0, 10.0),)
+    magnitude = Magnitude(0.002, "N/mm^3")
     equation = "k_s integral_lateral |u|^2 dA (Winkler support of the lateral faces)"
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:

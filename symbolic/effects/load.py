@@ -45,7 +45,9 @@ import casadi as ca
 import numpy as np
 
 from symbolic.basis import BSplineBasis
-from symbolic.effects.base import CaseData, Effect, LoadState, per_model, surface_frame
+from symbolic.effects.base import CaseData, Effect, LoadState, per_model
+from symbolic.effects.declaration import Magnitude, Parameter
+from symbolic.effects.skinrules import surface_frame
 from symbolic.loads import (
     log_probe_weight,
     quadrature_spacing,
@@ -163,17 +165,12 @@ class ForceDirection(Effect):
     """
 
     name = "force_direction"
-    parameter_names = ("tau_1", "tau_2")
-    units = ("1", "1")
-    scales = (0.1, 0.1)
-    lower = (-1.0, -1.0)
-    upper = (1.0, 1.0)
-    default_magnitude = 0.3
-    magnitude_unit = "1"
+    parameters = (
+        Parameter("tau_1", "1", 0.1, -1.0, 1.0),
+        Parameter("tau_2", "1", 0.1, -1.0, 1.0),
+    )
+    magnitude = Magnitude(0.3, "1", direction=(0.8, 0.6))
     equation = "f = f0 + |f0| (tau_1 e_1 + tau_2 e_2)"
-
-    def direction(self):
-        return (0.8, 0.6)
 
     def load(self, model: TissueModel, case: CaseData, load: LoadState, theta) -> LoadState:
         _, _, e1, e2, _ = surface_frame(model, case.contact_uv)
@@ -191,17 +188,12 @@ class ContactOffset(Effect):
     """
 
     name = "contact_offset"
-    parameter_names = ("delta_1", "delta_2")
-    units = ("mm", "mm")
-    scales = (1.0, 1.0)
-    lower = (-5.0, -5.0)
-    upper = (5.0, 5.0)
-    default_magnitude = 2.0
-    magnitude_unit = "mm"
+    parameters = (
+        Parameter("delta_1", "mm", 1.0, -5.0, 5.0),
+        Parameter("delta_2", "mm", 1.0, -5.0, 5.0),
+    )
+    magnitude = Magnitude(2.0, "mm", direction=(0.6, 0.8))
     equation = "p = p0 + delta_1 e_1 + delta_2 e_2 on the skin"
-
-    def direction(self):
-        return (0.6, 0.8)
 
     def load(self, model: TissueModel, case: CaseData, load: LoadState, theta) -> LoadState:
         du, dv, e1, e2, _ = surface_frame(model, case.contact_uv)
@@ -220,13 +212,8 @@ class ContactPatch(Effect):
     """
 
     name = "contact_patch"
-    parameter_names = ("sigma2",)
-    units = ("mm^2",)
-    scales = (1.0,)
-    lower = (0.0,)
-    upper = (100.0,)
-    default_magnitude = 6.0
-    magnitude_unit = "mm (probe radius)"
+    parameters = (Parameter("sigma2", "mm^2", 1.0, 0.0, 100.0),)
+    magnitude = Magnitude(6.0, "mm (probe radius)")
     equation = "F_B = E[J(p + eta)]^T f, eta ~ N(0, sigma^2 I) on the skin"
 
     def true_parameters(self, magnitude: float, n_cases: int) -> np.ndarray:

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from symbolic.effects.base import CaseData, Effect
+from symbolic.effects.declaration import Magnitude, Parameter
 from symbolic.model import TissueModel
 
 
@@ -47,14 +48,16 @@ class RigidMotion(Effect):
     """
 
     name = "rigid_motion"
-    parameter_names = ("omega_x", "omega_y", "omega_z", "t_x", "t_y", "t_z")
-    units = ("rad", "rad", "rad", "mm", "mm", "mm")
-    scales = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2)
-    lower = (-0.5, -0.5, -0.5, -10.0, -10.0, -10.0)
-    upper = (0.5, 0.5, 0.5, 10.0, 10.0, 10.0)
+    parameters = (
+        Parameter("omega_x", "rad", 0.001, -0.5, 0.5),
+        Parameter("omega_y", "rad", 0.001, -0.5, 0.5),
+        Parameter("omega_z", "rad", 0.001, -0.5, 0.5),
+        Parameter("t_x", "mm", 0.01, -10.0, 10.0),
+        Parameter("t_y", "mm", 0.01, -10.0, 10.0),
+        Parameter("t_z", "mm", 0.01, -10.0, 10.0),
+    )
     per_case = True
-    default_magnitude = 0.1
-    magnitude_unit = "mm"
+    magnitude = Magnitude(0.1, "mm")
     equation = "y = c + R(omega)(p - c) + t per capture"
 
     def direction(self):
@@ -88,14 +91,9 @@ class MeasurementScale(Effect):
     """
 
     name = "measurement_scale"
-    parameter_names = ("scale",)
-    units = ("1",)
-    scales = (1e-3,)
-    lower = (-0.2,)
-    upper = (0.2,)
+    parameters = (Parameter("scale", "1", 0.001, -0.2, 0.2),)
     per_case = True
-    default_magnitude = 8e-3
-    magnitude_unit = "1"
+    magnitude = Magnitude(0.008, "1")
     equation = "y = c + (1 + s)(p - c) per capture"
 
     def case_factor(self, k: int) -> float:

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient
+from symbolic.effects.declaration import Magnitude, Parameter
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -145,13 +146,8 @@ class NonlinearStiffening(Effect):
     """
 
     name = "nonlinear_stiffening"
-    parameter_names = ("k0",)
-    units = ("1",)
-    scales = (10.0,)
-    lower = (0.0,)
-    upper = (1e3,)
-    default_magnitude = 200.0
-    magnitude_unit = "1"
+    parameters = (Parameter("k0", "1", 10.0, 0.0, 1000.0),)
+    magnitude = Magnitude(200.0, "1")
     equation = "K_ab(B) = K0_ab (1 + k0 eps_ab^2) on spring-like pairs (eq. 1)"
     energies = ("dnurbs",)
 

@@ -29,13 +29,9 @@ import scipy.sparse as sp
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.continuum import PhysicalGradient
 from symbolic.continuum_model import CONTINUUM_TERMS
-from symbolic.effects.base import (
-    Effect,
-    OneTermStiffness,
-    componentwise,
-    stacked_free_block,
-    surface_rule,
-)
+from symbolic.effects.base import Effect, OneTermStiffness, componentwise, stacked_free_block
+from symbolic.effects.declaration import Magnitude, Parameter
+from symbolic.effects.skinrules import surface_rule
 from symbolic.energy import weighted_gram
 from symbolic.model import TissueModel
 from symbolic.sparse import ProductTerm, combination, combined
@@ -169,17 +165,12 @@ class Heterogeneity(FieldStiffness, Effect):
     energies = ("dnurbs", "linear-elastic")  # scales the linear K of eq. (C3)
     linear = True
     name = "heterogeneity"
-    parameter_names = ("h_u", "h_v")
-    units = ("1", "1")
-    scales = (0.1, 0.1)
-    lower = (-0.9, -0.9)
-    upper = (0.9, 0.9)
-    default_magnitude = 0.5
-    magnitude_unit = "1"
+    parameters = (
+        Parameter("h_u", "1", 0.1, -0.9, 0.9),
+        Parameter("h_v", "1", 0.1, -0.9, 0.9),
+    )
+    magnitude = Magnitude(0.5, "1", direction=(1.0, -0.5))
     equation = "alpha_i (1 + h_u (2u-1) + h_v (2v-1))"
-
-    def direction(self):
-        return (1.0, -0.5)
 
     def shapes(self, model: TissueModel):
         return _gradient_fields()
@@ -232,17 +223,12 @@ class Layering(FieldStiffness, Effect):
     energies = ("linear-elastic",)
     linear = True
     name = "layering"
-    parameter_names = ("s_1", "s_2")
-    units = ("1", "1")
-    scales = (1.0, 1.0)
-    lower = (-0.9, -0.9)
-    upper = (20.0, 20.0)
-    default_magnitude = 4.0
-    magnitude_unit = "1 (E_skin / E - 1)"
+    parameters = (
+        Parameter("s_1", "1", 1.0, -0.9, 20.0),
+        Parameter("s_2", "1", 1.0, -0.9, 20.0),
+    )
+    magnitude = Magnitude(4.0, "1 (E_skin / E - 1)", direction=(1.0, 0.5))
     equation = "E (1 + s_1 [depth < 1 mm] + s_2 [1 <= depth < 2 mm])"
-
-    def direction(self):
-        return (1.0, 0.5)
 
     def shapes(self, model: TissueModel):
         return self.cached(model, "bands", lambda: _depth_bands(model))
@@ -262,13 +248,8 @@ class Bending(OneTermStiffness, Effect):
     """
 
     name = "bending"
-    parameter_names = ("beta",)
-    units = ("N/mm",)
-    scales = (1e-3,)
-    lower = (0.0,)
-    upper = (10.0,)
-    default_magnitude = 5e-3
-    magnitude_unit = "N/mm"
+    parameters = (Parameter("beta", "N/mm", 0.001, 0.0, 10.0),)
+    magnitude = Magnitude(0.005, "N/mm")
     equation = "beta integral sum_{i<=j} |d_ij V|^2 (eq. 18)"
     energies = ("dnurbs",)
 
@@ -314,13 +295,8 @@ class PreTension(StackedStiffness):
     """
 
     name = "pre_tension"
-    parameter_names = ("sigma0",)
-    units = ("N/mm",)
-    scales = (0.01,)
-    lower = (0.0,)
-    upper = (10.0,)
-    default_magnitude = 0.05
-    magnitude_unit = "N/mm"
+    parameters = (Parameter("sigma0", "N/mm", 0.01, 0.0, 10.0),)
+    magnitude = Magnitude(0.05, "N/mm")
     equation = "sigma0 integral_skin g^ab (n . d_a u)(n . d_b u) dA"
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
@@ -363,13 +339,8 @@ class VolumetricCoupling(StackedStiffness):
     """
 
     name = "volumetric_coupling"
-    parameter_names = ("lambda",)
-    units = ("N/mm^2",)
-    scales = (0.01,)
-    lower = (0.0,)
-    upper = (100.0,)
-    default_magnitude = 0.05
-    magnitude_unit = "N/mm^2"
+    parameters = (Parameter("lambda", "N/mm^2", 0.01, 0.0, 100.0),)
+    magnitude = Magnitude(0.05, "N/mm^2")
     equation = "lambda integral (div u)^2 dV (physical volume)"
     energies = ("dnurbs",)
 
@@ -395,13 +366,8 @@ class ShearCoupling(StackedStiffness):
     """
 
     name = "shear_coupling"
-    parameter_names = ("mu_L",)
-    units = ("N/mm^2",)
-    scales = (1e-3,)
-    lower = (0.0,)
-    upper = (100.0,)
-    default_magnitude = 0.005
-    magnitude_unit = "N/mm^2"
+    parameters = (Parameter("mu_L", "N/mm^2", 0.001, 0.0, 100.0),)
+    magnitude = Magnitude(0.005, "N/mm^2")
     equation = "mu_L integral 2 eps:eps dV (physical volume, eq. C3)"
     energies = ("dnurbs",)
 

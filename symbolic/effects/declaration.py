@@ -1,0 +1,46 @@
+"""How an effect declares its parameters and its realistic magnitude (docs/diagnosis.md,
+"The effects"): one ``Parameter`` row per parameter, one ``Magnitude``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One parameter of an effect's theta (one case's block for a per-case effect).
+
+    Attributes
+    ----------
+    name, unit : str
+        Its name and unit.
+    scale : float
+        Typical magnitude: the unit of its internal coordinate.
+    lower, upper : float
+        Bounds in natural units; a lower bound of 0 makes the score test one-sided.
+    """
+
+    name: str
+    unit: str
+    scale: float
+    lower: float
+    upper: float
+
+
+@dataclass(frozen=True)
+class Magnitude:
+    """A realistic size of the effect, for synthetic data (``Effect.true_parameters``).
+
+    Attributes
+    ----------
+    value : float
+        The magnitude.
+    unit : str
+        Its unit.
+    direction : tuple of float, optional
+        The pattern of theta the magnitude scales; None: 1 for every parameter.
+    """
+
+    value: float
+    unit: str
+    direction: tuple[float, ...] | None = None
