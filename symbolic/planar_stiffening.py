@@ -148,10 +148,9 @@ class PlanarStiffening(PlanarNeoHookean):
 
     Parameters
     ----------
-    points : ndarray (N, 2)
-        Nodes [mm].
-    triangles : ndarray (M, 3)
-        Counter-clockwise node indices.
+    points, triangles : ndarray
+        The mesh, as ``PlanarNeoHookean``: nodes (N, 2) [mm] and counter-clockwise node
+        indices (M, 3).
 
     Notes
     -----

@@ -1,9 +1,10 @@
-"""Shared pytest fixtures."""
+"""Shared pytest fixtures, and the helpers several test modules import."""
 
 from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from experiments.data.paths import shared_data_dir
@@ -45,3 +46,11 @@ def exit_code_and_stderr(main, argv, capsys) -> tuple[int, str]:
     except SystemExit as stop:
         code = stop.code
     return code, capsys.readouterr().err
+
+
+def assert_same_solution(first, second, cost_rel: float) -> None:
+    """Two methods' results for one problem agree: both converged, to the same estimate
+    (1e-6 relative) and the same cost (``cost_rel`` relative)."""
+    assert first.success and second.success
+    assert np.allclose(first.x, second.x, rtol=1e-6, atol=0)
+    assert first.cost == pytest.approx(second.cost, rel=cost_rel)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import assert_same_solution
 
 from experiments.dynamics import inverse as dynamic
 from experiments.dynamics.trajectories import (
@@ -98,9 +99,7 @@ def test_noise_free_trajectories_recover_the_truth_simultaneous():
 def test_simultaneous_and_nested_solve_the_same_discrete_problem(short_noisy):
     simultaneous = DynamicSimultaneousSolver(short_noisy).solve()
     nested = DynamicNestedSolver(short_noisy).solve()
-    assert simultaneous.success and nested.success
-    assert np.allclose(simultaneous.x, nested.x, rtol=1e-6, atol=0)
-    assert simultaneous.cost == pytest.approx(nested.cost, rel=1e-9)
+    assert_same_solution(simultaneous, nested, cost_rel=1e-9)
     trajectories = simultaneous.extra["trajectories"][0], nested.extra["trajectories"][0]
     assert np.abs(trajectories[0] - trajectories[1]).max() < 1e-5
 

@@ -72,15 +72,44 @@ def _loads_or_refuses(path) -> str:
     return "accepted"
 
 
+def _mutated_loads_or_refuses(arrays, folder) -> str:
+    """``_loads_or_refuses`` on mutated arrays saved in ``folder``; "unwritable" when numpy
+    cannot write them (nothing to load)."""
+    try:
+        data = _saved(arrays)
+    except (ValueError, TypeError):
+        return "unwritable"
+    return _loads_or_refuses(_write_bytes(folder, data))
+
+
+def _dataset_case(command: str, arrays, folder, seconds: int = 60) -> int | None:
+    """``dvs command`` on mutated arrays saved in ``folder``, under the contract; its exit
+    code, or None when numpy cannot write them (nothing to run)."""
+    try:
+        path = _write_bytes(folder, _saved(arrays))
+    except (ValueError, TypeError):
+        return None
+    out = folder / f"out{next(_COUNTER)}"
+    return check_contract([command, str(path), "--out", str(out)], out, seconds)
+
+
+def _option_case(data, folder, seconds: int = 60) -> tuple[str, int]:
+    """A command line with odd option values drawn from ``data``, on the phantom's dataset
+    (saved in ``folder`` once), under the contract; its command and exit code."""
+    path = folder / "phantom.npz"
+    if not path.exists():
+        save_dataset(path, simulate())
+    out = folder / f"out{next(_COUNTER)}"
+    argv = data.draw(option_argv(str(path), str(out)))
+    target = out.with_suffix(".npz") if argv[0] == "simulate" else out
+    return argv[0], check_contract(argv, target, seconds)
+
+
 @settings(FAST, max_examples=300)
 @given(mutation=array_mutation(VALID))
 def test_loader_accepts_or_refuses_every_mutated_dataset(mutation, tmp_path):
     _, arrays = mutation
-    try:
-        data = _saved(arrays)
-    except (ValueError, TypeError):  # numpy cannot write it: nothing to load
-        return
-    _loads_or_refuses(_write_bytes(tmp_path, data))
+    _mutated_loads_or_refuses(arrays, tmp_path)
 
 
 @settings(FAST, max_examples=150)
@@ -99,25 +128,14 @@ def phantom_arrays():
 @settings(FAST, max_examples=12)
 @given(data=st.data())
 def test_dvs_fit_keeps_the_contract_on_mutated_datasets(data, phantom_arrays, tmp_path):
-    label, arrays = data.draw(array_mutation(phantom_arrays))
-    try:
-        path = _write_bytes(tmp_path, _saved(arrays))
-    except (ValueError, TypeError):
-        return
-    out = tmp_path / f"out{next(_COUNTER)}"
-    check_contract(["fit", str(path), "--out", str(out)], out)
+    _, arrays = data.draw(array_mutation(phantom_arrays))
+    _dataset_case("fit", arrays, tmp_path)
 
 
 @settings(FAST, max_examples=12)
 @given(data=st.data())
 def test_options_keep_the_contract(data, phantom_arrays, tmp_path):
-    path = tmp_path / "phantom.npz"
-    if not path.exists():
-        save_dataset(path, simulate())
-    out = tmp_path / f"out{next(_COUNTER)}"
-    argv = data.draw(option_argv(str(path), str(out)))
-    target = out.with_suffix(".npz") if argv[0] == "simulate" else out
-    check_contract(argv, target)
+    _option_case(data, tmp_path)
 
 
 @pytest.fixture(scope="module")
@@ -190,14 +208,7 @@ def test_campaign(tmp_path, phantom_arrays, places, capsys):
     @given(mutation=array_mutation(VALID))
     def loader_arrays(mutation):
         label, arrays = mutation
-        try:
-            data = _saved(arrays)
-        except (ValueError, TypeError):
-            counts[("loader", label.split(":")[0], "unwritable")] += 1
-            return
-        counts[
-            ("loader", label.split(":")[0], _loads_or_refuses(_write_bytes(tmp_path, data)))
-        ] += 1
+        counts[("loader", label.split(":")[0], _mutated_loads_or_refuses(arrays, tmp_path))] += 1
 
     @settings(CAMPAIGN, max_examples=300)
     @given(mutation=byte_mutation(_saved(VALID)))
@@ -212,13 +223,9 @@ def test_campaign(tmp_path, phantom_arrays, places, capsys):
         @given(data=st.data())
         def cases(data):
             label, arrays = data.draw(array_mutation(phantom_arrays))
-            try:
-                path = _write_bytes(tmp_path, _saved(arrays))
-            except (ValueError, TypeError):
-                return
-            out = tmp_path / f"out{next(_COUNTER)}"
-            code = check_contract([command, str(path), "--out", str(out)], out, seconds)
-            counts[(command, label.split(":")[0], f"exit {code}")] += 1
+            code = _dataset_case(command, arrays, tmp_path, seconds)
+            if code is not None:
+                counts[(command, label.split(":")[0], f"exit {code}")] += 1
 
         return cases
 
@@ -227,13 +234,8 @@ def test_campaign(tmp_path, phantom_arrays, places, capsys):
     @settings(CAMPAIGN, max_examples=120)
     @given(data=st.data())
     def option_cases(data):
-        path = tmp_path / "phantom.npz"
-        if not path.exists():
-            save_dataset(path, simulate())
-        out = tmp_path / f"out{next(_COUNTER)}"
-        argv = data.draw(option_argv(str(path), str(out)))
-        target = out.with_suffix(".npz") if argv[0] == "simulate" else out
-        counts[("options", argv[0], f"exit {check_contract(argv, target, 120)}")] += 1
+        command, code = _option_case(data, tmp_path, 120)
+        counts[("options", command, f"exit {code}")] += 1
 
     folder, dataset, experiment, locked = places
     table = _commands(dataset, experiment, locked)

@@ -3,6 +3,7 @@
 import casadi as ca
 import numpy as np
 import pytest
+from conftest import assert_same_solution
 
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
@@ -56,9 +57,7 @@ def noisy():
 def test_simultaneous_and_nested_agree(noisy):
     simultaneous = SimultaneousSolver(noisy).solve()
     nested = NestedSolver(noisy).solve()
-    assert simultaneous.success and nested.success
-    assert np.allclose(simultaneous.x, nested.x, rtol=1e-6, atol=0)
-    assert simultaneous.cost == pytest.approx(nested.cost, rel=1e-8)
+    assert_same_solution(simultaneous, nested, cost_rel=1e-8)
 
 
 def test_the_results_states_are_the_equilibria_at_its_estimate(noisy):

@@ -118,15 +118,14 @@ def test_planar_problem_sees_x_and_y_but_not_z():
 
 
 # ----------------------------------------------------------------------------- real data
-@pytest.fixture(scope="module")
-def healthy_fits(shared_data):
-    """Healthy skin fitted with the linear model, then with k0 added."""
-    from experiments.realskin.setup import RealSkinSettings, build
+def _linear_then_added(case: str, settings, name: str, start: float):
+    """``case`` fitted with the linear model, then with parameter ``name`` added, started
+    at ``start``; (the setup, the linear fit, the fit with ``name``)."""
+    from experiments.realskin.setup import build
     from experiments.realskin.skinloop import parameter_space as _space
     from experiments.realskin.stages import fit_stage
 
-    settings = RealSkinSettings()
-    setup = build("healthy", settings)
+    setup = build(case, settings)
     linear = fit_stage(
         setup.model,
         setup.cases,
@@ -134,10 +133,17 @@ def healthy_fits(shared_data):
         "linear",
         log=lambda *_: None,
     )
-    start = {**linear.as_dict(), "k0": 0.0}
-    space = _space(linear.names + ("k0",), start, settings)
-    stiff = fit_stage(setup.model, setup.cases, space, "+ k0", log=lambda *_: None)
-    return setup, linear, stiff
+    space = _space(linear.names + (name,), {**linear.as_dict(), name: start}, settings)
+    added = fit_stage(setup.model, setup.cases, space, f"+ {name}", log=lambda *_: None)
+    return setup, linear, added
+
+
+@pytest.fixture(scope="module")
+def healthy_fits(shared_data):
+    """Healthy skin fitted with the linear model, then with k0 added."""
+    from experiments.realskin.setup import RealSkinSettings
+
+    return _linear_then_added("healthy", RealSkinSettings(), "k0", 0.0)
 
 
 def test_healthy_stiffening_cuts_the_force_error(healthy_fits):
@@ -159,23 +165,11 @@ def test_keloid_is_stiffer_than_its_surroundings(shared_data):
     """Keloid, membrane model (lateral ring fixed), the material placed by hand inside
     the outline (``outline_region``, not the study's default): it is stiffer (ratio > 1),
     and adding it is significant (likelihood ratio)."""
-    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.setup import RealSkinSettings
     from experiments.realskin.skinloop import likelihood_ratio
-    from experiments.realskin.skinloop import parameter_space as _space
-    from experiments.realskin.stages import fit_stage
 
     settings = RealSkinSettings(boundary="lateral", outline_region=True)
-    setup = build("keloid", settings)
-    linear = fit_stage(
-        setup.model,
-        setup.cases,
-        _space(setup.base_names, setup.start, settings),
-        "linear",
-        log=lambda *_: None,
-    )
-    start = {**linear.as_dict(), REGION_RATIO: 1.0}
-    space = _space(linear.names + (REGION_RATIO,), start, settings)
-    region = fit_stage(setup.model, setup.cases, space, "+ region", log=lambda *_: None)
+    _, linear, region = _linear_then_added("keloid", settings, REGION_RATIO, 1.0)
     ratio = region.as_dict()[REGION_RATIO]
     assert ratio > 10.0
     assert likelihood_ratio(linear, region) > 100.0  # chi^2_1: p < 1e-20

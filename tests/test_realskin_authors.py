@@ -12,30 +12,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import exit_code_and_stderr
+from planarchecks import check_tangent_and_residual, healthy_mesh
 from scipy.optimize import brentq
 from scipy.spatial import Delaunay
 
 from experiments.realskin import authors, mesh2d
-from experiments.realskin.geometry import Rect, SkinGeometry
 from experiments.realskin.planar import Assumptions, Extensometer, newton
 from experiments.realskin.reproduce import Setting, gradient_at, main, problem, run_fit
 from symbolic.planar_neohookean import PlanarNeoHookean, lame
-
-GEOMETRY = SkinGeometry(
-    region=Rect(0.0, -5.0, 100.0, 45.0),
-    pad_moving=Rect(26.0, 16.0, 34.0, 24.0),
-    pad_fixed=Rect(66.0, 16.0, 74.0, 24.0),
-    keloid=None,
-    variables={},
-)
-"""The healthy case's geometry.geo, written out (the mesh tests need no data)."""
 
 QUIET = {"log": lambda *a: None}
 
 
 @pytest.fixture(scope="module")
 def coarse():
-    return mesh2d.build_mesh(GEOMETRY, 2.0, 6.0)
+    return healthy_mesh()
 
 
 def _random_state(mesh, plane, seed=0):
@@ -52,13 +43,7 @@ def _random_state(mesh, plane, seed=0):
 def test_tangent_and_residual_match_central_differences(coarse, plane):
     """K v against (R(u + h v) - R(u - h v)) / 2h, and R . v against the energy's."""
     model, u, v, _ = _random_state(coarse, plane)
-    h = 1e-6
-    tangent = model.stiffness(u)
-    numeric = (model.residual(u + h * v) - model.residual(u - h * v)) / (2 * h)
-    assert np.linalg.norm(numeric - tangent @ v) < 1e-8 * np.linalg.norm(tangent @ v)
-    assert abs(tangent - tangent.T).max() < 1e-14 * abs(tangent).max()
-    slope = (model.energy(u + h * v) - model.energy(u - h * v)) / (2 * h)
-    assert abs(slope - model.residual(u) @ v) < 1e-7 * abs(slope)
+    check_tangent_and_residual(model, u, v, tangent_rtol=1e-8, symmetry_rtol=1e-14)
 
 
 @pytest.mark.parametrize("plane", ["strain", "stress"])

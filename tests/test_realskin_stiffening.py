@@ -12,10 +12,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from planarchecks import check_tangent_and_residual, healthy_mesh
 
 from experiments.realskin import authors, mesh2d
 from experiments.realskin.data import load_case
-from experiments.realskin.geometry import Rect, SkinGeometry
 from experiments.realskin.planarstiffening import (
     STIFFENING_CAP,
     WhitenedExtensometer,
@@ -25,19 +25,10 @@ from experiments.realskin.planarstiffening import (
 from symbolic.planar_neohookean import PlanarNeoHookean
 from symbolic.planar_stiffening import EXPONENT_CAP, PlanarStiffening, exponential_term
 
-GEOMETRY = SkinGeometry(
-    region=Rect(0.0, -5.0, 100.0, 45.0),
-    pad_moving=Rect(26.0, 16.0, 34.0, 24.0),
-    pad_fixed=Rect(66.0, 16.0, 74.0, 24.0),
-    keloid=None,
-    variables={},
-)
-"""The healthy case's geometry.geo, written out (the energy tests need no data)."""
-
 
 @pytest.fixture(scope="module")
 def coarse():
-    return mesh2d.build_mesh(GEOMETRY, 2.0, 6.0)
+    return healthy_mesh()
 
 
 def _random_state(mesh, seed=0):
@@ -56,13 +47,7 @@ def _random_state(mesh, seed=0):
 def test_tangent_and_residual_match_central_differences(coarse):
     """K v against (R(u + h v) - R(u - h v)) / 2h, and R . v against the energy's."""
     model, u, v, _ = _random_state(coarse)
-    h = 1e-6
-    tangent = model.stiffness(u)
-    numeric = (model.residual(u + h * v) - model.residual(u - h * v)) / (2 * h)
-    assert np.linalg.norm(numeric - tangent @ v) < 1e-7 * np.linalg.norm(tangent @ v)
-    assert abs(tangent - tangent.T).max() < 1e-13 * abs(tangent).max()
-    slope = (model.energy(u + h * v) - model.energy(u - h * v)) / (2 * h)
-    assert abs(slope - model.residual(u) @ v) < 1e-7 * abs(slope)
+    check_tangent_and_residual(model, u, v, tangent_rtol=1e-7, symmetry_rtol=1e-13)
 
 
 def test_parameter_and_edge_force_derivatives_match_central_differences(coarse):

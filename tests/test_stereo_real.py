@@ -50,6 +50,13 @@ def stereo(cylinder):
     return holdout.stereo_check(pair, (pair[0].camera, pair[1].camera), grid)
 
 
+@pytest.fixture(scope="module")
+def index_checks(cylinder):
+    """``index_check`` of each view, by its name."""
+    grid, views = cylinder
+    return {name: index_check(view, grid) for name, view in views.items()}
+
+
 # --- OpenCV stereo sample -------------------------------------------------------------
 
 
@@ -137,9 +144,8 @@ def test_column_labels_follow_the_printed_numbers(cylinder):
         ),
     ],
 )
-def test_visible_dots_detected_and_correctly_indexed(cylinder, name):
-    grid, views = cylinder
-    r = index_check(views[name], grid)
+def test_visible_dots_detected_and_correctly_indexed(index_checks, name):
+    r = index_checks[name]
     print(
         f"{name}: {r['visible_labelled_ok']}/{r['visible']} visible dots detected and "
         f"correctly indexed ({100 * r['visible_frac']:.1f}%)"
@@ -148,10 +154,9 @@ def test_visible_dots_detected_and_correctly_indexed(cylinder, name):
 
 
 @pytest.mark.parametrize("name", ["201", "202"])
-def test_wholly_visible_dots_detected_and_correctly_indexed(cylinder, name):
+def test_wholly_visible_dots_detected_and_correctly_indexed(index_checks, name):
     """Same count, for dots that face the camera across their whole width."""
-    grid, views = cylinder
-    r = index_check(views[name], grid)
+    r = index_checks[name]
     print(
         f"{name}: {100 * r['fully_visible_frac']:.1f}% of {r['fully_visible']} dots facing "
         f"the camera across their whole width (dot/pitch {r['dot_fraction']:.3f})"
@@ -160,10 +165,9 @@ def test_wholly_visible_dots_detected_and_correctly_indexed(cylinder, name):
 
 
 @pytest.mark.parametrize("name", ["201", "202"])
-def test_no_dot_is_misindexed(cylinder, name):
+def test_no_dot_is_misindexed(index_checks, name):
     """Every label agrees with a calibration that never saw that dot."""
-    grid, views = cylinder
-    r = index_check(views[name], grid)
+    r = index_checks[name]
     assert r["labelled_not_visible"] == 0
     assert r["holdout_reproj_ok_frac"] == 1.0
 

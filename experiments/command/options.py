@@ -348,3 +348,22 @@ def parse_degrees(text: str, option: str = "--degrees") -> tuple[int, int, int]:
 def verb(options: list) -> str:
     """'sets' after one option name, 'set' after several."""
     return "sets" if len(options) == 1 else "set"
+
+
+def add_noise_seed_arguments(parser) -> None:
+    """``--noise MM`` and ``--seed N`` of the commands that simulate marker data
+    (``check_noise_seed`` checks them)."""
+    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm], 0-1")
+    parser.add_argument("--seed", type=int, default=0, help="random seed, 0 to 2^32 - 1")
+
+
+def check_noise_seed(args) -> None:
+    """Check ``args.noise`` [mm] and ``args.seed`` of ``add_noise_seed_arguments``."""
+    check_noise(args.noise)
+    check_seed(args.seed)
+
+
+def add_dataset_argument(parser, more: str = "", nargs: str | None = None) -> None:
+    """The ``dataset`` argument of a command that reads a dataset v1 (.npz): ``more`` ends
+    its help (e.g. "; default: phantom"); ``nargs="?"`` makes it optional (None then)."""
+    parser.add_argument("dataset", type=path_argument, nargs=nargs, help=f"dataset v1 (.npz){more}")

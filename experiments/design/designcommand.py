@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from experiments.command.options import Command
+from experiments.design.designoptions import given
 from experiments.design.plan import DesignSettings, plan, require_noise
-from experiments.fit.stepzero import AUTO, chosen_base
+from experiments.fit.stepzero import AUTO, add_model_arguments, chosen_base
 
 GAIN_LABELS = {
     "d": "gain in log det(F)^(1/p)",
@@ -136,14 +137,13 @@ def plot_map(path: Path, dataset, chosen, gains) -> None:
 
 def build_parser(prog: str = "python -m experiments.design.designcommand"):
     """The options of ``dvs design``."""
-    from experiments.command.options import make_parser, path_argument
+    from experiments.command.options import add_dataset_argument, make_parser, path_argument
+    from experiments.design.designoptions import add_candidate_arguments
+    from experiments.diagnosis.diagnose import BASE_ENERGIES
 
     parser = make_parser(prog, "Choose where, in which direction and how hard to press.")
-    parser.add_argument(
-        "dataset",
-        type=path_argument,
-        nargs="?",
-        help="dataset v1 (.npz): geometry, markers and noise level (none with --sequential)",
+    add_dataset_argument(
+        parser, ": geometry, markers and noise level (none with --sequential)", nargs="?"
     )
     parser.add_argument(
         "--sequential",
@@ -171,67 +171,27 @@ def build_parser(prog: str = "python -m experiments.design.designcommand"):
         help="default: d for alpha, power for one effect, maximin for several",
     )
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
-    parser.add_argument(
-        "--contacts",
-        type=int,
-        default=None,
-        help="candidate contacts per side of the grid over the marked area (2-15; "
-        "default 5, 3 with --sequential)",
+    add_candidate_arguments(
+        parser,
+        contacts="5, 3 with --sequential",
+        force_range="0.17 0.25; 0.25 0.25 with --sequential",
+        levels="2, 1 with --sequential",
     )
-    parser.add_argument(
-        "--tilt",
-        type=float,
-        default=20.0,
-        help="tilt of the candidate forces from the normal [deg], 0-60",
-    )
-    parser.add_argument("--azimuths", type=int, default=4, help="tilt directions (0-12)")
-    parser.add_argument(
-        "--force-range",
-        type=float,
-        nargs=2,
-        default=None,
-        metavar=("LOW", "HIGH"),
-        help="safe force range [N], at most 0.5 (default 0.17 0.25; 0.25 0.25 with --sequential)",
-    )
-    parser.add_argument(
-        "--levels",
-        type=int,
-        default=None,
-        help="force magnitudes in the range (default 2, 1 with --sequential)",
-    )
-    parser.add_argument("--level", type=float, default=0.01, help="significance level")
     parser.add_argument(
         "--augment",
         action="store_true",
         help="keep the dataset's presses and add the budget to them",
     )
-    parser.add_argument(
-        "--grid",
-        default="auto",
-        help="control grid MxNxL (with an --energy); auto: up to 9x9x2 (15x15x3 with "
-        "--sequential --energy linear-elastic)",
-    )
-    parser.add_argument(
-        "--degrees",
-        default=None,
-        help="spline degrees PxQxR (with an --energy; default 3x3x1; 3x3x2 with --sequential)",
-    )
-    parser.add_argument(
-        "--energy",
-        choices=(AUTO, "dnurbs", "linear-elastic", "neo-hookean"),
-        default=AUTO,
-        help="base model, as dvs diagnose: auto (step 0 chooses between the paper's energy "
+    add_model_arguments(
+        parser,
+        BASE_ENERGIES,
+        "base model, as dvs diagnose: auto (step 0 chooses between the paper's energy "
         "and the linear-elastic continuum with its surroundings, docs/continuum.md), dnurbs, "
         "linear-elastic or neo-hookean; --sequential takes auto (step 0 before every "
         "diagnosis) or linear-elastic",
-    )
-    parser.add_argument(
-        "--margin",
-        type=float,
-        default=None,
-        help="width [mm] of tissue beyond the markers the volume also covers (with an "
-        "--energy; default 0; 10 with --sequential --energy linear-elastic; e.g. 10 for the "
-        "continua, docs/continuum.md)",
+        grid="up to 9x9x2 (15x15x3 with --sequential --energy linear-elastic)",
+        degrees="3x3x1; 3x3x2 with --sequential",
+        margin="0; 10 with --sequential --energy linear-elastic",
     )
     return parser
 
@@ -240,8 +200,10 @@ def work(args) -> int:
     """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
     from experiments.command.options import UsageError, check_output_dir
     from experiments.data.dataset import load_dataset
+    from experiments.design.designoptions import SEQUENTIAL_MODEL
     from experiments.design.designreport import report_text
-    from experiments.fit.stepzero import refuse_model_options
+    from experiments.diagnosis.diagnose import base_from_options
+    from experiments.fit.stepzero import model_options, refuse_model_options
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     sequential = args.sequential is not None
@@ -255,11 +217,11 @@ def work(args) -> int:
         target=parse_target(args.target or "alpha"),
         criterion=args.criterion,
         budget=max(args.budget, 1) if sequential else args.budget,
-        contacts=_given(args.contacts, 3 if sequential else 5),
+        contacts=given(args.contacts, 3 if sequential else 5),
         tilt_deg=args.tilt,
         azimuths=args.azimuths,
-        force_range=tuple(_given(args.force_range, (0.25, 0.25) if sequential else (0.17, 0.25))),
-        levels=_given(args.levels, 1 if sequential else 2),
+        force_range=tuple(given(args.force_range, (0.25, 0.25) if sequential else (0.17, 0.25))),
+        levels=given(args.levels, 1 if sequential else 2),
         level=args.level,
         augment=args.augment,
     )
@@ -277,7 +239,7 @@ def work(args) -> int:
             )
         model["energy"] = args.energy
         return run_sequential(args.sequential, settings, args.budget, model, args.out)
-    base = base_model(args)
+    base = base_from_options(args)
     out = check_output_dir(args.out)
     dataset = require_noise(load_dataset(args.dataset))
     fit, base_choice = None, None
@@ -300,45 +262,6 @@ def work(args) -> int:
         file=sys.stdout,
     )
     return 0
-
-
-SEQUENTIAL_MODEL = {"grid": None, "degrees": (3, 3, 2), "margin": 10.0}
-"""The sequential loop's model when no option says otherwise (``SequentialSettings``;
-grid None: its 15 x 15 x 3)."""
-
-
-def model_options(args, defaults: dict) -> dict:
-    """``--grid``, ``--degrees`` and ``--margin`` checked (exit 2 with one line when bad),
-    each the mode's default when not given: {"grid", "degrees", "margin"}."""
-    from experiments.command.options import check_grid, check_margin, parse_degrees, parse_grid
-
-    degrees = defaults["degrees"] if args.degrees is None else parse_degrees(args.degrees)
-    grid = defaults["grid"]
-    if args.grid != "auto":
-        grid = check_grid(parse_grid(args.grid), degrees, args.grid)
-    margin = check_margin(_given(args.margin, defaults["margin"]))
-    return {"grid": grid, "degrees": degrees, "margin": margin}
-
-
-def base_model(args):
-    """The base model's ``FitSettings`` of ``dvs design DATASET``, as ``dvs diagnose``
-    builds it from ``--energy``, ``--grid``, ``--degrees`` and ``--margin``; ``AUTO``
-    (``--energy auto``, the default): step 0 chooses it, and the other three are refused
-    (exit 2), as by fit and diagnose."""
-    from experiments.diagnosis.diagnose import base_settings
-    from experiments.fit.stepzero import refuse_model_options
-
-    model = model_options(args, {"grid": None, "degrees": base_settings().degrees, "margin": 0.0})
-    degrees = None if args.degrees is None else model["degrees"]
-    if args.energy == AUTO:
-        refuse_model_options(model["grid"], degrees, model["margin"])
-        return AUTO
-    return base_settings(model["grid"], args.energy, degrees, model["margin"])
-
-
-def _given(value, default):
-    """The option's value, or the mode's default when it was not given."""
-    return default if value is None else value
 
 
 def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Path) -> int:

@@ -210,21 +210,12 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
 def field_document(row: dict, target: FieldTarget, args) -> dict:
     """``next.json`` of ``--target field`` (docs/formats.md): a ``dvs-design/1`` file whose
     ``presses`` hold the proposal, with the posterior of the inclusion's place."""
-    from experiments.design.files import next_header
+    from experiments.design.files import next_header, next_why
 
-    press = row["press"]
     posterior = row["posterior"]
     return {
         **next_header(row, args, "field"),
-        "why": None
-        if press is None
-        else {
-            "question": row["question"],
-            "information_before": press["information_before"],
-            "information_after": press["information_after"],
-            "needed": posterior["needed"],
-            "progress": press["progress"],
-        },
+        "why": next_why(row["press"], "information", needed=posterior["needed"]),
         "inclusion": {
             "diameter_mm": target.diameter_mm,
             "ratio": target.ratio,

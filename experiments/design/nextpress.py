@@ -34,6 +34,8 @@ from experiments.fit.stepzero import AUTO
 def build_parser(prog: str = "python -m experiments.design.nextpress"):
     """The options of ``dvs next``."""
     from experiments.command.options import make_parser, path_argument
+    from experiments.design.designoptions import add_candidate_arguments
+    from experiments.fit.stepzero import add_model_arguments
 
     parser = make_parser(prog, "Propose the next press of an experiment from the data so far.")
     parser.add_argument(
@@ -50,24 +52,14 @@ def build_parser(prog: str = "python -m experiments.design.nextpress"):
         help="presses still allowed in this session, the proposed one included (at least 1)",
     )
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
-    parser.add_argument(
-        "--energy",
-        choices=(AUTO, "linear-elastic"),
-        default=AUTO,
-        help="base model of the diagnosis: auto (step 0 chooses the model, its resolution "
+    add_model_arguments(
+        parser,
+        (AUTO, "linear-elastic"),
+        "base model of the diagnosis: auto (step 0 chooses the model, its resolution "
         "and surroundings, as dvs diagnose) or linear-elastic on --grid",
-    )
-    parser.add_argument(
-        "--grid", default="auto", help="control grid MxNxL (with --energy linear-elastic; 15x15x3)"
-    )
-    parser.add_argument(
-        "--degrees", default=None, help="spline degrees PxQxR (with --energy linear-elastic; 3x3x2)"
-    )
-    parser.add_argument(
-        "--margin",
-        type=float,
-        default=None,
-        help="tissue beyond the markers [mm] (with --energy linear-elastic; default 10)",
+        grid="15x15x3",
+        degrees="3x3x2",
+        margin="10",
     )
     parser.add_argument(
         "--target",
@@ -82,24 +74,9 @@ def build_parser(prog: str = "python -m experiments.design.nextpress"):
     parser.add_argument(
         "--ratio", type=float, default=2.0, help="with --target field: its stiffness ratio"
     )
-    parser.add_argument(
-        "--contacts",
-        type=int,
-        default=None,
-        help="candidate contacts per side (2-15; default 3, 7 with --target field)",
+    add_candidate_arguments(
+        parser, contacts="3, 7 with --target field", force_range="0.25 0.25", levels="1"
     )
-    parser.add_argument("--tilt", type=float, default=20.0, help="tilt of the candidates [deg]")
-    parser.add_argument("--azimuths", type=int, default=4, help="tilt directions (0-12)")
-    parser.add_argument(
-        "--force-range",
-        type=float,
-        nargs=2,
-        default=(0.25, 0.25),
-        metavar=("LOW", "HIGH"),
-        help="safe force range [N], at most 0.5",
-    )
-    parser.add_argument("--levels", type=int, default=1, help="force magnitudes in the range")
-    parser.add_argument("--level", type=float, default=0.01, help="significance level")
     return parser
 
 
@@ -108,10 +85,10 @@ def work(args) -> int:
     from experiments.command.options import UsageError, check_output_dir
     from experiments.data.captures import merge_captures
     from experiments.data.dataset import load_dataset, save_dataset
-    from experiments.design.designcommand import SEQUENTIAL_MODEL, model_options
+    from experiments.design.designoptions import SEQUENTIAL_MODEL, given
     from experiments.design.plan import DesignSettings, require_noise
     from experiments.design.sequential import SequentialSettings, step
-    from experiments.fit.stepzero import refuse_model_options
+    from experiments.fit.stepzero import model_options, refuse_model_options
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     begin = time.perf_counter()
@@ -124,8 +101,8 @@ def work(args) -> int:
         contacts=contacts,
         tilt_deg=args.tilt,
         azimuths=args.azimuths,
-        force_range=tuple(args.force_range),
-        levels=args.levels,
+        force_range=tuple(given(args.force_range, (0.25, 0.25))),
+        levels=given(args.levels, 1),
         level=args.level,
     )
     model = model_options(args, SEQUENTIAL_MODEL)
@@ -140,7 +117,7 @@ def work(args) -> int:
                 "--target field maps on the continuum step 0 chooses, as dvs image: drop --energy"
             )
         target = nextfield.FieldTarget(
-            args.inclusion, args.ratio, contacts=contacts, force_n=args.force_range[1]
+            args.inclusion, args.ratio, contacts=contacts, force_n=candidates.force_range[1]
         )
     out = check_output_dir(args.out)
     parts = [require_noise(load_dataset(path)) for path in args.datasets]
@@ -179,19 +156,11 @@ def work(args) -> int:
 def next_document(row: dict, candidates, args) -> dict:
     """``next.json``: the ``dvs-design/1`` keys a design file has (``presses`` the proposal,
     or empty), the diagnosis of the data so far, every question and why this press."""
-    from experiments.design.files import next_header
+    from experiments.design.files import next_header, next_why
 
-    press = row["press"]
     return {
         **next_header(row, args, "effects"),
-        "why": None
-        if press is None
-        else {
-            "question": press["answers"],
-            "ratio_before": press["ratio_before"],
-            "ratio_after": press["ratio_after"],
-            "progress": press["progress"],
-        },
+        "why": next_why(row["press"], "ratio"),
         "diagnosis": {
             key: row[key]
             for key in ("selected", "rivals", "unexplained", "rms_um", "rms_before_um")
@@ -226,6 +195,8 @@ def summary(document: dict) -> str:
 
 def report_text(document: dict) -> str:
     """report.md: the proposal and why, the diagnosis so far, every question."""
+    from experiments.design.pathreport import question_rows
+
     diagnosis = document["diagnosis"]
     named = ", ".join(diagnosis["selected"]) or "nothing"
     verdict = "unexplained" if diagnosis["unexplained"] else "explained"
@@ -249,15 +220,7 @@ def report_text(document: dict) -> str:
             f"{why['progress']:.3g}.",
             "",
         ]
-    lines += [
-        "| question | value | needed | answered | reachable within the budget |",
-        "|---|---|---|---|---|",
-    ]
-    for q in document["questions"]:
-        lines.append(
-            f"| {q['question']} | {q['value']:.3g} | {q['needed']:.3g} | "
-            f"{'yes' if q['answered'] else 'no'} | {'yes' if q['reachable'] else 'no'} |"
-        )
+    lines += question_rows(document["questions"], "reachable within the budget")
     return "\n".join(lines) + "\n"
 
 

@@ -55,15 +55,24 @@ def report_text(document: dict) -> str:
         "(separate, eq. D6), against the value that answers it (docs/design.md). "
         "Unreachable: no press within the budget left would answer it.",
         "",
-        "| question | value | needed | answered | reachable |",
+        *question_rows(last["questions"]),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def question_rows(questions: list, reachable: str = "reachable") -> list[str]:
+    """The questions of a step as Markdown table lines: each one's value against the value
+    that answers it, answered or not, and ``reachable`` (the column's title) or not."""
+    lines = [
+        f"| question | value | needed | answered | {reachable} |",
         "|---|---|---|---|---|",
     ]
-    for q in last["questions"]:
+    for q in questions:
         lines.append(
             f"| {q['question']} | {q['value']:.3g} | {q['needed']:.3g} | "
             f"{'yes' if q['answered'] else 'no'} | {'yes' if q['reachable'] else 'no'} |"
         )
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def plot_path(path: Path, document: dict, dataset) -> None:

@@ -36,6 +36,23 @@ def base_settings(grid=None, energy: str = "dnurbs", degrees=None, margin: float
 AUTO = "auto"
 """``base`` of ``diagnose_dataset`` and ``run``: step 0 chooses the base model."""
 
+BASE_ENERGIES = (AUTO, "dnurbs", "linear-elastic", "neo-hookean")
+"""``--energy``'s choices of ``dvs diagnose`` and ``dvs design``."""
+
+
+def base_from_options(args):
+    """The base model's ``FitSettings`` from ``--energy``, ``--grid``, ``--degrees`` and
+    ``--margin`` (checked: exit 2 with one line when bad); ``AUTO`` (``--energy auto``, the
+    default): step 0 chooses it, and the other three are refused (exit 2), as by fit."""
+    from experiments.fit.stepzero import model_options, refuse_model_options
+
+    model = model_options(args, {"grid": None, "degrees": base_settings().degrees, "margin": 0.0})
+    degrees = None if args.degrees is None else model["degrees"]
+    if args.energy == AUTO:
+        refuse_model_options(model["grid"], degrees, model["margin"])
+        return AUTO
+    return base_settings(model["grid"], args.energy, degrees, model["margin"])
+
 
 def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=AUTO):
     """Choose the base model (step 0), build its problem and run the loop; the Diagnosis.
@@ -234,26 +251,21 @@ def parse_candidates(text: str) -> tuple[str, ...]:
 
 def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
     """The options of ``dvs diagnose``."""
-    from experiments.command.options import add_margin_argument, make_parser, path_argument
+    from experiments.command.options import add_dataset_argument, make_parser, path_argument
+    from experiments.fit.stepzero import add_model_arguments
 
     parser = make_parser(prog, "Find what the base model is missing (writes diagnosis.json).")
-    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
+    add_dataset_argument(parser)
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
-    parser.add_argument(
-        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
-    )
-    parser.add_argument(
-        "--degrees", default=None, help="spline degrees PxQxR (default 3x3x1; e.g. 3x3x2)"
-    )
-    parser.add_argument(
-        "--energy",
-        choices=(AUTO, "dnurbs", "linear-elastic", "neo-hookean"),
-        default=AUTO,
-        help="base model: auto (step 0 chooses between the paper's energy and the "
+    add_model_arguments(
+        parser,
+        BASE_ENERGIES,
+        "base model: auto (step 0 chooses between the paper's energy and the "
         "linear-elastic continuum with the tissue beyond the markers and the probe size "
         "estimated, docs/continuum.md), or dnurbs (eq. 18), linear-elastic or neo-hookean",
+        grid="up to 9x9x2, as the markers allow",
+        degrees="3x3x1; e.g. 3x3x2",
     )
-    add_margin_argument(parser)
     parser.add_argument("--level", type=float, default=0.01, help="significance level (0-0.5)")
     parser.add_argument(
         "--max-effects", type=int, default=3, help=f"most effects added (0-{len(EFFECT_NAMES)})"
@@ -274,39 +286,14 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
 
 def work(args) -> int:
     """``dvs diagnose FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
-    from experiments.command.options import (
-        UsageError,
-        check_grid,
-        check_margin,
-        check_output_dir,
-        not_converged,
-        parse_degrees,
-        parse_grid,
-        verb,
-    )
+    from experiments.command.options import UsageError, check_output_dir, not_converged
     from solvers.diagnosis.record import DiagnosisSettings
 
     most = len(EFFECT_NAMES)
     if not 0 < args.level <= 0.5 or not 0 <= args.max_effects <= most:
         raise UsageError(f"--level must lie in (0, 0.5] and --max-effects in 0-{most}")
     candidates = parse_candidates(args.candidates)
-    degrees = None if args.degrees is None else parse_degrees(args.degrees)
-    grid = None
-    if args.grid != "auto":
-        checked = degrees or base_settings().degrees
-        grid = check_grid(parse_grid(args.grid), checked, args.grid)
-    margin = check_margin(args.margin)
-    if args.energy == AUTO:
-        chosen = [f"--{n}" for n, v in (("grid", grid), ("degrees", degrees)) if v is not None]
-        chosen += ["--margin"] if margin > 0 else []
-        if chosen:
-            raise UsageError(
-                f"{', '.join(chosen)} {verb(chosen)} the volume of a chosen --energy; with "
-                "--energy auto (the default) step 0 chooses the volume, or give --energy too"
-            )
-        base = AUTO
-    else:
-        base = base_settings(grid, args.energy, degrees, margin)
+    base = base_from_options(args)
     check_output_dir(args.out)
     settings = DiagnosisSettings(
         level=args.level,

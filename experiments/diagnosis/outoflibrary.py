@@ -226,27 +226,20 @@ def simulate_slab(
 
 def build_parser(prog: str = "python -m experiments.diagnosis.outoflibrary"):
     """The options of ``dvs study outoflibrary``."""
-    from experiments.command.options import make_parser, path_argument
+    from experiments.command.options import make_parser
+    from experiments.phantom.simulate import add_simulation_arguments
 
     parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
-    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    add_simulation_arguments(parser)
     return parser
 
 
 def work(args) -> int:
     """``dvs study outoflibrary --out FILE.npz [--noise MM] [--seed N]``: a dataset v1."""
-    from experiments.command.options import (
-        check_noise,
-        check_output_file,
-        check_seed,
-        plural,
-    )
+    from experiments.command.options import plural
+    from experiments.phantom.simulate import check_simulation_arguments
 
-    check_noise(args.noise)
-    check_seed(args.seed)
-    check_output_file(args.out, ".npz")
+    check_simulation_arguments(args)
     print("solving the linear-elastic FE slab under every load", flush=True)
     dataset = simulate_slab(noise_mm=args.noise, seed=args.seed)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -29,7 +29,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.command.options import Command
+from experiments.command.options import (
+    Command,
+    UsageError,
+    add_noise_seed_arguments,
+    check_noise_seed,
+    check_output_dir,
+    make_parser,
+    not_converged,
+    path_argument,
+)
 from experiments.dynamics.trajectories import (  # noqa: E402
     DEFAULT_SUBSTEPS,
     DYNAMIC_NAMES,
@@ -230,14 +239,11 @@ def coverage_study(seeds=range(20), noise_mm=0.02, log=print) -> dict:
 
 def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
     """The options of ``dvs study dynamic``."""
-    from experiments.command.options import make_parser, path_argument
-
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
         "--out", type=path_argument, default=Path("dynamic-output"), help="directory"
     )
-    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm]")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    add_noise_seed_arguments(parser)
     parser.add_argument(
         "--substeps", type=int, default=DEFAULT_SUBSTEPS, help="steps per frame (1-100)"
     )
@@ -249,16 +255,7 @@ def build_parser(prog: str = "python -m experiments.dynamics.inverse"):
 
 def work(args) -> int:
     """``dvs study dynamic --out DIR``: dynamic.json and dynamic.png."""
-    from experiments.command.options import (
-        UsageError,
-        check_noise,
-        check_output_dir,
-        check_seed,
-        not_converged,
-    )
-
-    check_noise(args.noise)
-    check_seed(args.seed)
+    check_noise_seed(args)
     if not 1 <= args.substeps <= 100 or not 0 <= args.coverage <= 100:
         raise UsageError("--substeps must lie in 1-100 and --coverage in 0-100")
     out = check_output_dir(args.out)

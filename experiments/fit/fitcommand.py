@@ -37,26 +37,27 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
 
 def build_parser(prog: str = "python -m experiments.fit.fitcommand"):
     """The options of ``dvs fit`` (docs/cli.md)."""
-
-    from experiments.command.options import add_margin_argument, make_parser, path_argument
+    from experiments.command.options import add_dataset_argument, make_parser, path_argument
+    from experiments.fit.stepzero import add_model_arguments
 
     parser = make_parser(prog, "Estimate parameters from a dataset (writes result.json).")
-    parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz)")
+    add_dataset_argument(parser)
     parser.add_argument(
         "--method",
         choices=("auto", "simultaneous", "nested", "paper"),
         default="auto",
         help="inverse formulation (docs/inverse.md); auto: the faster for the problem",
     )
-    parser.add_argument(
-        "--energy",
-        choices=("auto", *ENERGIES),
-        default="auto",
-        help="base model: auto (step 0 of dvs diagnose chooses between the paper's eq. 18 and "
+    add_model_arguments(
+        parser,
+        ("auto", *ENERGIES),
+        "base model: auto (step 0 of dvs diagnose chooses between the paper's eq. 18 and "
         "isotropic linear elasticity with its surroundings, docs/continuum.md), dnurbs, "
         "linear-elastic, neo-hookean, exponential (neo-Hookean with strain stiffening "
         "k1, k2; docs/continuum.md) or fibres (exponential with a fibre family kf1, kf2, "
         "fibre_angle)",
+        grid="up to 9x9x2, as the markers allow",
+        degrees="3x3x1",
     )
     parser.add_argument(
         "--params",
@@ -64,15 +65,6 @@ def build_parser(prog: str = "python -m experiments.fit.fitcommand"):
         help="comma list (default: alpha_u,alpha_v,alpha_w,mu,gamma; E,nu for the continua; "
         "E,nu,k1 for exponential; E,nu,kf1,fibre_angle for fibres)",
     )
-    parser.add_argument(
-        "--grid", default="auto", help="control grid MxNxL; auto: up to 9x9x2, as the markers allow"
-    )
-    parser.add_argument(
-        "--degrees",
-        default=None,
-        help="degrees PxQxR along u, v and through the thickness (default 3x3x1)",
-    )
-    add_margin_argument(parser)
     parser.add_argument(
         "--objective",
         choices=("markers", "control_points"),

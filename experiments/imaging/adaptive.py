@@ -29,7 +29,17 @@ import time
 
 import numpy as np
 
-from experiments.command.options import Command
+from experiments.command.options import (
+    Command,
+    UsageError,
+    check_grid,
+    check_output_dir,
+    check_seed,
+    make_parser,
+    parse_grid,
+    parse_numbers,
+    path_argument,
+)
 from experiments.imaging.weightstudy import (
     DIAMETER_MM,
     MARKED_HALF_MM,
@@ -266,8 +276,6 @@ def table(results: list[dict]) -> str:
 
 def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
     """The options of ``dvs study imageadaptive``."""
-    from experiments.command.options import make_parser, path_argument
-
     parser = make_parser(prog, "Adaptive stiffness imaging at random places (a study).")
     parser.add_argument(
         "--seeds", default="17,18,19,20,21,22,23,24,25,26", help="the places' draws"
@@ -285,14 +293,6 @@ def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
 
 def work(args) -> int:
     """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
-    from experiments.command.options import (
-        UsageError,
-        check_grid,
-        check_output_dir,
-        check_seed,
-        parse_grid,
-        parse_numbers,
-    )
     from experiments.imaging.imagecommand import parse_field
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 

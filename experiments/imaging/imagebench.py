@@ -15,7 +15,16 @@ import time
 
 import numpy as np
 
-from experiments.command.options import Command
+from experiments.command.options import (
+    Command,
+    UsageError,
+    check_output_dir,
+    make_parser,
+    parse_degrees,
+    parse_grid,
+    parse_numbers,
+    path_argument,
+)
 
 METHODS = ("simultaneous", "nested-adjoint", "nested-sensitivity")
 WEIGHT_MM2 = 1000.0
@@ -109,7 +118,6 @@ def timed_imaging(path: str) -> dict:
     from pathlib import Path
 
     from experiments.command.isolation import factorisation_seconds, peak_mb
-    from experiments.command.options import parse_degrees, parse_grid
     from experiments.data.dataset import load_dataset
     from experiments.imaging.imagecommand import main
     from experiments.problem.fitting import FitSettings, build_problem
@@ -193,8 +201,6 @@ def table(rows: list[dict]) -> str:
 
 def build_parser(prog: str = "python -m experiments.imaging.imagebench"):
     """The options of ``dvs bench image`` (docs/cli.md)."""
-    from experiments.command.options import make_parser, path_argument
-
     parser = make_parser(prog, "Stiffness imaging: fit time against N for three methods.")
     parser.add_argument("--grids", default="9x9x2,17x17x3", help="model grids, comma list")
     parser.add_argument("--sizes", default="16,64,256,1024", help="field sizes N (squares)")
@@ -206,13 +212,6 @@ def build_parser(prog: str = "python -m experiments.imaging.imagebench"):
 
 def work(args) -> int:
     """``dvs bench image``: exit 0, or 2 with one line for bad input."""
-    from experiments.command.options import (
-        UsageError,
-        check_output_dir,
-        parse_grid,
-        parse_numbers,
-    )
-
     grids = [parse_grid(g, "--grids") for g in args.grids.split(",") if g.strip()]
     if not grids:
         raise UsageError("--grids needs at least one grid, e.g. 9x9x2")

@@ -180,16 +180,10 @@ def run(dataset, out: Path, starts: int = 20, paper_starts: int = 5, truth=None,
 
 def build_parser(prog: str = "python -m experiments.inverse.compare"):
     """The options of ``dvs study compare``."""
-    from experiments.command.options import make_parser, path_argument
+    from experiments.command.options import add_dataset_argument, make_parser, path_argument
 
     parser = make_parser(prog, "Simultaneous vs nested vs paper-faithful, multi-start.")
-    parser.add_argument(
-        "dataset",
-        type=path_argument,
-        nargs="?",
-        default=None,
-        help="dataset v1 (.npz); default: phantom",
-    )
+    add_dataset_argument(parser, "; default: phantom", nargs="?")
     parser.add_argument("--starts", type=int, default=20, help="multi-start points")
     parser.add_argument(
         "--paper-starts",

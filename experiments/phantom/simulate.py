@@ -18,8 +18,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.command.options import Command
-from experiments.data.dataset import Dataset
+from experiments.command.options import (
+    Command,
+    UsageError,
+    add_noise_seed_arguments,
+    check_noise_seed,
+    check_output_file,
+    make_parser,
+    path_argument,
+    plural,
+)
+from experiments.data.dataset import Dataset, save_dataset
 from experiments.phantom.designs import DESIGNS, design_loads, design_options, press_loads
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
@@ -308,10 +317,21 @@ def simulate_with_effects(
 
 
 # ------------------------------------------------------------------- dvs simulate
+def add_simulation_arguments(parser) -> None:
+    """``--noise MM``, ``--seed N`` and ``--out FILE.npz`` of a command that writes a
+    simulated dataset (``dvs simulate``, ``dvs study outoflibrary``)."""
+    add_noise_seed_arguments(parser)
+    parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
+
+
+def check_simulation_arguments(args) -> None:
+    """Check the options of ``add_simulation_arguments`` before any work."""
+    check_noise_seed(args)
+    check_output_file(args.out, ".npz")
+
+
 def build_parser(prog: str = "python -m experiments.phantom.simulate"):
     """The options of ``dvs simulate``."""
-    from experiments.command.options import make_parser, path_argument
-
     parser = make_parser(prog, "Write a synthetic dataset from the forehead phantom.")
     parser.epilog = (
         "effects: a bare --effect NAME uses the realistic magnitude; the range is the\n"
@@ -330,26 +350,13 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
         default="paper",
         help=f"where to press: {' or '.join(DESIGNS)}, or a design.json of dvs design",
     )
-    parser.add_argument("--noise", type=float, default=0.02, help="marker noise [mm], 0-1")
-    parser.add_argument("--seed", type=int, default=0, help="random seed, 0 to 2^32 - 1")
-    parser.add_argument("--out", type=path_argument, required=True, help="output .npz file")
+    add_simulation_arguments(parser)
     return parser
 
 
 def work(args) -> int:
     """``dvs simulate [--effect NAME[=VALUE] ...] --out FILE.npz``."""
-    from experiments.command.options import (
-        UsageError,
-        check_noise,
-        check_output_file,
-        check_seed,
-        plural,
-    )
-    from experiments.data.dataset import save_dataset
-
-    check_noise(args.noise)
-    check_seed(args.seed)
-    check_output_file(args.out, ".npz")
+    check_simulation_arguments(args)
     options = design_options(args.design)
     if "presses" in options:
         n_cases = len(options["presses"])

@@ -177,6 +177,9 @@ class Extensometer:
         The skin's (E, nu) when ``fitted_region`` is set.
     """
 
+    n_parameters = 2
+    """Length of p: the first columns of the model's dR/dp, here (E, nu)."""
+
     def __init__(
         self, mesh, frames: Frames, assumptions=Assumptions(), fitted_region=None, held=None
     ):
@@ -241,7 +244,7 @@ class Extensometer:
             by_u, by_p_edge = self.model.edge_force_derivatives(
                 u, self.normals, self.mesh.moving_owner, self.weights
             )
-            return by_u[0] @ sensitivity + by_p_edge[0]
+            return by_u[0] @ sensitivity + by_p_edge[0, : self.n_parameters]
         row = np.asarray(stiffness[self.moving_x].sum(axis=0)).ravel()
         return row @ sensitivity + by_p[self.moving_x].sum(axis=0)
 
@@ -292,8 +295,8 @@ class Extensometer:
             forces.append(self.force(u))
             iterations.append(its)
             if sensitivities:
-                by_p = self.model.residual_derivatives(u, self.weights)
-                s = np.zeros((2 * self.mesh.n_nodes, 2))
+                by_p = self.model.residual_derivatives(u, self.weights)[:, : self.n_parameters]
+                s = np.zeros((2 * self.mesh.n_nodes, self.n_parameters))
                 s[self.free] = -factor.solve(by_p[self.free])
                 sens.append(s)
                 force_d.append(self._force_derivative(u, stiffness, by_p, s))

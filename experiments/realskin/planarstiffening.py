@@ -109,33 +109,6 @@ class WhitenedExtensometer(Extensometer):
         fitted = self.weights > 0
         self.model.set_parameters(*[np.where(fitted, a, b) for a, b in zip(p, self.held)])
 
-    def solve(self, p, sensitivities: bool = True, previous=None) -> Solution:
-        """Every frame's equilibrium in order (continuation), with du/dp and dF/dp."""
-        p = np.asarray(p, dtype=float)
-        self.set_parameters(p)
-        n, size = self.n_parameters, 2 * self.mesh.n_nodes
-        u = np.zeros(size)
-        states, forces, sens, force_d, iterations = [], [], [], [], []
-        for target in self.targets():
-            u, stiffness, factor, its = self._frame(u, target)
-            states.append(u.copy())
-            forces.append(self.force(u))
-            iterations.append(its)
-            if sensitivities:
-                by_p = self.model.residual_derivatives(u, self.weights)[:, :n]
-                s = np.zeros((size, n))
-                s[self.free] = -factor.solve(by_p[self.free])
-                sens.append(s)
-                by_u, by_p_edge = self.model.edge_force_derivatives(
-                    u, self.normals, self.mesh.moving_owner, self.weights
-                )
-                force_d.append(by_u[0] @ s + by_p_edge[0, :n])
-        return Solution(
-            p, np.array(states), np.array(forces),
-            np.array(sens) if sensitivities else None,
-            np.array(force_d) if sensitivities else None, iterations,
-        )  # fmt: skip
-
     def at_points(self, solution: Solution) -> np.ndarray:
         """Model displacements at the kept DIC points (K, P, 2) [mm]."""
         return np.stack([self.points @ u.reshape(-1, 2) for u in solution.u])

@@ -20,6 +20,17 @@ def parameter_space(names, start, settings: RealSkinSettings) -> SkinParameterSp
     return SkinParameterSpace.build(names, start, settings.bounds)
 
 
+def fit_base(setup: Setup, settings: RealSkinSettings, label: str, log) -> StageFit:
+    """The fit of the setup's base parameters (``setup.base_names``) from its start values."""
+    return fit_stage(
+        setup.model,
+        setup.cases,
+        parameter_space(setup.base_names, setup.start, settings),
+        label,
+        log,
+    )
+
+
 def _score_all(setup: Setup, fit: StageFit, names, settings) -> dict:
     """Score test of every candidate at the fit; the scan's entry is a ``ScanResult``."""
     out = {}
@@ -104,13 +115,7 @@ def close_the_loop(
         cannot do at a true optimum: it is not added and the loop stops) and ``diagnostics``
         (scores of extensions that are not candidates, at the final fit).
     """
-    stage = fit_stage(
-        setup.model,
-        setup.cases,
-        parameter_space(setup.base_names, setup.start, settings),
-        base_label,
-        log,
-    )
+    stage = fit_base(setup, settings, base_label, log)
     stages, rounds = [stage], []
     available = [
         c for c in settings.candidates if c != REGION_RATIO or setup.model.region is not None

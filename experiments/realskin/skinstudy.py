@@ -25,7 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.command.options import Command
+from experiments.command.options import (
+    Command,
+    UsageError,
+    check_output_dir,
+    make_parser,
+    parse_grid,
+    parse_numbers,
+    path_argument,
+)
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.figures import case_figures, stage_summary
@@ -41,12 +49,12 @@ from experiments.realskin.setup import STIFFENING, RealSkinSettings, Setup, buil
 from experiments.realskin.skinloop import (
     NULL,
     close_the_loop,
+    fit_base,
     fit_from_starts,
     likelihood_ratio,
-    parameter_space,
 )
 from experiments.realskin.skintables import report
-from experiments.realskin.stages import LABELS, StageFit, fit_stage
+from experiments.realskin.stages import LABELS, StageFit
 from experiments.realskin.strain import figure as strain_figure
 from symbolic.skin_slab import REGION_RATIO
 
@@ -152,13 +160,7 @@ def _variants(name: str, settings: RealSkinSettings, stages: list[StageFit], fou
     if found is not None:
         setup.model = with_region(setup.model, rect_indicator(setup.grid.region, found.rect))
     added = [n for n in stages[-1].names if n in NULL]
-    linear = fit_stage(
-        setup.model,
-        setup.cases,
-        parameter_space(setup.base_names, setup.start, variant),
-        f"{other} boundary, linear",
-        log,
-    )
+    linear = fit_base(setup, variant, f"{other} boundary, linear", log)
     out[f"{other}_linear"] = stage_summary(setup, linear)
     if added:
         start = {**linear.as_dict(), **{n: NULL[n] for n in added}}
@@ -175,13 +177,8 @@ def _variants(name: str, settings: RealSkinSettings, stages: list[StageFit], fou
     shift = np.abs(np.array(astuple(geometry.pad_moving)) - astuple(setup.pad_rects[0]))
     if shift.max() > 0.1:  # the .geo pads differ from the pad files (healthy skin)
         setup = build(name, settings, (geometry.pad_moving, geometry.pad_fixed))
-        linear = fit_stage(
-            setup.model,
-            setup.cases,
-            parameter_space(setup.base_names, setup.start, settings),
-            f"geometry.geo pads ({geometry.pad_gap_mm:.0f} mm gap), linear",
-            log,
-        )
+        label = f"geometry.geo pads ({geometry.pad_gap_mm:.0f} mm gap), linear"
+        linear = fit_base(setup, settings, label, log)
         out["geo_pads_linear"] = stage_summary(setup, linear)
     return out
 
@@ -217,8 +214,6 @@ def run(
 
 def build_parser(prog: str = "python -m experiments.realskin"):
     """The options of ``dvs realskin fit``."""
-    from experiments.command.options import make_parser, path_argument
-
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
         "--out", type=path_argument, default=Path("realskin-output"), help="directory"
@@ -243,13 +238,6 @@ def build_parser(prog: str = "python -m experiments.realskin"):
 
 def work(args) -> int:
     """``dvs realskin fit --out DIR [--boundary lateral] [--case keloid]``."""
-    from experiments.command.options import (
-        UsageError,
-        check_output_dir,
-        parse_grid,
-        parse_numbers,
-    )
-
     low, high = RealSkinSettings().bounds["k0"]
     k0_starts = parse_numbers(args.k0_starts, "--k0-starts")
     if not all(low <= v <= high for v in k0_starts):

@@ -20,138 +20,158 @@ def _number(value, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
+def _row(*cells) -> str:
+    """One markdown row: ``| a | b |``."""
+    return "| " + " | ".join(str(cell) for cell in cells) + " |"
+
+
+def _table(header: str, summary: dict, cases, rows) -> list[str]:
+    """A markdown table: ``header`` (the column names joined by " | "), then per case its
+    name before each tuple of cells that ``rows(summary[name])`` yields."""
+    lines = [f"| {header} |", "|" + "---|" * (header.count("|") + 1)]
+    for name in cases:
+        lines.extend(_row(name, *cells) for cells in rows(summary[name]))
+    return lines
+
+
+def _errors(case: dict):
+    stages = [(stage["label"], stage) for stage in case["stages"]]
+    stages += [(f"variant: {stage['label']}", stage) for stage in case["variants"].values()]
+    for label, stage in stages:
+        yield (
+            label,
+            f"{stage['rms_displacement_mm']:.4f}",
+            f"{case['dic_noise_mm']:.4f}",
+            f"{stage['rms_force_N']:.4f}",
+            f"{stage['cost']:.1f}",
+        )
+
+
 def errors_table(summary: dict, cases) -> list[str]:
     """RMS errors of every stage, next to the DIC noise."""
-    lines = [
-        "| case | model | RMS displacement [mm] | DIC noise [mm] | RMS force [N] | cost [mm^2] |",
-        "|---|---|---|---|---|---|",
-    ]
-    for name in cases:
-        case = summary[name]
-        for stage in case["stages"]:
-            lines.append(
-                f"| {name} | {stage['label']} | {stage['rms_displacement_mm']:.4f} | "
-                f"{case['dic_noise_mm']:.4f} | {stage['rms_force_N']:.4f} | {stage['cost']:.1f} |"
-            )
-        for stage in case["variants"].values():
-            lines.append(
-                f"| {name} | variant: {stage['label']} | {stage['rms_displacement_mm']:.4f} | "
-                f"{case['dic_noise_mm']:.4f} | {stage['rms_force_N']:.4f} | {stage['cost']:.1f} |"
-            )
-    return lines
+    header = "case | model | RMS displacement [mm] | DIC noise [mm] | RMS force [N] | cost [mm^2]"
+    return _table(header, summary, cases, _errors)
+
+
+def _estimates(case: dict):
+    for stage in case["stages"]:
+        for parameter, value in stage["estimates"].items():
+            std = "at bound" if value["at_bound"] else _number(value["std"], 2)
+            unit = UNITS.get(parameter, "")
+            yield stage["label"], parameter, _number(value["value"], 4), std, unit
 
 
 def parameters_table(summary: dict, cases) -> list[str]:
     """Estimates with standard errors of every stage."""
-    lines = ["| case | model | parameter | estimate | std | unit |", "|---|---|---|---|---|---|"]
-    for name in cases:
-        for stage in summary[name]["stages"]:
-            for parameter, value in stage["estimates"].items():
-                std = "at bound" if value["at_bound"] else _number(value["std"], 2)
-                lines.append(
-                    f"| {name} | {stage['label']} | {parameter} | {_number(value['value'], 4)} "
-                    f"| {std} | {UNITS.get(parameter, '')} |"
-                )
-    return lines
+    return _table("case | model | parameter | estimate | std | unit", summary, cases, _estimates)
+
+
+def _score_cells(score: dict) -> tuple[str, ...]:
+    """Statistic, p-value, predicted cost decrease and direction of one score test."""
+    return (
+        _number(score["statistic"]),
+        _number(score["p_value"], 2),
+        _number(score["predicted_decrease"]),
+        f"{score['direction']:+.0f}",
+    )
+
+
+def _scores(case: dict):
+    for index, entry in enumerate(case["rounds"], start=1):
+        for candidate, score in entry["scores"].items():
+            chosen = "yes" if entry["chosen"] == candidate else ""
+            yield index, candidate, *_score_cells(score), chosen
+    for candidate, score in case["diagnostics"].items():
+        yield "final (diagnostic)", candidate, *_score_cells(score), "not a candidate"
 
 
 def scores_table(summary: dict, cases) -> list[str]:
     """Score tests per round, and the diagnostics at the final model."""
-    lines = [
-        "| case | round | candidate | score T | p | predicted decrease [mm^2] | "
-        "direction | chosen |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for name in cases:
-        rounds = summary[name]["rounds"]
-        for index, entry in enumerate(rounds, start=1):
-            for candidate, score in entry["scores"].items():
-                lines.append(
-                    f"| {name} | {index} | {candidate} | {_number(score['statistic'])} | "
-                    f"{_number(score['p_value'], 2)} | {_number(score['predicted_decrease'])} | "
-                    f"{score['direction']:+.0f} | {'yes' if entry['chosen'] == candidate else ''} |"
-                )
-        for candidate, score in summary[name]["diagnostics"].items():
-            lines.append(
-                f"| {name} | final (diagnostic) | {candidate} | {_number(score['statistic'])} | "
-                f"{_number(score['p_value'], 2)} | {_number(score['predicted_decrease'])} | "
-                f"{score['direction']:+.0f} | not a candidate |"
-            )
-    return lines
+    header = (
+        "case | round | candidate | score T | p | predicted decrease [mm^2] | direction | chosen"
+    )
+    return _table(header, summary, cases, _scores)
+
+
+def _authors(case: dict):
+    e_lo, e_hi = case["authors"]["E"]
+    nu_lo, nu_hi = case["authors"]["nu"]
+    shear = (e_lo / (2 * (1 + nu_hi)), e_hi / (2 * (1 + nu_lo)))
+    for stage in case["stages"]:
+        values = stage["physical"]
+        yield (
+            stage["label"],
+            _number(values["tension_N_per_mm"]),
+            _number(values.get("tension_inside_N_per_mm")),
+            _number(values["k0"]),
+            f"{e_lo:g}-{e_hi:g}",
+            f"{shear[0]:.3f}-{shear[1]:.3f}",
+        )
 
 
 def authors_table(summary: dict, cases) -> list[str]:
     """Our membrane tensions next to the authors' E and shear modulus E / (2 (1 + nu))."""
-    lines = [
-        "| case | model | T outside [N/mm] | T inside [N/mm] | k0 | authors E | "
-        "authors E/(2(1+nu)) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for name in cases:
-        authors = summary[name]["authors"]
-        e_lo, e_hi = authors["E"]
-        nu_lo, nu_hi = authors["nu"]
-        shear = (e_lo / (2 * (1 + nu_hi)), e_hi / (2 * (1 + nu_lo)))
-        for stage in summary[name]["stages"]:
-            values = stage["physical"]
-            lines.append(
-                f"| {name} | {stage['label']} | {_number(values['tension_N_per_mm'])} | "
-                f"{_number(values.get('tension_inside_N_per_mm'))} | {_number(values['k0'])} | "
-                f"{e_lo:g}-{e_hi:g} | {shear[0]:.3f}-{shear[1]:.3f} |"
-            )
-    return lines
+    header = (
+        "case | model | T outside [N/mm] | T inside [N/mm] | k0 | authors E | authors E/(2(1+nu))"
+    )
+    return _table(header, summary, cases, _authors)
+
+
+def _heterogeneity(case: dict):
+    found = case.get("heterogeneity")
+    if not found:
+        yield ("not added" + " |" * 7,)  # the row's seven empty cells, as one
+        return
+    r, o = found["rect_mm"], found.get("overlap")
+    overlap = (
+        (
+            f"{o['inside_fraction']:.2f}",
+            f"{o['iou']:.2f}",
+            o["centroid_inside"],
+            f"{o['chance']:.2f}",
+        )
+        if o
+        else ("-",) * 4
+    )
+    region = (f"{r['x0']:.1f}-{r['x1']:.1f}", f"{r['y0']:.1f}-{r['y1']:.1f}")
+    yield *region, _number(found["ratio"]), found["candidates"], *overlap
 
 
 def heterogeneity_table(summary: dict, cases) -> list[str]:
     """The region the scan chose, its ratio and its overlap with the keloid outline."""
-    lines = [
-        "| case | found region x [mm] | y [mm] | ratio | rectangles | inside outline | "
-        "IoU | centroid inside | chance |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name in cases:
-        found = summary[name].get("heterogeneity")
-        if not found:
-            lines.append(f"| {name} | not added | | | | | | | |")
-            continue
-        r, o = found["rect_mm"], found.get("overlap")
-        cells = (
-            f"{o['inside_fraction']:.2f} | {o['iou']:.2f} | {o['centroid_inside']} | "
-            f"{o['chance']:.2f}"
-            if o
-            else "- | - | - | -"
-        )
-        lines.append(
-            f"| {name} | {r['x0']:.1f}-{r['x1']:.1f} | {r['y0']:.1f}-{r['y1']:.1f} | "
-            f"{_number(found['ratio'])} | {found['candidates']} | {cells} |"
-        )
-    return lines
+    header = (
+        "case | found region x [mm] | y [mm] | ratio | rectangles | inside outline | IoU | "
+        "centroid inside | chance"
+    )
+    return _table(header, summary, cases, _heterogeneity)
+
+
+def _cell_map(case: dict):
+    found = case.get("map")
+    if found is None:
+        return
+    cells, outline = found["cells"], found["outline"] or {}
+    inside = outline.get("inside_fraction")
+    yield (
+        found["stage"],
+        f"{found['effective_dof']:.1f}",
+        f"{cells['stiffer']} / {cells['softer']} of {cells['n_cells']}",
+        f"{cells['stiffer_bonferroni']} / {cells['softer_bonferroni']} "
+        f"(z > {cells['bonferroni_level']:.2f})",
+        f"{inside:.2f} ({outline['chance']:.2f})" if inside is not None else "-",
+        _number(outline.get("iou"), 2),
+        f"{outline.get('centroid_inside', '-')}, {_number(outline.get('centroid_distance_mm'), 3)}",
+        _number(found["strain"]["pearson"], 2),
+    )
 
 
 def map_table(summary: dict, cases) -> list[str]:
     """The cell map: dof, cells departing from the mean, outline overlap, strain."""
-    lines = [
-        "| case | stage | dof | stiffer / softer cells (z > 2) | Bonferroni | inside outline "
-        "(chance) | IoU | centroid inside, distance [mm] | corr(map, strain) |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name in cases:
-        found = summary[name].get("map")
-        if found is None:
-            continue
-        cells, outline = found["cells"], found["outline"] or {}
-        inside = outline.get("inside_fraction")
-        lines.append(
-            f"| {name} | {found['stage']} | {found['effective_dof']:.1f} | "
-            f"{cells['stiffer']} / {cells['softer']} of {cells['n_cells']} | "
-            f"{cells['stiffer_bonferroni']} / {cells['softer_bonferroni']} "
-            f"(z > {cells['bonferroni_level']:.2f}) | "
-            + (f"{inside:.2f} ({outline['chance']:.2f})" if inside is not None else "-")
-            + f" | {_number(outline.get('iou'), 2)} | {outline.get('centroid_inside', '-')}, "
-            f"{_number(outline.get('centroid_distance_mm'), 3)} | "
-            f"{_number(found['strain']['pearson'], 2)} |"
-        )
-    return lines
+    header = (
+        "case | stage | dof | stiffer / softer cells (z > 2) | Bonferroni | inside outline "
+        "(chance) | IoU | centroid inside, distance [mm] | corr(map, strain)"
+    )
+    return _table(header, summary, cases, _cell_map)
 
 
 def report(summary: dict) -> str:
