@@ -5,18 +5,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from experiments.output.tables import table_lines
+
 
 def _press_rows(presses: list) -> list[str]:
-    rows = [
-        "| # | contact [mm] | force [N] | abs force [N] | tilt [deg] |",
-        "|---|---|---|---|---|",
-    ]
+    cells = []
     for k, press in enumerate(presses, 1):
         contact = ", ".join(f"{v:.2f}" for v in press["contact_mm"])
         force = ", ".join(f"{v:+.3f}" for v in press["force_N"])
         size = float(np.linalg.norm(press["force_N"]))
-        rows.append(f"| {k} | {contact} | {force} | {size:.3f} | {press.get('tilt_deg', 0):.0f} |")
-    return rows
+        cells.append((k, contact, force, f"{size:.3f}", f"{press.get('tilt_deg', 0):.0f}"))
+    return table_lines("# | contact [mm] | force [N] | abs force [N] | tilt [deg]", cells)
 
 
 def _number(value) -> str:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.output.tables import table_lines, with_rivals
+
 
 def path_table(document: dict) -> str:
     """The path of one run as a Markdown table: per step the data so far, what the
@@ -17,14 +19,10 @@ def path_table(document: dict) -> str:
         f"start: {document['start']}, budget {document['budget']}: **{document['verdict']}** "
         f"after {document['presses']} presses, named: {', '.join(document['named']) or '-'}.",
         "",
-        "| presses | named (rivals) | RMS (um) / noise | verdict | open questions | next press |",
-        "|---|---|---|---|---|---|",
     ]
+    header = "presses | named (rivals) | RMS (um) / noise | verdict | open questions | next press"
+    cells = []
     for row in document["path"]:
-        named = [
-            " or ".join([e, *row["rivals"][e]]) if e in row["rivals"] else e
-            for e in row["selected"]
-        ]
         press = row["press"]
         if press is None:
             chosen = f"stop: {row['stop']}"
@@ -34,12 +32,17 @@ def path_table(document: dict) -> str:
                 f"({x:.1f}, {y:.1f}) mm, tilt {press['tilt_deg']:.0f} deg, "
                 f"{np.linalg.norm(press['force_N']):.2f} N: {press['answers']}"
             )
-        verdict = "unexplained" if row["unexplained"] else "explained"
-        lines.append(
-            f"| {row['presses']} | {', '.join(named) or '-'} | {row['rms_um']:.1f} / "
-            f"{row['noise_rms_um']:.1f} | {verdict} | {len(row['open'])} | {chosen} |"
+        cells.append(
+            (
+                row["presses"],
+                with_rivals(row["selected"], row["rivals"]),
+                f"{row['rms_um']:.1f} / {row['noise_rms_um']:.1f}",
+                "unexplained" if row["unexplained"] else "explained",
+                len(row["open"]),
+                chosen,
+            )
         )
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + table_lines(header, cells)) + "\n"
 
 
 def report_text(document: dict) -> str:
@@ -63,16 +66,18 @@ def report_text(document: dict) -> str:
 def question_rows(questions: list, reachable: str = "reachable") -> list[str]:
     """The questions of a step as Markdown table lines: each one's value against the value
     that answers it, answered or not, and ``reachable`` (the column's title) or not."""
-    lines = [
-        f"| question | value | needed | answered | {reachable} |",
-        "|---|---|---|---|---|",
-    ]
-    for q in questions:
-        lines.append(
-            f"| {q['question']} | {q['value']:.3g} | {q['needed']:.3g} | "
-            f"{'yes' if q['answered'] else 'no'} | {'yes' if q['reachable'] else 'no'} |"
+    yes = {True: "yes", False: "no"}
+    cells = [
+        (
+            q["question"],
+            f"{q['value']:.3g}",
+            f"{q['needed']:.3g}",
+            yes[bool(q["answered"])],
+            yes[bool(q["reachable"])],
         )
-    return lines
+        for q in questions
+    ]
+    return table_lines(f"question | value | needed | answered | {reachable}", cells)
 
 
 def plot_path(path: Path, document: dict, dataset) -> None:

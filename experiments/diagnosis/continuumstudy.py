@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.command.options import Command
+from experiments.output.tables import table_lines, with_rivals
 from experiments.phantom.fe import Departure, ReferenceSlab, design_cases
 
 SCENARIOS = {
@@ -247,41 +248,47 @@ def model_error_rows(study: ContinuumStudy, cases=MODEL_ERROR_CASES, log=print) 
 
 def model_error_table(rows: list[dict]) -> str:
     """The rows of ``model_error_rows`` as a Markdown table."""
-    lines = [
-        "| tissue beyond markers (mm) | margin (mm) | grid | model error (um, 3D RMS) "
-        "| E (kPa) | nu |",
-        "|---|---|---|---|---|---|",
-    ]
-    for row in rows:
-        lines.append(
-            f"| {row['tissue_beyond_markers_mm']:g} | {row['margin_mm']:g} | "
-            f"{'x'.join(map(str, row['grid']))} | {row['model_error_um']:.1f} | "
-            f"{row['E']:.2f} | {row['nu']:.4f} |"
+    header = (
+        "tissue beyond markers (mm) | margin (mm) | grid | model error (um, 3D RMS) | E (kPa) | nu"
+    )
+    cells = [
+        (
+            f"{row['tissue_beyond_markers_mm']:g}",
+            f"{row['margin_mm']:g}",
+            "x".join(map(str, row["grid"])),
+            f"{row['model_error_um']:.1f}",
+            f"{row['E']:.2f}",
+            f"{row['nu']:.4f}",
         )
-    return "\n".join(lines) + "\n"
+        for row in rows
+    ]
+    return "\n".join(table_lines(header, cells)) + "\n"
 
 
 def table(rows: list[dict]) -> str:
     """The rows as a Markdown table."""
-    lines = [
-        "| design | hidden | selected | RMS before -> after (um) | noise (um) | hidden found "
-        "| stand-ins | verdict |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
+    header = (
+        "design | hidden | selected | RMS before -> after (um) | noise (um) "
+        "| hidden found | stand-ins | verdict"
+    )
+    cells = []
     for row in rows:
         found = "-" if row["hidden_effect"] is None else ("yes" if row["hidden_selected"] else "no")
         if row.get("hidden_among_rivals") and not row["hidden_selected"]:
             found = "ambiguous"
-        rivals = row.get("rivals", {})
-        selected = [" or ".join([e, *rivals[e]]) if e in rivals else e for e in row["selected"]]
-        verdict = "unexplained" if row["unexplained"] else "explained"
-        lines.append(
-            f"| {row['design']} | {row['scenario']} | {', '.join(selected) or '-'} | "
-            f"{row['rms_before_um']:.1f} -> {row['rms_after_um']:.1f} | "
-            f"{row['noise_rms_um']:.1f} | {found} | {', '.join(row['stand_ins']) or '-'} | "
-            f"{verdict} |"
+        cells.append(
+            (
+                row["design"],
+                row["scenario"],
+                with_rivals(row["selected"], row.get("rivals", {})),
+                f"{row['rms_before_um']:.1f} -> {row['rms_after_um']:.1f}",
+                f"{row['noise_rms_um']:.1f}",
+                found,
+                ", ".join(row["stand_ins"]) or "-",
+                "unexplained" if row["unexplained"] else "explained",
+            )
         )
-    return "\n".join(lines) + "\n"
+    return "\n".join(table_lines(header, cells)) + "\n"
 
 
 def build_parser(prog: str = "python -m experiments.diagnosis.continuumstudy"):

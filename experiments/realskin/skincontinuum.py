@@ -35,6 +35,7 @@ from pathlib import Path
 
 from experiments.command.options import Command
 from experiments.output.atomic import atomic_write_json, atomic_write_text
+from experiments.output.tables import table_lines
 from experiments.realskin.cases import load_cases
 from experiments.realskin.cellmap import map_report
 from experiments.realskin.continuum_cells import ContinuumCells
@@ -197,11 +198,11 @@ def summary(name: str, fit: StageFit, thickness_mm: float, model: str | None = N
 
 def table(rows: list[dict]) -> str:
     """The markdown table of docs/realskin.md."""
-    lines = [
-        "| case | model | E [kPa] | nu | k1 [kPa], k2 | E t [N/mm] | authors E, nu "
-        "| RMS displacement [mm] | RMS force [N] |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
+    header = (
+        "case | model | E [kPa] | nu | k1 [kPa], k2 | E t [N/mm] | authors E, nu "
+        "| RMS displacement [mm] | RMS force [N]"
+    )
+    cells = []
     for row in rows:
         p = row["parameters"]
         if "E" in p:
@@ -215,12 +216,11 @@ def table(rows: list[dict]) -> str:
         stiffening = ", ".join(
             f"{p[n]['value']:.4g} +/- {p[n]['std']:.2g}" for n in ("k1", "k2") if n in p
         )
-        lines.append(
-            f"| {row['case']} | {row['model']} | {young} | {poisson} | {stiffening} "
-            f"| {membrane} | {authors} "
-            f"| {row['rms_displacement_mm']:.4f} | {row['rms_force_n']:.4f} |"
+        rms = f"{row['rms_displacement_mm']:.4f}", f"{row['rms_force_n']:.4f}"
+        cells.append(
+            (row["case"], row["model"], young, poisson, stiffening, membrane, authors, *rms)
         )
-    return "\n".join(lines)
+    return "\n".join(table_lines(header, cells))
 
 
 def run(out: Path, cases=("healthy", "keloid"), thickness_mm: float = 2.0, log=print) -> dict:

@@ -24,12 +24,7 @@ from solvers.inverse.methods import ReducedSpaceSolver
 class DynamicNestedSolver(ReducedSpaceSolver):
     """Reduced-space least squares over the trajectories, with exact sensitivities.
 
-    Parameters
-    ----------
-    problem : DynamicProblem
-        The problem.
-    method, tolerance, max_evaluations
-        The outer least squares (``ReducedSpaceSolver``).
+    The parameters are ``ReducedSpaceSolver``'s, the problem a ``DynamicProblem``.
     """
 
     def __init__(self, problem: DynamicProblem, method="trf", tolerance=1e-12, max_evaluations=200):

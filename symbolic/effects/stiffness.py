@@ -265,6 +265,10 @@ class StackedStiffness(OneTermStiffness, Effect):
     """An effect theta_0 K on the free points, K (3n, 3n) stacked from ``matrix(model)``."""
 
     def matrix(self, model: TissueModel) -> sp.csr_matrix:
+        """K on all control points, (3n, 3n) in stacked order (``build``, once per model)."""
+        return self.cached(model, "matrix", lambda: self.build(model))
+
+    def build(self, model: TissueModel) -> sp.csr_matrix:
         """K on all control points, (3n, 3n) in stacked order."""
         raise NotImplementedError
 
@@ -299,32 +303,28 @@ class PreTension(StackedStiffness):
     magnitude = Magnitude(0.05, "N/mm")
     equation = "sigma0 integral_skin g^ab (n . d_a u)(n . d_b u) dA"
 
-    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+    def build(self, model: TissueModel) -> sp.csr_matrix:
         """K_sigma on all control points, (3n, 3n) in stacked order [1]."""
-
-        def build():
-            params, area, du, dv = surface_rule(model, 1.0, model.volume.basis.degrees[0] + 2)
-            metric = np.stack(
-                [
-                    np.stack([np.sum(du * du, 1), np.sum(du * dv, 1)], -1),
-                    np.stack([np.sum(dv * du, 1), np.sum(dv * dv, 1)], -1),
-                ],
-                -2,
-            )
-            inverse = np.linalg.inv(metric)
-            normal = model.volume.outer_normal(params[:, :2])
-            rows = []
-            for derivative in ((1, 0, 0), (0, 1, 0)):
-                j = sp.csr_matrix(model.volume.collocation(params, derivative))
-                rows.append(sp.hstack([sp.diags(normal[:, i]) @ j for i in range(3)]).tocsr())
-            total = sum(
-                rows[a].T @ sp.diags(area * inverse[:, a, b]) @ rows[b]
-                for a in range(2)
-                for b in range(2)
-            )
-            return sp.csr_matrix(0.5 * (total + total.T))
-
-        return self.cached(model, "K_sigma", build)
+        params, area, du, dv = surface_rule(model, 1.0, model.volume.basis.degrees[0] + 2)
+        metric = np.stack(
+            [
+                np.stack([np.sum(du * du, 1), np.sum(du * dv, 1)], -1),
+                np.stack([np.sum(dv * du, 1), np.sum(dv * dv, 1)], -1),
+            ],
+            -2,
+        )
+        inverse = np.linalg.inv(metric)
+        normal = model.volume.outer_normal(params[:, :2])
+        rows = []
+        for derivative in ((1, 0, 0), (0, 1, 0)):
+            j = sp.csr_matrix(model.volume.collocation(params, derivative))
+            rows.append(sp.hstack([sp.diags(normal[:, i]) @ j for i in range(3)]).tocsr())
+        total = sum(
+            rows[a].T @ sp.diags(area * inverse[:, a, b]) @ rows[b]
+            for a in range(2)
+            for b in range(2)
+        )
+        return sp.csr_matrix(0.5 * (total + total.T))
 
 
 class VolumetricCoupling(StackedStiffness):
@@ -344,14 +344,10 @@ class VolumetricCoupling(StackedStiffness):
     equation = "lambda integral (div u)^2 dV (physical volume)"
     energies = ("dnurbs",)
 
-    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+    def build(self, model: TissueModel) -> sp.csr_matrix:
         """K_lambda on all control points, (3n, 3n) in stacked order [mm]."""
-
-        def build():
-            gradient = PhysicalGradient.of(model.volume)
-            return gradient.gram([gradient.divergence()])
-
-        return self.cached(model, "K_lambda", build)
+        gradient = PhysicalGradient.of(model.volume)
+        return gradient.gram([gradient.divergence()])
 
 
 class ShearCoupling(StackedStiffness):
@@ -371,11 +367,7 @@ class ShearCoupling(StackedStiffness):
     equation = "mu_L integral 2 eps:eps dV (physical volume, eq. C3)"
     energies = ("dnurbs",)
 
-    def matrix(self, model: TissueModel) -> sp.csr_matrix:
+    def build(self, model: TissueModel) -> sp.csr_matrix:
         """K_mu on all control points, (3n, 3n) in stacked order [mm]."""
-
-        def build():
-            gradient = PhysicalGradient.of(model.volume)
-            return gradient.gram(gradient.strain(), 2.0)
-
-        return self.cached(model, "K_mu", build)
+        gradient = PhysicalGradient.of(model.volume)
+        return gradient.gram(gradient.strain(), 2.0)
