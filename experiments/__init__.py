@@ -10,3 +10,19 @@
 - studies by subject: ``phantom``, ``demo``, ``inverse``, ``dynamics``, ``diagnosis``,
   ``imaging``, ``design``, ``realskin``, ``stereo``.
 """
+
+import importlib
+
+
+def lazy_exports(package: str, modules: dict[str, tuple[str, ...]]):
+    """``__getattr__`` and ``__all__`` of a package that exports the names of ``modules``
+    (module -> names), each imported on first use (PEP 562): ``from experiments.data
+    import load_dataset`` works, and ``dvs --help`` still imports no solver."""
+    exports = {name: module for module, names in modules.items() for name in names}
+
+    def __getattr__(name: str):
+        if name not in exports:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(importlib.import_module(exports[name]), name)
+
+    return __getattr__, sorted(exports)

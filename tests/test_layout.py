@@ -204,3 +204,37 @@ def test_every_project_import_resolves():
                 except ImportError:
                     missing.append(f"{name}: {node.module} has no {alias.name}")
     assert not missing, missing
+
+
+def test_every_package_says_what_it_offers_and_exports_it():
+    """Each package's ``__init__`` has a docstring, and every name of its ``__all__`` is
+    there (eagerly, or on first use through ``experiments.lazy_exports``)."""
+    import importlib
+
+    bare, missing = [], []
+    for name, path in _modules().items():
+        if path.name != "__init__.py":
+            continue
+        package = importlib.import_module(name)
+        if not (package.__doc__ or "").strip():
+            bare.append(name)
+        missing += [
+            f"{name}.{n}" for n in getattr(package, "__all__", ()) if not hasattr(package, n)
+        ]
+    assert not bare and not missing, (bare, missing)
+
+
+def test_the_command_lines_help_imports_no_solver():
+    """``dvs --help`` and the packages' lazy exports import neither CasADi nor the solvers."""
+    import subprocess
+    import sys
+
+    code = (
+        "import contextlib, io, sys, experiments.data, experiments.design, experiments.problem\n"
+        "from experiments.command.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+        "    main(['--help'])\n"
+        "print(sorted(m for m in sys.modules if m == 'casadi' or m.startswith('solvers')))"
+    )
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert shown.returncode == 0 and shown.stdout.strip() == "[]", shown.stdout + shown.stderr

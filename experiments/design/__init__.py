@@ -5,3 +5,14 @@ with ``dvs next``), ``designreport``, ``nextpress`` and
 keys), ``sequential``, ``lab`` and ``pathreport`` (press, diagnose, choose again against
 FE data), ``predictions`` (do a design's predictions hold?), ``designbench`` and
 ``speed`` (benchmarks)."""
+
+from experiments import lazy_exports
+
+__getattr__, __all__ = lazy_exports(
+    __name__,
+    {
+        "experiments.design.plan": ("DesignSettings", "Plan", "plan"),
+        "experiments.design.sequential": ("SequentialSettings", "step"),
+        "experiments.design.lab": ("ContinuumLab",),
+    },
+)

@@ -6,3 +6,12 @@
 - ``outoflibrary``: data from physics outside the library, an FE slab (``dvs study outoflibrary``);
 - ``continuumstudy``: the loop on scikit-fem continuum data (``dvs study continuum``).
 """
+
+from experiments import lazy_exports
+
+__getattr__, __all__ = lazy_exports(
+    __name__,
+    {
+        "experiments.diagnosis.diagnose": ("base_settings", "diagnose_dataset"),
+    },
+)

@@ -3,3 +3,12 @@ fit -> field, weight, uncertainty), ``imagemodel`` (the continuum it images on),
 ``outputs`` (image.json, PNG, VTU), ``imagecommand`` (``dvs image``), ``imagebench`` (``dvs
 bench image``), ``weightstudy`` and ``adaptive`` (``dvs study imageweights``,
 ``imageadaptive``)."""
+
+from experiments import lazy_exports
+
+__getattr__, __all__ = lazy_exports(
+    __name__,
+    {
+        "experiments.imaging.mapping": ("Image", "ImageSettings", "image_dataset"),
+    },
+)

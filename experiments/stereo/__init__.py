@@ -16,3 +16,12 @@ A world point ``X`` maps to camera coordinates ``x_cam = R @ X + t``; pixel
 ``(u, v)`` has ``u`` along image columns and ``v`` down the rows, with the
 centre of the top-left pixel at (0, 0).
 """
+
+from experiments import lazy_exports
+
+__getattr__, __all__ = lazy_exports(
+    __name__,
+    {
+        "experiments.stereo.reconstruct": ("ReconstructSettings", "Reconstruction", "reconstruct"),
+    },
+)
