@@ -352,3 +352,28 @@ def test_the_per_model_stores_let_a_model_go():
     del model
     gc.collect()
     assert alive() is None and entries() == []
+
+
+def test_a_fields_two_continuum_terms_share_one_pass_and_equal_their_matrices(monkeypatch):
+    """``field_products``: K_mu x and K_lambda x of one shape come from one
+    ``elasticity_product`` and equal the assembled matrices' products."""
+    from symbolic.continuum import box_volume
+    from symbolic.continuum_model import ContinuumModel
+    from symbolic.effects.stiffness import field_products
+
+    model = ContinuumModel(box_volume((20.0, 16.0, 4.0), (5, 5, 3), (2, 2, 2)))
+    effect = make_effect("heterogeneity")
+    terms = field_products(model, effect)
+    passes = []
+    original = type(model.gradient).elasticity_product
+    monkeypatch.setattr(
+        type(model.gradient),
+        "elasticity_product",
+        lambda self, *a: passes.append(1) or original(self, *a),
+    )
+    x = np.random.default_rng(2).normal(size=(terms[0].shape[0], 3))
+    products = [term @ x for term in terms]
+    assert len(passes) == len(terms) // 2
+    for term, product in zip(terms, products):
+        expected = term.matrix() @ x
+        assert np.abs(product - expected).max() <= 1e-10 * np.abs(expected).max()

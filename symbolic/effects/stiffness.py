@@ -86,15 +86,20 @@ def field_products(model: TissueModel, effect) -> list[ProductTerm]:
     """The continuum's ``weighted_stiffness`` terms of ``effect`` as ``ProductTerm``s:
     their products act on the free points through the model's own operators
     (``PhysicalGradient.elasticity_product``) and their matrices, when a coefficient
-    is no longer zero, are the effect's ``terms`` (assembled once for all of them)."""
+    is no longer zero, are the effect's ``terms`` (assembled once for all of them). The
+    shear and volumetric products of one shape come from one pass over the points: the
+    products are applied term after term, and the second reuses the first's."""
     gradient, n = model.gradient, model.rest.shape[0]
     index = np.concatenate([model.free + k * n for k in range(3)])
+    last: list = []  # (shape, x, both products) of the last call: its twin term reuses it
 
     def product(shape, term):
         def apply(x):
-            full = np.zeros((3 * n,) + x.shape[1:])
-            full[index] = x
-            return gradient.elasticity_product(full, shape)[term][index]
+            if not (last and last[0] is shape and np.array_equal(last[1], x)):
+                full = np.zeros((3 * n,) + x.shape[1:])
+                full[index] = x
+                last[:] = [shape, x.copy(), gradient.elasticity_product(full, shape)]
+            return last[2][term][index]
 
         return apply
 
