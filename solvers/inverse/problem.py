@@ -21,9 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.inverse.noise import rest_noise_map
-from solvers.inverse.space import (
-    ParameterSpace,
-)
+from solvers.inverse.space import ParameterSpace
 from symbolic.model import TissueModel
 
 
