@@ -61,18 +61,29 @@ def test_simultaneous_and_nested_agree(noisy):
 
 
 def test_the_results_states_are_the_equilibria_at_its_estimate(noisy):
-    """Both methods return, with x, the states at x (the nested Newton path, k0, included:
-    trf's last trial may be a rejected point, and the states must not be that point's)."""
+    """Both methods return, with x, the states at x; and on the nested Newton path (k0) a
+    cached point brings its own states back: trf may evaluate a trial it then rejects,
+    and ends at an earlier point whose r and J come from the cache."""
     problem = InverseProblem(
         noisy.model, noisy.cases, ParameterSpace.create(ALPHAS + ("k0",)), 0.02
     )
+    forward = EquilibriumSolver(problem.model, problem.names, residual=problem.g)
+
+    def assert_equilibria(states, x, label):
+        for case, state in zip(problem.cases, states):
+            expected = forward.solve(case.force, x, case.prescribed).state
+            assert np.abs(state - expected).max() <= 1e-6 * np.abs(expected).max(), label
+
     for solver in (NestedSolver(problem), SimultaneousSolver(problem)):
         result = solver.solve()
         assert isinstance(solver, ReducedSpaceSolver | FullSpaceSolver)
-        forward = EquilibriumSolver(problem.model, problem.names, residual=problem.g)
-        for case, state in zip(problem.cases, result.states):
-            expected = forward.solve(case.force, result.x, case.prescribed).state
-            assert np.abs(state - expected).max() <= 1e-6 * np.abs(expected).max(), solver.name
+        assert_equilibria(result.states, result.x, solver.name)
+    nested = NestedSolver(problem)
+    accepted = problem.space.to_internal(problem.space.start)
+    nested.evaluate(accepted)  # r and J there, cached
+    nested.residual(accepted + 0.3)  # a trial elsewhere: its states
+    nested.residual(accepted)  # back at the cached point
+    assert_equilibria(nested.states, problem.space.to_natural(accepted), "cached point")
 
 
 @pytest.mark.parametrize("solver", [SimultaneousSolver, NestedSolver])
