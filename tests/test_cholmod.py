@@ -92,3 +92,37 @@ def test_the_factorisation_takes_the_cores_and_leaves_blas_on_one_thread(monkeyp
     assert cholmod.threads() == 3 and cholmod.Cholesky(matrix).blas_threads == 3
     monkeypatch.setenv("OMP_NUM_THREADS", "not a number")
     assert cholmod.threads() >= 1
+
+
+def test_a_closed_factor_is_refactorised_in_place_by_the_next_matrix_of_its_pattern():
+    """``close`` keeps a successful factor as a spare of its pattern (``SPARES_KEPT``);
+    the next ``Cholesky`` of that pattern factorises into it and solves exactly as a
+    new factor does. A failed factor is freed, never kept, and spares go with their
+    pattern's analysis."""
+    matrix = _elasticity((5, 4, 3))
+    other = (2.0 * matrix + sp.diags(np.full(matrix.shape[0], abs(matrix).max()))).tocsc()
+    right = np.random.default_rng(3).standard_normal((matrix.shape[0], 2))
+    cholmod._analyses.clear()
+    cholmod._spares.clear()
+    fresh = cholmod.Cholesky(other).solve(right)
+    first = cholmod.Cholesky(matrix)
+    address = first._factor.value
+    first.close()
+    assert [factor.value for _, factor in cholmod._spares] == [address]
+    second = cholmod.Cholesky(other)
+    assert second._factor.value == address and not cholmod._spares
+    assert np.array_equal(second.solve(right), fresh)
+    second.close()
+    shifted = (matrix - 2.0 * abs(matrix).max() * sp.eye(matrix.shape[0])).tocsc()
+    with pytest.raises(cholmod.NotPositiveDefinite):
+        cholmod.Cholesky(shifted)  # took the spare, failed: freed
+    assert not cholmod._spares
+    kept = [cholmod.Cholesky(matrix) for _ in range(cholmod.SPARES_KEPT + 1)]
+    for factor in kept:
+        factor.close()
+    assert len(cholmod._spares) == cholmod.SPARES_KEPT
+    for shape in [(6, 4, 3), (4, 6, 3)]:  # two new patterns evict the first's analysis
+        cholmod.Cholesky(_elasticity(shape)).close()
+    kept_patterns = {entry[2].value for entry in cholmod._analyses}
+    assert {key for key, _ in cholmod._spares} <= kept_patterns
+    assert len(cholmod._spares) <= cholmod.SPARES_KEPT

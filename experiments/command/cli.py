@@ -199,7 +199,7 @@ def command_parser(name: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``dvs`` console script."""
+    """The command line: run the command ``argv`` names (default ``sys.argv[1:]``)."""
     import sys
 
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -211,5 +211,14 @@ def main(argv: list[str] | None = None) -> int:
     return 2
 
 
+def console() -> int:
+    """The ``dvs`` console script: ``main`` in a process that keeps the memory it frees
+    for its next arrays (``experiments.command.memory``)."""
+    from experiments.command.memory import keep_freed_memory
+
+    keep_freed_memory()
+    return main()
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(console())

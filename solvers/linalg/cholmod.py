@@ -262,7 +262,12 @@ def factorised(matrix: sp.spmatrix, fallback, known_symmetric: bool = False):
 ANALYSES_KEPT = 2
 """Symbolic analyses kept for reuse (most recent first), one per sparsity pattern."""
 
+SPARES_KEPT = 2
+"""Numeric factors kept after their ``Cholesky`` is closed, for the next matrix of their
+pattern (``_spare``)."""
+
 _analyses: list = []  # [(indptr, indices, symbolic factor pointer)]
+_spares: list = []  # [(address of the pattern's symbolic factor, numeric factor pointer)]
 
 
 def _analysis(pattern, structure: _Sparse) -> ctypes.c_void_p:
@@ -271,7 +276,7 @@ def _analysis(pattern, structure: _Sparse) -> ctypes.c_void_p:
     The fill-reducing ordering and the supernodes depend on the sparsity pattern alone,
     and a fit refactorises K(p) of one pattern many times: on the 40 x 33 x 6 K of the
     module docstring the analysis takes 0.9 s of the factorisation's 3.6 s. The last
-    ``ANALYSES_KEPT`` patterns keep theirs; ``Cholesky`` factorises a copy.
+    ``ANALYSES_KEPT`` patterns keep theirs; ``Cholesky`` factorises a copy (or a spare).
     """
     lib, _, common = _load()
     indptr, indices = pattern
@@ -284,8 +289,42 @@ def _analysis(pattern, structure: _Sparse) -> ctypes.c_void_p:
         raise RuntimeError("cholmod_analyze failed (out of memory?)")
     _analyses.insert(0, (indptr.copy(), indices.copy(), factor))
     while len(_analyses) > ANALYSES_KEPT:
-        lib.cholmod_free_factor(ctypes.byref(_analyses.pop()[2]), common)
+        evicted = _analyses.pop()[2]
+        for key, spare in [entry for entry in _spares if entry[0] == evicted.value]:
+            _spares.remove((key, spare))
+            lib.cholmod_free_factor(ctypes.byref(spare), common)
+        lib.cholmod_free_factor(ctypes.byref(evicted), common)
     return factor
+
+
+def _spare(symbolic: ctypes.c_void_p) -> ctypes.c_void_p:
+    """A numeric factor of ``symbolic``'s pattern to factorise into, else a new copy.
+
+    CHOLMOD refactorises a numeric factor in its own memory. A new one is a fresh
+    allocation of all of L, which the kernel maps page by page on first touch: on the
+    15,360-unknown K (4.1 M nonzeros) of a default ``dvs next`` over FE tissue, 3.1 M
+    page faults in one run, a third of its wall time in the kernel (docs/inverse.md,
+    "The factorisation itself").
+    """
+    for k, (key, factor) in enumerate(_spares):
+        if key == symbolic.value:
+            del _spares[k]
+            return factor
+    lib, _, common = _load()
+    return ctypes.c_void_p(lib.cholmod_copy_factor(symbolic, common))
+
+
+def _retire(symbolic_address: int, factor: ctypes.c_void_p, n: int) -> bool:
+    """Keep a closed, successful factor as a spare of its pattern while that pattern's
+    analysis is kept; False when the caller should free it."""
+    kept = any(entry[2].value == symbolic_address for entry in _analyses)
+    if not kept or _FactorHead.from_address(factor.value).minor < n:
+        return False
+    _spares.insert(0, (symbolic_address, factor))
+    lib, _, common = _load()
+    while len(_spares) > SPARES_KEPT:
+        lib.cholmod_free_factor(ctypes.byref(_spares.pop()[1]), common)
+    return True
 
 
 class Cholesky:
@@ -321,16 +360,16 @@ class Cholesky:
             np.ascontiguousarray(csc.data, dtype=float),
         )
         structure = _sparse(self.n, *self._arrays)
-        self._factor = ctypes.c_void_p(
-            self._lib.cholmod_copy_factor(_analysis(self._arrays[:2], structure), self._common)
-        )
+        symbolic = _analysis(self._arrays[:2], structure)
+        self._symbolic = symbolic.value
+        self._factor = _spare(symbolic)
         if not self._factor.value:
             raise RuntimeError("cholmod_copy_factor failed (out of memory?)")
         with _threaded(self.blas_threads):
             self._lib.cholmod_factorize(structure, self._factor, self._common)
         minor = _FactorHead.from_address(self._factor.value).minor
         if minor < self.n:
-            self.close()
+            self.close()  # freed, never kept as a spare
             raise NotPositiveDefinite(f"pivot {minor} of {self.n} is not positive")
 
     def solve(self, right: np.ndarray) -> np.ndarray:
@@ -350,9 +389,16 @@ class Cholesky:
         return values.reshape(right.shape)
 
     def close(self) -> None:
-        """Free the factor (also done when the object is collected)."""
-        if getattr(self, "_factor", None) is not None and self._factor.value:
-            self._lib.cholmod_free_factor(ctypes.byref(self._factor), self._common)
+        """Release the factor (also done when the object is collected): kept as a spare
+        of its pattern (``_retire``) or freed."""
+        factor = getattr(self, "_factor", None)
+        if factor is not None and factor.value:
+            try:
+                kept = _retire(self._symbolic, factor, self.n)
+            except (TypeError, AttributeError):  # module globals gone at interpreter exit
+                kept = False
+            if not kept:
+                self._lib.cholmod_free_factor(ctypes.byref(factor), self._common)
         self._factor = None
 
     def __del__(self):
