@@ -337,3 +337,42 @@ def test_a_csr_matrix_that_is_not_symmetric_is_solved_as_itself():
     solution = linear._factorised(matrix).solve(right)
     assert np.allclose(matrix @ solution, right, atol=1e-12)
     assert not np.allclose(matrix.T @ solution, right, atol=1e-6)
+
+
+def test_a_sets_case_parts_are_those_of_its_case_effects_widened(continuum, monkeypatch):
+    """Effects that change neither load nor observation (stiffness, extra state) leave a
+    case's parts those of the effects that do, widened with zero columns and rows
+    (``CaseParts.widened``): the same values as parts built for the whole set, and the
+    smaller set's Functions built once for every set that shares it."""
+    import casadi as ca
+
+    import symbolic.effects.library as effects
+
+    problem, base_fit, library = continuum
+    model = problem.extended
+    built = []
+    jacobian = ca.jacobian
+    monkeypatch.setattr(ca, "jacobian", lambda *a: built.append(1) or jacobian(*a))
+
+    def parts(names, cache):
+        chosen = [library[n] for n in names]
+        extended = effects.ExtendedModel(model.model, model.names, chosen, model.cases, cache)
+        return extended, extended.case_parts(1)
+
+    cache: dict = {}
+    parts(("base_compliance",), cache)
+    assert len(built) == 3  # the base set's load and observation, on the wider set's call
+    parts(("heterogeneity",), cache)
+    assert len(built) == 3  # shared
+    names = ("contact_offset", "base_compliance", "heterogeneity")
+    extended, widened = parts(names, cache)
+    monkeypatch.setattr(effects, "changes_case", lambda effect: True)
+    _, direct = parts(names, {})
+    rng = np.random.default_rng(4)
+    p = rng.standard_normal(extended.n_parameters)
+    s = rng.standard_normal(extended.n_state)
+    pairs = [(widened.load, direct.load, (p,)), (widened.observation, direct.observation, (s, p))]
+    for mine, reference, inputs in pairs:
+        for value, expected in zip(mine(*inputs), reference(*inputs)):
+            assert value.shape == expected.shape
+            np.testing.assert_array_equal(np.asarray(ca.densify(value)), ca.densify(expected))

@@ -376,3 +376,16 @@ def stacked_free_block(model: TissueModel, matrix: sp.spmatrix) -> sp.csr_matrix
     n = model.rest.shape[0]
     index = np.concatenate([model.free + k * n for k in range(3)])
     return sp.csr_matrix(matrix)[index][:, index]
+
+
+def enters_model_part(effect: Effect) -> bool:
+    """True when the effect changes h (internal force, stiffness or extra state)."""
+    kind = type(effect)
+    hooks = ("internal_force", "extra_residual", "extra_points")
+    return effect.linear or any(getattr(kind, h) is not getattr(Effect, h) for h in hooks)
+
+
+def changes_case(effect: Effect) -> bool:
+    """True when the effect changes a case's load or its observation."""
+    kind = type(effect)
+    return any(getattr(kind, h) is not getattr(Effect, h) for h in ("load", "observe"))

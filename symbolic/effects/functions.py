@@ -11,6 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from symbolic.effects.base import CaseData, LoadState
+from symbolic.effects.load import load_change
+from symbolic.model import TissueModel
+from symbolic.sparse import to_casadi_sparse
 
 
 class CaseFunctions:
@@ -85,6 +92,44 @@ class CaseParts:
     load: ca.Function
     observation: ca.Function
 
+    def widened(self, columns, n_p: int, n_state: int) -> CaseParts:
+        """These parts, of a p' = p[columns] and an s' that begins s, as parts of p and s.
+
+        The parts of an effect set equal those of its effects that change the load or
+        the observation (``ExtendedModel.case_parts``): the others enter neither, so
+        their parameters get zero columns and their extra state zero rows. Widening
+        reuses the smaller set's Functions, built once, instead of differentiating
+        each case's graph again for every set (925 builds, 9 s of a default
+        ``dvs next``). The values are the same arithmetic on the same numbers.
+        """
+        columns = np.asarray(columns, dtype=int)
+        select = ca.DM(sp.csc_matrix((np.ones(columns.size), (np.arange(columns.size), columns)),
+                                     shape=(columns.size, n_p)))  # fmt: skip
+        p, s = ca.MX.sym("p", n_p), ca.MX.sym("s", n_state)
+        q = p[columns.tolist()]
+        load, load_q = self.load(q)
+        extra = n_state - load.numel()
+        observed = self.observation(s[: load.numel()], q)
+        return CaseParts(
+            load=ca.Function(
+                "load",
+                [p],
+                [
+                    ca.vertcat(load, ca.MX(extra, 1)),
+                    ca.vertcat(ca.mtimes(load_q, select), ca.MX(extra, n_p)),
+                ],
+            ),  # fmt: skip
+            observation=ca.Function(
+                "observation",
+                [s, p],
+                [
+                    observed[0],
+                    ca.horzcat(observed[1], ca.MX(observed[1].size1(), extra)),
+                    ca.mtimes(observed[2], select),
+                ],
+            ),  # fmt: skip
+        )
+
 
 @dataclass(frozen=True)
 class StiffnessTerms:
@@ -106,3 +151,27 @@ class StiffnessTerms:
     matrices: list
     coefficients: ca.Function
     shares_pattern: dict = field(default_factory=dict, compare=False, repr=False)
+
+
+def case_load(model: TissueModel, effects, case: CaseData, thetas, n_state: int) -> ca.MX:
+    """-F_B(theta) of the case on the free points, stacked, then zero on the extra rows:
+    the declared load as the load effects change it, in turn (eq. 20)."""
+    load = LoadState(np.asarray(case.force_vector, dtype=float))
+    for effect, theta in zip(effects, thetas):
+        load = effect.load(model, case, load, theta)
+    force = -ca.DM(case.force)
+    change = load_change(model, case, load)
+    if change is not None:
+        force = force - change
+    return ca.vertcat(ca.vec(force), ca.MX(n_state - force.numel(), 1))
+
+
+def case_observation(model: TissueModel, effects, case: CaseData, symbols, thetas) -> ca.MX:
+    """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``): the
+    predicted markers as the observation effects change them, in turn (eq. 24)."""
+    rest = ca.DM(case.rest_points)
+    predicted = rest + ca.mtimes(to_casadi_sparse(case.rows), symbols.delta)
+    for effect, theta in zip(effects, thetas):
+        predicted = effect.observe(model, case, predicted, theta)
+    weights = ca.repmat(ca.DM(case.weights), 1, 3)
+    return ca.vec(weights * (predicted - rest + ca.DM(case.offset)))

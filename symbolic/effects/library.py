@@ -47,11 +47,24 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from symbolic.effects.base import CaseData, CaseSymbols, Effect, LoadState, apply_stacked
+from symbolic.effects.base import (
+    CaseData,
+    CaseSymbols,
+    Effect,
+    apply_stacked,
+    changes_case,
+    enters_model_part,
+)
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
 from symbolic.effects.fieldeffect import StiffnessFieldEffect
-from symbolic.effects.functions import CaseFunctions, CaseParts, StiffnessTerms
-from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection, load_change
+from symbolic.effects.functions import (
+    CaseFunctions,
+    CaseParts,
+    StiffnessTerms,
+    case_load,
+    case_observation,
+)
+from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
 from symbolic.effects.nonlinearity import NonlinearStiffening
 from symbolic.effects.stiffness import (
@@ -107,13 +120,6 @@ def effect_library(names=None, energy: str | None = None) -> dict[str, Effect]:
     if energy is None:
         return chosen
     return {name: e for name, e in chosen.items() if energy in e.energies}
-
-
-def enters_model_part(effect: Effect) -> bool:
-    """True when the effect changes h (internal force, stiffness or extra state)."""
-    kind = type(effect)
-    hooks = ("internal_force", "extra_residual", "extra_points")
-    return effect.linear or any(getattr(kind, h) is not getattr(Effect, h) for h in hooks)
 
 
 class ExtendedModel:
@@ -237,27 +243,44 @@ class ExtendedModel:
         return self._functions[key]
 
     def case_parts(self, position: int) -> CaseParts:
-        """The load and observation Functions of one case (no model part; built once)."""
+        """The load and observation Functions of one case (no model part; built once).
+
+        Kept for the cache's life, not dropped with their effect set's heavy Functions
+        (``solvers.diagnosis.cache.SharedCache``): they hold no stiffness, and the sets
+        that widen them (``_case_parts``) come and go in turn.
+        """
         per_case = any(e.per_case for e in self.effects)
         key = (
-            "functions",
-            self.effect_set,
             "case_parts",
+            self.effect_set,
             id(self.cases[position]),
             position if per_case else 0,
             tuple(self.labels),
         )
         if key not in self._functions:
-            s, p, symbols, thetas = self._symbols(position)
-            load = self._load(self.cases[position], thetas, s.numel())
-            r = self._observation(self.cases[position], symbols, thetas)
-            self._functions[key] = CaseParts(
-                load=ca.Function("load", [p], [load, ca.jacobian(load, p)]),
-                observation=ca.Function(
-                    "observation", [s, p], [r, ca.jacobian(r, s), ca.jacobian(r, p)]
-                ),
-            )
+            self._functions[key] = self._case_parts(position)
         return self._functions[key]
+
+    def _case_parts(self, position: int) -> CaseParts:
+        """Built: the parts of the effects that change the case, widened to this set's
+        p and s (``CaseParts.widened``) when they are fewer and add no state."""
+        changing = [e for e in self.effects if changes_case(e)]
+        if len(changing) < len(self.effects) and not any(
+            e.extra_points(self.model) for e in changing
+        ):
+            fewer = ExtendedModel(self.model, self.names, changing, self.cases, self._functions)
+            slices = [slice(0, len(self.names))] + [self.slices[e.name] for e in changing]
+            columns = np.concatenate([np.arange(b.start, b.stop) for b in slices])
+            return fewer.case_parts(position).widened(columns, self.n_parameters, self.n_state)
+        s, p, symbols, thetas = self._symbols(position)
+        load = case_load(self.model, self.effects, self.cases[position], thetas, s.numel())
+        r = case_observation(self.model, self.effects, self.cases[position], symbols, thetas)
+        return CaseParts(
+            load=ca.Function("load", [p], [load, ca.jacobian(load, p)]),
+            observation=ca.Function(
+                "observation", [s, p], [r, ca.jacobian(r, s), ca.jacobian(r, p)]
+            ),
+        )
 
     @property
     def n_state(self) -> int:
@@ -292,9 +315,9 @@ class ExtendedModel:
         """
         s, p, symbols, thetas = self._symbols(position)
         h, h_ds, h_dp = self._model_part(position)
-        load = self._load(self.cases[position], thetas, s.numel())
+        load = case_load(self.model, self.effects, self.cases[position], thetas, s.numel())
         g = h(s, p) + load
-        r = self._observation(self.cases[position], symbols, thetas)
+        r = case_observation(self.model, self.effects, self.cases[position], symbols, thetas)
         return CaseFunctions(s, p, g, r, h_ds(s, p), h_dp(s, p) + ca.jacobian(load, p))
 
     def _model_part(self, position: int) -> tuple:
@@ -411,26 +434,3 @@ class ExtendedModel:
             stiffness = self.model.stiffness_expression(coefficients, terms)
             self._functions[key] = ca.Function("stiffness", [x], [stiffness])
         return self._functions[key]
-
-    def _load(self, case: CaseData, thetas, n_state: int) -> ca.MX:
-        """-F_B(theta) of the case on the free points, stacked, then zero on the extra
-        rows: the declared load as the load effects change it, in turn (eq. 20)."""
-        load = LoadState(np.asarray(case.force_vector, dtype=float))
-        for effect, theta in zip(self.effects, thetas):
-            load = effect.load(self.model, case, load, theta)
-        force = -ca.DM(case.force)
-        change = load_change(self.model, case, load)
-        if change is not None:
-            force = force - change
-        return ca.vertcat(ca.vec(force), ca.MX(n_state - force.numel(), 1))
-
-    def _observation(self, case: CaseData, symbols: CaseSymbols, thetas) -> ca.MX:
-        """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``)."""
-        from symbolic.sparse import to_casadi_sparse
-
-        rest = ca.DM(case.rest_points)
-        predicted = rest + ca.mtimes(to_casadi_sparse(case.rows), symbols.delta)
-        for effect, theta in zip(self.effects, thetas):
-            predicted = effect.observe(self.model, case, predicted, theta)
-        weights = ca.repmat(ca.DM(case.weights), 1, 3)
-        return ca.vec(weights * (predicted - rest + ca.DM(case.offset)))
