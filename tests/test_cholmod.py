@@ -71,7 +71,7 @@ def test_one_analysis_serves_every_matrix_of_a_pattern_and_each_factor_stays_its
     for factor, reference in ((first, matrix), (second, other)):
         solved = factor.solve(right)
         assert np.abs(reference @ solved - right).max() <= 1e-10 * np.abs(right).max()
-    shapes = [(6, 4, 3), (4, 6, 3), (5, 5, 3)]
+    shapes = [(6, 4, 3), (4, 6, 3), (5, 5, 3), (6, 5, 3), (5, 6, 3)]
     for shape in shapes:
         cholmod.Cholesky(_elasticity(shape))
     assert len(cholmod._analyses) == cholmod.ANALYSES_KEPT

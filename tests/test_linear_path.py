@@ -376,3 +376,30 @@ def test_a_sets_case_parts_are_those_of_its_case_effects_widened(continuum, monk
         for value, expected in zip(mine(*inputs), reference(*inputs)):
             assert value.shape == expected.shape
             np.testing.assert_array_equal(np.asarray(ca.densify(value)), ca.densify(expected))
+
+
+def test_terms_of_other_patterns_are_added_into_their_union(continuum):
+    """base_compliance's terms (its extra state) do not share the continuum's pattern:
+    they are added into the union of the patterns, found once per set of terms
+    (``linear._union``). K equals the scipy sum of c_t K_t, and the row scaling of K
+    equals diag(d) K entry by entry."""
+    from symbolic.sparse import term_matrix
+
+    problem, base_fit, library = continuum
+    for names in (("base_compliance",), ("base_compliance", "heterogeneity")):
+        extended = problem.with_effects([library[name] for name in names])
+        p = _point(extended, base_fit.p)
+        terms = extended.extended.stiffness_terms()
+        c = np.ravel(np.asarray(extended.numeric_of(terms.coefficients)(p)[0]))
+        reference = sum(v * term_matrix(m) for v, m in zip(c, terms.matrices))
+        summed = linear.stiffness_matrix(extended, p)
+        assert abs(summed - reference).max() <= 1e-12 * abs(reference).max()
+        unions = [k for k in terms.shares_pattern if k[0] == "union"]
+        assert len(unions) == 1, unions
+        again = linear.stiffness_matrix(extended, p)  # the union is found once
+        assert [k for k in terms.shares_pattern if k[0] == "union"] == unions
+        assert np.array_equal(again.data, summed.data)
+        rows = np.linspace(0.5, 2.0, summed.shape[0])
+        for matrix in (summed, summed.tocsc()):
+            scaled = linear._rows_scaled(matrix, rows)
+            assert abs(scaled - sp.diags(rows) @ matrix).max() == 0.0

@@ -259,8 +259,11 @@ def factorised(matrix: sp.spmatrix, fallback, known_symmetric: bool = False):
     return fallback(matrix)
 
 
-ANALYSES_KEPT = 2
-"""Symbolic analyses kept for reuse (most recent first), one per sparsity pattern."""
+ANALYSES_KEPT = 4
+"""Symbolic analyses kept for reuse (most recent first), one per sparsity pattern: a
+diagnosis with base_compliance alternates between four (K, K with the extra state, and
+the two blocks of the block-triangular case), and with two kept it analysed three of
+them again."""
 
 SPARES_KEPT = 2
 """Numeric factors kept after their ``Cholesky`` is closed, for the next matrix of their
