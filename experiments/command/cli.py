@@ -212,11 +212,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console() -> int:
-    """The ``dvs`` console script: ``main`` in a process that keeps the memory it frees
-    for its next arrays (``experiments.command.memory``)."""
-    from experiments.command.memory import keep_freed_memory
+    """The ``dvs`` console script: ``main`` in a process set up for the work
+    (``experiments.command.process``: freed memory kept, numpy's BLAS on one thread)."""
+    from experiments.command.process import configure
 
-    keep_freed_memory()
+    configure()
     return main()
 
 

@@ -134,20 +134,20 @@ def timed_next(path: str, study) -> dict:
     """The work of ``dvs next PATH --budget 5`` with its defaults (step 0, the diagnosis,
     the questions, 45 candidates), timed, with one factorisation of the K of the volume
     step 0 chose and the peak memory. Meant for a fresh process, whose allocator it sets
-    as the ``dvs`` console script does (``experiments.command.memory``)."""
+    as the ``dvs`` console script does (``experiments.command.process``)."""
     import contextlib
     import io
     import json
     import tempfile
     from pathlib import Path
 
-    from experiments.command.memory import keep_freed_memory
+    from experiments.command.process import configure
     from experiments.data.dataset import load_dataset
     from experiments.design.nextpress import main
     from experiments.diagnosis.diagnose import base_settings
     from experiments.problem.fitting import build_problem
 
-    keep_freed_memory()
+    configure()
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "next"
         begin = time.perf_counter()

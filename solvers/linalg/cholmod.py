@@ -306,8 +306,8 @@ def _spare(symbolic: ctypes.c_void_p) -> ctypes.c_void_p:
     CHOLMOD refactorises a numeric factor in its own memory. A new one is a fresh
     allocation of all of L, which the kernel maps page by page on first touch: on the
     15,360-unknown K (4.1 M nonzeros) of a default ``dvs next`` over FE tissue, 3.1 M
-    page faults in one run, a third of its wall time in the kernel (docs/inverse.md,
-    "The factorisation itself").
+    page faults in one run, and 1.6 M with the spares (docs/inverse.md, "A factor's
+    memory kept for the next one").
     """
     for k, (key, factor) in enumerate(_spares):
         if key == symbolic.value:

@@ -1,17 +1,17 @@
-"""The ``dvs`` process keeps the memory it frees (experiments/command/memory.py): blocks
-freed by one evaluation serve the next without new pages from the kernel."""
+"""The ``dvs`` process (experiments/command/process.py): blocks freed by one evaluation
+serve the next without new pages from the kernel, and numpy's BLAS runs on one thread."""
 
 import subprocess
 import sys
 
 import pytest
 
-from experiments.command import memory
+from experiments.command import process
 
 ROUNDS = """
 import resource, sys
 import numpy as np
-from experiments.command.memory import keep_freed_memory
+from experiments.command.process import keep_freed_memory
 kept = sys.argv[1] == "kept" and keep_freed_memory()
 blocks = [np.ones(3_000_000) for _ in range(4)]  # 24 MB each: glibc raises its thresholds
 del blocks
@@ -44,13 +44,36 @@ def test_freed_blocks_are_reused_without_new_pages():
     assert faults <= 0.1 * default, (faults, default)
 
 
-def test_the_console_script_sets_it_and_main_leaves_it():
-    """``console`` (the ``dvs`` script) keeps freed memory; ``main``, which tests and
-    notebooks call, leaves the host's allocator alone."""
+THREADS = """
+import json
+import numpy as np
+from threadpoolctl import threadpool_info
+from experiments.command.process import configure
+configure()
+np.ones((300, 300)) @ np.ones((300, 300))
+print(json.dumps({i["prefix"]: i["num_threads"] for i in threadpool_info()
+                  if i["user_api"] == "blas"}))
+"""
+
+
+def test_numpys_blas_runs_on_one_thread():
+    """After ``configure`` every BLAS loaded so far runs on one thread (CHOLMOD's
+    factorisation still takes ``cholmod.threads()``: tests/test_cholmod.py)."""
+    import json
+
+    out = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    threads = json.loads(out.stdout)
+    assert threads and set(threads.values()) == {1}, threads
+
+
+def test_the_console_script_sets_it_up_and_main_leaves_it():
+    """``console`` (the ``dvs`` script) configures the process; ``main``, which tests
+    and notebooks call, leaves the host's allocator and threads alone."""
     import inspect
 
     from experiments.command import cli
 
-    assert "keep_freed_memory()" in inspect.getsource(cli.console)
-    assert "keep_freed_memory" not in inspect.getsource(cli.main)
-    assert memory.TRIM_THRESHOLD_BYTES >= 4 * memory.MMAP_THRESHOLD_BYTES
+    assert "configure()" in inspect.getsource(cli.console)
+    assert "configure" not in inspect.getsource(cli.main)
+    assert process.TRIM_THRESHOLD_BYTES >= 4 * process.MMAP_THRESHOLD_BYTES
