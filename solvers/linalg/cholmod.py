@@ -354,8 +354,9 @@ class Cholesky:
         if library is None:
             raise RuntimeError("CHOLMOD (libcholmod.so.3 of SuiteSparse 5) is not available")
         self._lib, _, self._common = library
-        csc = sp.csc_matrix(matrix, dtype=float)
-        csc.sort_indices()
+        compressed = sp.issparse(matrix) and matrix.format == "csc" and matrix.dtype == float
+        csc = matrix if compressed else sp.csc_matrix(matrix, dtype=float)
+        csc.sort_indices()  # a no-op where the order is known
         self.n = csc.shape[0]
         self._arrays = (  # referenced by the structure: kept alive with the object
             np.ascontiguousarray(csc.indptr, dtype=np.int32),
