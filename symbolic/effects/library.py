@@ -186,16 +186,16 @@ class ExtendedModel:
 
     def functions(self, position: int) -> CaseFunctions:
         """The Functions of the case at ``position`` (built once, shared through ``cache``)."""
+        return self._case_entry("functions", position, self._build)
+
+    def _case_entry(self, kind: str, position: int, build):
+        """The ``kind`` entry of the case at ``position`` in ``cache``: ``build(position)``
+        once per effect set, case and labels (and position, for a per-case effect)."""
         per_case = any(e.per_case for e in self.effects)
-        key = (
-            "functions",
-            self.effect_set,
-            id(self.cases[position]),
-            position if per_case else 0,
-            tuple(self.labels),
-        )
+        labels = tuple(self.labels)
+        key = (kind, self.effect_set, id(self.cases[position]), position if per_case else 0, labels)
         if key not in self._functions:
-            self._functions[key] = self._build(position)
+            self._functions[key] = build(position)
         return self._functions[key]
 
     @property
@@ -249,17 +249,7 @@ class ExtendedModel:
         (``solvers.diagnosis.cache.SharedCache``): they hold no stiffness, and the sets
         that widen them (``_case_parts``) come and go in turn.
         """
-        per_case = any(e.per_case for e in self.effects)
-        key = (
-            "case_parts",
-            self.effect_set,
-            id(self.cases[position]),
-            position if per_case else 0,
-            tuple(self.labels),
-        )
-        if key not in self._functions:
-            self._functions[key] = self._case_parts(position)
-        return self._functions[key]
+        return self._case_entry("case_parts", position, self._case_parts)
 
     def _case_parts(self, position: int) -> CaseParts:
         """Built: the parts of the effects that change the case, widened to this set's
