@@ -399,6 +399,10 @@ def test_terms_of_other_patterns_are_added_into_their_union(continuum):
         again = linear.stiffness_matrix(extended, p)  # the union is found once
         assert [k for k in terms.shares_pattern if k[0] == "union"] == unions
         assert np.array_equal(again.data, summed.data)
+        from symbolic.effects.functions import StiffnessTerms
+
+        fresh = StiffnessTerms([], terms.coefficients)  # a CSC term: the scipy sum serves
+        assert linear._union(fresh, 0, summed.tocsc(), [(1, 1.0, summed)]) is None
         rows = np.linspace(0.5, 2.0, summed.shape[0])
         for matrix in (summed, summed.tocsc()):
             scaled = linear._rows_scaled(matrix, rows)

@@ -217,13 +217,12 @@ def stiffness_matrix(problem, p: np.ndarray) -> sp.spmatrix:
 def _union(terms, reference: int, first, others) -> tuple | None:
     """The CSR pattern of K_reference and ``others`` together, and where each one's
     entries lie in it: (indptr, indices, {t: positions}), kept with the terms; None
-    when a term is not canonical (duplicate or unsorted entries)."""
+    when a term is not canonical CSR (another format, duplicate or unsorted entries):
+    the positions follow each term's own stored order."""
     key = ("union", reference, tuple(t for t, _, _ in others))
     if key not in terms.shares_pattern:
-        matrices = [(reference, sp.csr_matrix(first))] + [
-            (t, sp.csr_matrix(m)) for t, _, m in others
-        ]
-        if not all(m.has_canonical_format for _, m in matrices):
+        matrices = [(reference, first)] + [(t, m) for t, _, m in others]
+        if not all(m.format == "csr" and m.has_canonical_format for _, m in matrices):
             terms.shares_pattern[key] = None
             return None
         ones = sum(sp.csr_matrix((np.ones(m.nnz), m.indices, m.indptr), shape=m.shape)
