@@ -121,8 +121,14 @@ def test_a_closed_factor_is_refactorised_in_place_by_the_next_matrix_of_its_patt
     for factor in kept:
         factor.close()
     assert len(cholmod._spares) == cholmod.SPARES_KEPT
-    for shape in [(6, 4, 3), (4, 6, 3)]:  # two new patterns evict the first's analysis
+    alive = cholmod.Cholesky(matrix)  # outlives its pattern's analysis
+    shapes = [(6, 4, 3), (4, 6, 3), (5, 5, 3), (6, 5, 3)][: cholmod.ANALYSES_KEPT]
+    for shape in shapes:  # new patterns evict the first's analysis and its spares
         cholmod.Cholesky(_elasticity(shape)).close()
-    kept_patterns = {entry[2].value for entry in cholmod._analyses}
+    kept_patterns = {entry[3] for entry in cholmod._analyses}
+    assert alive._serial not in kept_patterns
     assert {key for key, _ in cholmod._spares} <= kept_patterns
+    spares = list(cholmod._spares)
+    alive.close()  # freed: a later analysis at the same address is another pattern
+    assert cholmod._spares == spares
     assert len(cholmod._spares) <= cholmod.SPARES_KEPT

@@ -36,6 +36,7 @@ import ctypes
 import ctypes.util
 import glob
 import importlib.util
+import itertools
 import os
 from pathlib import Path
 
@@ -269,12 +270,14 @@ SPARES_KEPT = 2
 """Numeric factors kept after their ``Cholesky`` is closed, for the next matrix of their
 pattern (``_spare``)."""
 
-_analyses: list = []  # [(indptr, indices, symbolic factor pointer)]
-_spares: list = []  # [(address of the pattern's symbolic factor, numeric factor pointer)]
+_analyses: list = []  # [(indptr, indices, symbolic factor pointer, serial)]
+_spares: list = []  # [(serial of the pattern's analysis, numeric factor pointer)]
+_serials = itertools.count()  # never reused, where a freed analysis's address may be
 
 
-def _analysis(pattern, structure: _Sparse) -> ctypes.c_void_p:
-    """The symbolic factor (ordering, elimination tree, supernodes) of ``pattern``.
+def _analysis(pattern, structure: _Sparse) -> tuple[ctypes.c_void_p, int]:
+    """The symbolic factor (ordering, elimination tree, supernodes) of ``pattern`` and
+    the serial number of its analysis.
 
     The fill-reducing ordering and the supernodes depend on the sparsity pattern alone,
     and a fit refactorises K(p) of one pattern many times: on the 40 x 33 x 6 K of the
@@ -283,25 +286,27 @@ def _analysis(pattern, structure: _Sparse) -> ctypes.c_void_p:
     """
     lib, _, common = _load()
     indptr, indices = pattern
-    for k, (kept_ptr, kept_indices, factor) in enumerate(_analyses):
+    for k, (kept_ptr, kept_indices, factor, serial) in enumerate(_analyses):
         if np.array_equal(kept_ptr, indptr) and np.array_equal(kept_indices, indices):
             _analyses.insert(0, _analyses.pop(k))
-            return factor
+            return factor, serial
     factor = ctypes.c_void_p(lib.cholmod_analyze(structure, common))
     if not factor.value:
         raise RuntimeError("cholmod_analyze failed (out of memory?)")
-    _analyses.insert(0, (indptr.copy(), indices.copy(), factor))
+    serial = next(_serials)
+    _analyses.insert(0, (indptr.copy(), indices.copy(), factor, serial))
     while len(_analyses) > ANALYSES_KEPT:
-        evicted = _analyses.pop()[2]
-        for key, spare in [entry for entry in _spares if entry[0] == evicted.value]:
-            _spares.remove((key, spare))
-            lib.cholmod_free_factor(ctypes.byref(spare), common)
+        *_, evicted, gone = _analyses.pop()
+        for entry in [entry for entry in _spares if entry[0] == gone]:
+            _spares.remove(entry)
+            lib.cholmod_free_factor(ctypes.byref(entry[1]), common)
         lib.cholmod_free_factor(ctypes.byref(evicted), common)
-    return factor
+    return factor, serial
 
 
-def _spare(symbolic: ctypes.c_void_p) -> ctypes.c_void_p:
-    """A numeric factor of ``symbolic``'s pattern to factorise into, else a new copy.
+def _spare(symbolic: ctypes.c_void_p, serial: int) -> ctypes.c_void_p:
+    """A numeric factor of the pattern of analysis ``serial`` to factorise into, else a
+    new copy of its symbolic factor.
 
     CHOLMOD refactorises a numeric factor in its own memory. A new one is a fresh
     allocation of all of L, which the kernel maps page by page on first touch: on the
@@ -310,20 +315,20 @@ def _spare(symbolic: ctypes.c_void_p) -> ctypes.c_void_p:
     memory kept for the next one").
     """
     for k, (key, factor) in enumerate(_spares):
-        if key == symbolic.value:
+        if key == serial:
             del _spares[k]
             return factor
     lib, _, common = _load()
     return ctypes.c_void_p(lib.cholmod_copy_factor(symbolic, common))
 
 
-def _retire(symbolic_address: int, factor: ctypes.c_void_p, n: int) -> bool:
+def _retire(serial: int, factor: ctypes.c_void_p, n: int) -> bool:
     """Keep a closed, successful factor as a spare of its pattern while that pattern's
-    analysis is kept; False when the caller should free it."""
-    kept = any(entry[2].value == symbolic_address for entry in _analyses)
+    analysis (``serial``) is kept; False when the caller should free it."""
+    kept = any(entry[3] == serial for entry in _analyses)
     if not kept or _FactorHead.from_address(factor.value).minor < n:
         return False
-    _spares.insert(0, (symbolic_address, factor))
+    _spares.insert(0, (serial, factor))
     lib, _, common = _load()
     while len(_spares) > SPARES_KEPT:
         lib.cholmod_free_factor(ctypes.byref(_spares.pop()[1]), common)
@@ -364,9 +369,8 @@ class Cholesky:
             np.ascontiguousarray(csc.data, dtype=float),
         )
         structure = _sparse(self.n, *self._arrays)
-        symbolic = _analysis(self._arrays[:2], structure)
-        self._symbolic = symbolic.value
-        self._factor = _spare(symbolic)
+        symbolic, self._serial = _analysis(self._arrays[:2], structure)
+        self._factor = _spare(symbolic, self._serial)
         if not self._factor.value:
             raise RuntimeError("cholmod_copy_factor failed (out of memory?)")
         with _threaded(self.blas_threads):
@@ -398,7 +402,7 @@ class Cholesky:
         factor = getattr(self, "_factor", None)
         if factor is not None and factor.value:
             try:
-                kept = _retire(self._symbolic, factor, self.n)
+                kept = _retire(self._serial, factor, self.n)
             except (TypeError, AttributeError):  # module globals gone at interpreter exit
                 kept = False
             if not kept:
