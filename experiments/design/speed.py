@@ -133,8 +133,8 @@ def sequential_step_benchmark(scenario: str = "stiffness_gradient", log=print) -
 def timed_next(path: str, study) -> dict:
     """The work of ``dvs next PATH --budget 5`` with its defaults (step 0, the diagnosis,
     the questions, 45 candidates), timed, with one factorisation of the K of the volume
-    step 0 chose and the peak memory. Meant for a fresh process, whose allocator it sets
-    as the ``dvs`` console script does (``experiments.command.process``)."""
+    step 0 chose and the peak memory. Meant for a fresh process, which it sets up as the
+    ``dvs`` console script does (``experiments.command.process``)."""
     import contextlib
     import io
     import json
