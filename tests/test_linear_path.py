@@ -204,6 +204,30 @@ def test_guard_falls_back_to_refits_near_zero(paper, monkeypatch):
     assert guard.prediction_check(base_fit, new, 0.02).method == "linearised"
 
 
+def test_the_guard_study_records_each_check_refitted_with_its_linearised_twin(paper):
+    """``experiments.diagnosis.guardstudy`` decides a check by the refits, whatever its
+    linearised improvement, records both, and puts the loop's guard back."""
+    from experiments.diagnosis.guardstudy import recorded_checks
+    from solvers.diagnosis import loop
+
+    problem, base_fit, library = paper
+    new = fit(problem.with_effects([library["contact_offset"]]))
+    rows: list = []
+    with recorded_checks(rows):
+        check = loop.prediction_check(base_fit, new, 0.02)
+    assert loop.prediction_check is guard.prediction_check
+    twin = guard._check(base_fit, new, 0.02, {}, guard.linearised_left_out, "linearised")
+    assert check.method == "exact"
+    assert rows == [
+        {
+            "effects": ["contact_offset"],
+            "exact": check.improvement,
+            "linearised": twin.improvement,
+            "folds": 5,
+        }
+    ]
+
+
 @pytest.mark.parametrize("name", ("paper", "continuum"))
 def test_base_compliance_rows_divided_by_c_make_k_symmetric(name, request):
     """diag(d) K with d = 1/c on the foundation's rows is symmetric positive definite, so

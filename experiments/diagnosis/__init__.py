@@ -4,7 +4,9 @@
 - ``study``: every effect alone over several seeds (``dvs study diagnosis``);
 - ``detection``: how large each effect must be to meet the criteria (``dvs study detection``);
 - ``outoflibrary``: data from physics outside the library, an FE slab (``dvs study outoflibrary``);
-- ``continuumstudy``: the loop on scikit-fem continuum data (``dvs study continuum``).
+- ``continuumstudy``: the loop on scikit-fem continuum data (``dvs study continuum``);
+- ``defaults``: the defaults on Q2 tissue patches of another generator (docs/continuum.md);
+- ``guardstudy``: the linearised overfitting guard against exact refits, check by check.
 """
 
 from experiments import lazy_exports

@@ -129,6 +129,15 @@ class EffectFit:
         return self.problem.rms(self.residual)
 
 
+STATISTICAL_TOLERANCE = 1e-7
+"""ftol, xtol and gtol of the diagnosis loop's fits and the guard's refits. scipy's trf
+stops when a step lowers the cost F = chi^2 / 2 by less than 1e-7 F: at chi^2 of 10^3-10^4
+that is 10^-4-10^-3 in chi^2, far below what a statistic, a p-value or the guard reads.
+``fit``'s default, 1e-10, spent 1-7 more evaluations (factorisations of K(p)) per refit,
+most of them where an effect's parameter drifts along a flat valley of chi^2
+(docs/diagnosis.md, "How exactly the loop fits")."""
+
+
 def fit(
     problem: ExtendedProblem,
     start=None,

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.diagnosis.fit import EffectFit, fit
+from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
 
 CLEAR_MARGIN = 10.0
 """A linearised improvement within this of zero (chi^2 units) is decided by exact refits."""
@@ -107,7 +107,7 @@ def folds(problem) -> list[list[int]]:
     return [[position] for position in problem.positions]
 
 
-GUARD_TOLERANCE = 1e-7
+GUARD_TOLERANCE = STATISTICAL_TOLERANCE
 """ftol, xtol and gtol of the exact left-out refits: the comparison needs each fold's
 chi^2 to about 0.01, and with ftol 1e-7 a training chi^2 of 10^4 stops within 10^-3
 (the fits' default, 1e-10, spent one or two more factorisations of K(p) per refit)."""

@@ -40,7 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from solvers.diagnosis.extended import ExtendedProblem
-from solvers.diagnosis.fit import EffectFit, fit
+from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
 from solvers.diagnosis.guard import prediction_check
 from solvers.diagnosis.record import Diagnosis, DiagnosisSettings, Step
 from solvers.diagnosis.stats import (
@@ -152,10 +152,10 @@ def _refit(current: EffectFit, effect, test: ScoreTest) -> EffectFit:
     start = np.concatenate([current.p, np.zeros(block.stop - block.start)])
     if effect.prior(problem.model) is None:  # a field starts flat, not at the raw GN step
         start[block] = np.clip(test.step, problem.lower[block], problem.upper[block])
-    refit = fit(problem, start, states=None)
+    refit = fit(problem, start, states=None, tolerance=STATISTICAL_TOLERANCE)
     if not refit.success:
         start[block] = 0.0
-        refit = fit(problem, start)
+        refit = fit(problem, start, tolerance=STATISTICAL_TOLERANCE)
     return refit
 
 
@@ -204,9 +204,9 @@ def _diagnose(
     """``diagnose``'s loop."""
     library = effect_library(settings.candidates, base.model.energy)
     if start is None:
-        current = fit(ExtendedProblem(base, loads, []))
+        current = fit(ExtendedProblem(base, loads, []), tolerance=STATISTICAL_TOLERANCE)
     else:
-        current = fit(start.problem, start.p, states=start.states)
+        current = fit(start.problem, start.p, states=start.states, tolerance=STATISTICAL_TOLERANCE)
     if base.noise_mm is not None:
         sigma, source = float(base.noise_mm), "given"
     else:
