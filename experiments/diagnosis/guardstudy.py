@@ -27,19 +27,23 @@ SLABS = {
 }
 """ReferenceSlab changes from ``ContinuumStudy().slab`` (lengths and thickness in mm)."""
 
-SLAB_JOBS = (
-    ("compliant_base", 2, "standard", 4.0),
-    ("none", 2, "standard", 4.0),
-    ("contact_offset", 2, "narrow", 3.0),
-    ("stiffness_gradient", 2, "wide_clamped", 5.0),
-    ("tilted_force", 2, "standard", 4.0),
-    ("larger_probe_patch", 3, "narrow", 4.0),
-    ("rigid_motion", 3, "wide_clamped", 4.0),
-    ("compliant_base", 3, "wide_clamped", 3.0),
-    ("contact_offset", 3, "standard", 5.0),
-    ("none", 3, "narrow", 5.0),
-    ("stiffness_gradient", 3, "standard", 3.0),
-    ("tilted_force", 3, "wide_clamped", 3.0),
+SLAB_TABLE = """
+compliant_base      2  standard      4
+none                2  standard      4
+contact_offset      2  narrow        3
+stiffness_gradient  2  wide_clamped  5
+tilted_force        2  standard      4
+larger_probe_patch  3  narrow        4
+rigid_motion        3  wide_clamped  4
+compliant_base      3  wide_clamped  3
+contact_offset      3  standard      5
+none                3  narrow        5
+stiffness_gradient  3  standard      3
+tilted_force        3  wide_clamped  3
+"""
+SLAB_JOBS = tuple(
+    (name, int(seed), slab, float(radius))
+    for name, seed, slab, radius in map(str.split, SLAB_TABLE.strip().splitlines())
 )
 """(scenario, noise seed, slab, probe radius [mm]) of the scikit-fem datasets."""
 
