@@ -1,18 +1,19 @@
 """How exact is the linearised overfitting guard? Every check of the loop, also refitted.
 
 The loop's left-out-contact guard (``solvers.diagnosis.guard``) takes its left-out
-refits as one Gauss-Newton step from the fits to every case, and refits exactly only
-where that improvement is within ``CLEAR_MARGIN`` of zero. This study runs the default
-diagnosis (step 0, then the loop) on FE data of two other codes, with every check
-decided by the exact refits and its linearised twin computed beside it, and lists
-both: the margin must exceed what the step can miss by near zero.
+refits as one Gauss-Newton step from the fits to every case, near zero as two, and
+refits exactly only where even that improvement is too near zero. This study runs the
+default diagnosis (step 0, then the loop) on FE data of two other codes, with every
+check decided by the exact refits and its linearised and refined twins computed beside
+it, and lists the three: the margins must exceed what the steps can miss by near zero.
 
 The datasets: the scikit-fem slabs of ``experiments.diagnosis.continuumstudy`` (its
 scenarios, seeds other than the benchmark's 1, three slab geometries: tissue 5, 10 and
 15 mm beyond the markers, free or clamped, and probe radii of 3-5 mm) and the Q2 tissue
 patches of ``experiments.diagnosis.defaults`` (rows A-H, and row A with each injected
 departure). The table of docs/diagnosis.md ("the loop and its stopping rules") came
-from ``python -m experiments.diagnosis.guardstudy`` (about 40 minutes on 2 cores).
+from ``python -c "from experiments.diagnosis.guardstudy import main; main()"`` (about
+40 minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -56,19 +57,25 @@ TISSUE_JOBS = tuple((row, None) for row in "ABCDEFGH") + tuple(
 @contextmanager
 def recorded_checks(rows: list):
     """Within the block, every guard check of the loop is decided by the exact refits
-    and appended to ``rows`` with its linearised twin."""
+    and appended to ``rows`` with its linearised and refined twins."""
     from solvers.diagnosis import guard, loop
 
     original = loop.prediction_check
 
     def exact_and_linearised(previous, new, sigma, cache=None, exact=False):
         check = original(previous, new, sigma, cache, exact=True)
-        twin = guard._check(previous, new, sigma, {}, guard.linearised_left_out, "linearised")
+        twins = {
+            name: guard._check(previous, new, sigma, {}, predict, name).improvement
+            for name, predict in (
+                ("linearised", guard.linearised_left_out),
+                ("refined", guard.refined_left_out),
+            )
+        }
         rows.append(
             {
                 "effects": [e.name for e in new.problem.effects],
                 "exact": check.improvement,
-                "linearised": twin.improvement,
+                **twins,
                 "folds": len(check.held_out),
             }
         )
@@ -96,7 +103,7 @@ def datasets():
 
 
 def run(log=print) -> list[dict]:
-    """Every check of the default diagnosis of every dataset, exact and linearised."""
+    """Every check of the default diagnosis of every dataset: exact, linearised, refined."""
     from experiments.diagnosis.diagnose import diagnose_dataset
 
     rows: list[dict] = []
@@ -113,10 +120,9 @@ def run(log=print) -> list[dict]:
 
 def table_line(row: dict) -> str:
     """One check as a line of the table."""
-    gap = abs(row["exact"] - row["linearised"])
     return (
         f"| {row['dataset']} | {' + '.join(row['effects'])} | {row['exact']:.2f} | "
-        f"{row['linearised']:.2f} | {gap:.2f} |"
+        f"{row['linearised']:.2f} | {row['refined']:.2f} |"
     )
 
 
@@ -126,12 +132,8 @@ def main() -> int:
 
     configure()
     rows = run(log=lambda _: None)
-    print("| data | effects | exact | linearised | gap |")
+    print("| data | effects | exact | linearised | refined |")
     print("|---|---|---|---|---|")
     for row in sorted(rows, key=lambda r: abs(r["exact"])):
         print(table_line(row))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -21,20 +21,31 @@ The refits are first taken as one Gauss-Newton step from the fit to every case
 cases' rows, whitened with their own noise model, and fold h's residual by its rows of
 the Jacobian times that step (its nuisance parameters re-solved the same way). That
 needs no new equilibrium: the Jacobian is the fit's. It is exact for a residual linear
-in p; where the improvement it gives is within ``CLEAR_MARGIN`` of zero, the exact
-refits decide, started from that step.
+in p. Where the improvement it gives is within ``CLEAR_MARGIN`` of zero, the step is
+taken again from where it lands (``refined_left_out``: every case evaluated there, one
+factorisation of K(p) per fold), and where that improvement is still within
+``REFINED_MARGIN`` of zero, the exact refits decide, started from the first step
+(docs/diagnosis.md gives the gaps measured between the three).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
 
 CLEAR_MARGIN = 10.0
-"""A linearised improvement within this of zero (chi^2 units) is decided by exact refits."""
+"""A linearised improvement within this of zero (chi^2 units) is taken again, refined."""
+
+REFINED_MARGIN = 2.0
+"""A refined improvement within this of zero (chi^2 units) is decided by exact refits."""
+
+STEP_FACTOR = 2.0
+"""So is a refined improvement within this many times the second step's change of it
+of zero: the steps converge slowly there (measured: the refined improvement was within
+0.4 times that change of the refits' on the continuum, docs/diagnosis.md)."""
 
 
 @dataclass
@@ -208,6 +219,18 @@ def linearised_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float
     return float(rho @ rho) / sigma**2, len(nuisance)
 
 
+def refined_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, int]:
+    """``linearised_left_out`` taken twice: every case is evaluated where the first
+    Gauss-Newton step without ``held`` lands (one factorisation of K(p)), and the step
+    and the prediction are taken again from there, with that point's residual and
+    Jacobian. Returns what ``predict_left_out`` returns.
+    """
+    held = [held] if np.isscalar(held) else list(held)
+    moved = model_fit.p + _left_out_step(model_fit, held)[0]
+    there = fit(model_fit.problem, moved, np.zeros(moved.size, dtype=bool))
+    return linearised_left_out(replace(there, free=model_fit.free), held, sigma)
+
+
 def prediction_check(
     previous: EffectFit,
     new: EffectFit,
@@ -218,7 +241,9 @@ def prediction_check(
     """Leave-one-fold-out comparison of ``previous`` and ``new`` (see module docstring).
 
     By one Gauss-Newton step from each full fit, unless ``exact`` or the resulting
-    improvement is within ``CLEAR_MARGIN`` of zero: then by refits.
+    improvement is within ``CLEAR_MARGIN`` of zero; then by two steps, unless that
+    improvement is within ``REFINED_MARGIN`` of zero or within ``STEP_FACTOR`` times
+    the second step's change of it: then by refits.
     """
     cache = {} if cache is None else cache
     linearised = None
@@ -228,6 +253,11 @@ def prediction_check(
             check.linearised_improvement = check.improvement
             return check
         linearised = check.improvement
+        check = _check(previous, new, sigma, cache, refined_left_out, "refined")
+        check.linearised_improvement = linearised
+        moved = abs(check.improvement - linearised)  # what the second step changed
+        if abs(check.improvement) >= max(REFINED_MARGIN, STEP_FACTOR * moved):
+            return check
     check = _check(previous, new, sigma, cache, predict_left_out, "exact")
     check.linearised_improvement = linearised
     return check
