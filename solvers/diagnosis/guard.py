@@ -24,8 +24,9 @@ needs no new equilibrium: the Jacobian is the fit's. It is exact for a residual 
 in p. Where the improvement it gives is within ``CLEAR_MARGIN`` of zero, the step is
 taken again from where it lands (``refined_left_out``: every case evaluated there, one
 factorisation of K(p) per fold), and where that improvement is still within
-``REFINED_MARGIN`` of zero, the exact refits decide, started from the first step
-(docs/diagnosis.md gives the gaps measured between the three).
+``REFINED_MARGIN`` of zero, or within ``STEP_FACTOR`` times what the second step changed,
+the exact refits decide, started from the first step (docs/diagnosis.md gives the gaps
+measured between the three).
 """
 
 from __future__ import annotations
