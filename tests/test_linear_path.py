@@ -219,7 +219,7 @@ def test_guard_falls_back_to_refits_near_zero(paper, monkeypatch):
     assert guard.prediction_check(base_fit, new, 0.02).method == "linearised"
 
 
-def test_the_guard_study_records_each_check_refitted_with_its_linearised_twin(paper):
+def test_the_guard_study_records_each_check_refitted_with_its_twins(paper):
     """``experiments.diagnosis.guardstudy`` decides a check by the refits, whatever its
     linearised improvement, records both, and puts the loop's guard back."""
     from experiments.diagnosis.guardstudy import recorded_checks

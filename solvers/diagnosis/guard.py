@@ -119,12 +119,6 @@ def folds(problem) -> list[list[int]]:
     return [[position] for position in problem.positions]
 
 
-GUARD_TOLERANCE = STATISTICAL_TOLERANCE
-"""ftol, xtol and gtol of the exact left-out refits: the comparison needs each fold's
-chi^2 to about 0.01, and with ftol 1e-7 a training chi^2 of 10^4 stops within 10^-3
-(the fits' default, 1e-10, spent one or two more factorisations of K(p) per refit)."""
-
-
 def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, int]:
     """chi^2 of the prediction of base cases ``held`` after fitting the other cases.
 
@@ -141,14 +135,14 @@ def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
     if model_fit.raw_jacobian is not None:
         moved = model_fit.p + _left_out_step(model_fit, held)[0]
     start, _ = _mapped(problem.labels, moved, train_problem)
-    trained = fit(train_problem, start, tolerance=GUARD_TOLERANCE)
+    trained = fit(train_problem, start, tolerance=STATISTICAL_TOLERANCE)
     if not trained.success:  # the linear step led somewhere K(p) cannot go: from the fit
         start, _ = _mapped(problem.labels, model_fit.p, train_problem)
-        trained = fit(train_problem, start, tolerance=GUARD_TOLERANCE)
+        trained = fit(train_problem, start, tolerance=STATISTICAL_TOLERANCE)
     test_problem = problem.with_effects(problem.effects, positions=held)
     start, free = _mapped(train_problem.labels, trained.p, test_problem)
     if free.any():
-        predicted = fit(test_problem, start, free, tolerance=GUARD_TOLERANCE)
+        predicted = fit(test_problem, start, free, tolerance=STATISTICAL_TOLERANCE)
         rho = predicted.whitened
     else:
         r, _, _ = test_problem.evaluate(start)
