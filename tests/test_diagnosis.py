@@ -178,14 +178,16 @@ def test_contenders_are_refitted_from_the_screen_and_keep_the_rules(monkeypatch)
 
     monkeypatch.setattr(loop, "_refit", refit)
     monkeypatch.setattr(loop, "_step", step)
-    monkeypatch.setattr(loop, "_pushed_to_bounds", lambda current, fit: [])
+    monkeypatch.setattr(loop, "stand_in_reason", lambda current, fit, effect: None)
+    monkeypatch.setattr(loop, "bic_improves", lambda previous, other, phi: other.bic < previous.bic)
     previous = NS(residual=NS(statistic=100.0), bic=200.0)
     accepted = NS(effect="a", residual=NS(statistic=80.0))
     ranked = [
         NS(effect=n, statistic=t, p_value=0.0)
         for n, t in (("a", 20.0), ("b", 18.0), ("c", 15.0), ("e", 12.0), ("d", 5.0))
     ]
-    contenders = loop._contenders(None, accepted, previous, ranked, dict.fromkeys("abcde"), 0.02)
+    library = dict.fromkeys("abcde")
+    contenders = loop._contenders(None, accepted, previous, ranked, library, 0.02, 1.0)
     assert [c.effect for c in contenders] == ["b", "c"]  # e: BIC worse
     assert refitted == ["b", "c", "e"]  # d's score 5 is under half the drop of 20
 
@@ -201,11 +203,16 @@ def test_settle_takes_the_contender_that_explains_far_more():
 
     previous = step(None, 100.0)
     accepted, close, far = step("a", 80.0), step("b", 78.0), step("c", 40.0)
-    chosen = _settle(accepted, [close], previous, 3.84, lambda s: True)
+    chosen = _settle(accepted, [close], previous, 3.84, lambda s: True, 1.0)
     assert chosen is accepted and [r["effect"] for r in chosen.rivals] == ["b"]
-    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: True)
+    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: True, 1.0)
     assert chosen is far and chosen.rivals == []  # a and b drop 20-22, c drops 60
-    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: s is not far)
+    # with model error (dispersion 20) the drops are 1-1.1 and 3: c is within the margin
+    accepted, close, far = step("a", 80.0), step("b", 78.0), step("c", 40.0)
+    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: True, 20.0)
+    assert chosen is accepted and [r["effect"] for r in chosen.rivals] == ["b", "c"]
+    accepted, close, far = step("a", 80.0), step("b", 78.0), step("c", 40.0)
+    chosen = _settle(accepted, [close, far], previous, 3.84, lambda s: s is not far, 1.0)
     assert chosen is accepted  # the guard rejects c; b is still within the margin
     assert [r["effect"] for r in chosen.rivals] == ["b"]
 

@@ -1,98 +1,65 @@
-"""The overfitting guard: does an added effect predict a left-out load case better?
+"""The overfitting guard: does an added effect predict left-out data better than chance?
 
 The folds are the contact points when the cases press on two or more of them
 (all forces at one contact are left out together: the model must predict the
 response at a point it has not seen), else the single load cases. For every
 fold h in turn, both the previous model and the model with the new effect are
 fitted to the other cases, and then predict fold h with their shared
-parameters fixed. Per-capture nuisance parameters of fold h (rigid motion,
-measurement scale) cannot be predicted; they are fitted to fold h alone, and
-since each such parameter lowers a pure-noise chi^2 by 1 on average, their
-number is charged:
+parameters fixed. Per-capture parameters of fold h (rigid motion, measurement
+scale) cannot come from the other cases; they are predicted across the fold's own
+markers instead: fitted to one half of its markers (two opposite quadrants about
+their centroid, in the skin's principal axes) and predicting the other half, and
+the other way round (``halves``). So every residual of the fold is predicted from data
+it was not fitted on, and
 
-    improvement = sum_h (chi^2_before,h - chi^2_after,h) - (n_after - n_before),
+    G = sum_h (chi^2_before,h - chi^2_after,h),                             (G1)
 
-with chi^2_h = |W_h r_h|^2 / sigma^2 of the prediction and n the number of
-nuisance parameters fitted to the left-out cases. The effect passes when the
-improvement is positive.
+with chi^2_h = |W_h r_h|^2 / sigma^2 of the prediction (W_h couples a marker's rows
+across the fold's cases only, so each half is whitened on its own).
+
+**Better than chance.** A model with model error predicts its folds with the
+dispersion phi >= 1 of ``solvers.diagnosis.leftout`` (G2). An improvement of G by
+chance alone is at most about chi^2 with k degrees of freedom (k the shared parameters
+the effect adds: G does not exceed their in-sample drop on average), in units of
+phi sigma^2 (quasi-likelihood). The effect predicts better than chance when
+
+    G / phi_after > chi^2_k(1 - level),                                     (G3)
+
+phi_after the dispersion of the model with the effect, the larger model (as the
+denominator of an F test).
 
 The refits are first taken as one Gauss-Newton step from the fit to every case
 (``linearised_left_out``): without fold h the optimum moves by the step on the other
 cases' rows, whitened with their own noise model, and fold h's residual by its rows of
 the Jacobian times that step (its nuisance parameters re-solved the same way). That
 needs no new equilibrium: the Jacobian is the fit's. It is exact for a residual linear
-in p. Where the improvement it gives is within ``CLEAR_MARGIN`` of zero, the step is
+in p. Where G lands within ``CLEAR_MARGIN`` of the boundary of (G3), the step is
 taken again from where it lands (``refined_left_out``: every case evaluated there, one
-factorisation of K(p) per fold), and where that improvement is still within
-``REFINED_MARGIN`` of zero, or within ``STEP_FACTOR`` times what the second step changed,
-the exact refits decide, started from the first step (docs/diagnosis.md gives the gaps
-measured between the three).
+factorisation of K(p) per fold), and where that is still within ``REFINED_MARGIN`` of
+the boundary, or within ``STEP_FACTOR`` times what the second step changed, the exact
+refits decide, started from the first step (docs/diagnosis.md gives the gaps measured
+between the three).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
+from solvers.diagnosis.leftout import LEVEL, LeftOut, PredictionCheck
 
 CLEAR_MARGIN = 10.0
-"""A linearised improvement within this of zero (chi^2 units) is taken again, refined."""
+"""A linearised G within this of the boundary of (G3) (chi^2 units) is taken again, refined."""
 
 REFINED_MARGIN = 2.0
-"""A refined improvement within this of zero (chi^2 units) is decided by exact refits."""
+"""A refined G within this of the boundary (chi^2 units) is decided by exact refits."""
 
 STEP_FACTOR = 2.0
-"""So is a refined improvement within this many times the second step's change of it
-of zero: the steps converge slowly there (measured on 15 continuum checks: the refined
+"""So is a refined G within this many times the second step's change of it of the
+boundary: the steps converge slowly there (measured on 15 continuum checks: the refined
 improvement was within 0.56 times that change of the refits', docs/diagnosis.md)."""
-
-
-@dataclass
-class PredictionCheck:
-    """Left-out prediction of every load case, before and after adding an effect."""
-
-    held_out: list[list[int]]
-    chi2_before: list[float]
-    chi2_after: list[float]
-    nuisance_before: int
-    nuisance_after: int
-    method: str = "exact"
-    linearised_improvement: float | None = None
-
-    @property
-    def improvement(self) -> float:
-        """Drop of the summed prediction chi^2, less the extra nuisance parameters."""
-        drop = float(np.sum(self.chi2_before) - np.sum(self.chi2_after))
-        return drop - (self.nuisance_after - self.nuisance_before)
-
-    @property
-    def improves(self) -> bool:
-        """True when the new model predicts the left-out cases better."""
-        return self.improvement > 0.0
-
-    def reason(self) -> str:
-        """One line for reports."""
-        return (
-            f"left-out prediction chi2 {np.sum(self.chi2_before):.1f} -> "
-            f"{np.sum(self.chi2_after):.1f} ({self.nuisance_after - self.nuisance_before} "
-            f"nuisance parameters charged): {'better' if self.improves else 'not better'}"
-        )
-
-    def record(self) -> dict:
-        """As in diagnosis.json."""
-        return {
-            "held_out": self.held_out,
-            "chi2_before": self.chi2_before,
-            "chi2_after": self.chi2_after,
-            "nuisance_before": self.nuisance_before,
-            "nuisance_after": self.nuisance_after,
-            "improvement": self.improvement,
-            "improves": self.improves,
-            "method": self.method,
-            "linearised_improvement": self.linearised_improvement,
-        }
 
 
 def _mapped(source_labels, source_p, target) -> tuple[np.ndarray, np.ndarray]:
@@ -124,8 +91,10 @@ def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
 
     ``held`` is one position or a list of them. The training fit starts from the
     Gauss-Newton step of ``linearised_left_out`` (exact for a residual linear in p, so
-    the refit only corrects its curvature). Returns the chi^2 and the number of
-    nuisance parameters fitted to the held cases.
+    the refit only corrects its curvature). The held cases' per-capture parameters are
+    fitted to them and predicted across their marker halves by one Gauss-Newton step from
+    that fit (``across_halves``; exact where they enter linearly). Returns the chi^2 and
+    the number of those parameters.
     """
     held = [held] if np.isscalar(held) else list(held)
     problem = model_fit.problem
@@ -141,9 +110,10 @@ def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
         trained = fit(train_problem, start, tolerance=STATISTICAL_TOLERANCE)
     test_problem = problem.with_effects(problem.effects, positions=held)
     start, free = _mapped(train_problem.labels, trained.p, test_problem)
-    if free.any():
+    if free.any():  # fitted to the whole fold, then predicted across its halves
         predicted = fit(test_problem, start, free, tolerance=STATISTICAL_TOLERANCE)
-        rho = predicted.whitened
+        columns = predicted.jacobian[:, free]
+        rho = across_halves(predicted.whitened, columns, halves(test_problem))
     else:
         r, _, _ = test_problem.evaluate(start)
         rho = test_problem.whiten(r)
@@ -199,8 +169,9 @@ def linearised_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float
 
     (P the priors' rows), and the held cases' nuisance entries N (per-capture
     parameters the training cases do not have) by the least squares of
-    W_H (r_H + J_H delta + J_H,N delta_N). Returns the chi^2 of that prediction and
-    the number of nuisance parameters, as ``predict_left_out``.
+    W_H (r_H + J_H delta + J_H,N delta_N) over one half of the held markers, predicting
+    the other half (``across_halves``). Returns the chi^2 of that prediction and the
+    number of nuisance parameters, as ``predict_left_out``.
     """
     held = [held] if np.isscalar(held) else list(held)
     problem = model_fit.problem
@@ -210,8 +181,35 @@ def linearised_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float
     rho = test_problem.whiten(r[h_rows] + jacobian[h_rows] @ delta)
     if nuisance:
         columns = test_problem.whiten(jacobian[np.ix_(h_rows, nuisance)])
-        rho = rho - columns @ np.linalg.lstsq(columns, rho, rcond=None)[0]
+        rho = across_halves(rho, columns, halves(test_problem))
     return float(rho @ rho) / sigma**2, len(nuisance)
+
+
+def halves(problem) -> np.ndarray:
+    """Which whitened residual rows of ``problem``'s cases belong to the first half of the
+    markers: two opposite quadrants about the markers' centroid, in the principal axes of
+    their rest positions (the skin's plane), the same markers in every case. Rows are
+    each case's x, y, z blocks in turn (``solvers.inverse.noise.rest_noise_map``), so a
+    marker's rows, which the whitening couples across cases, fall in one half."""
+    points = np.vstack([case.rest_points for case in problem.cases])
+    centre = points.mean(axis=0)
+    _, _, axes = np.linalg.svd(points - centre, full_matrices=False)
+    masks = []
+    for case in problem.cases:
+        a, b = ((case.rest_points - centre) @ axes[:2].T).T
+        masks.append(np.tile(a * b >= 0.0, 3))
+    return np.concatenate(masks)
+
+
+def across_halves(rho: np.ndarray, columns: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """rho with the parameters of ``columns`` fitted to one half of the rows (``first``
+    or not) and predicting the other, both ways: every row predicted from rows it was not
+    fitted on (linear least squares, whitened)."""
+    out = np.array(rho, dtype=float)
+    for fitted in (first, ~first):
+        step = np.linalg.lstsq(columns[fitted], rho[fitted], rcond=None)[0]
+        out[~fitted] = rho[~fitted] - columns[~fitted] @ step
+    return out
 
 
 def refined_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, int]:
@@ -226,53 +224,96 @@ def refined_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
     return linearised_left_out(replace(there, free=model_fit.free), held, sigma)
 
 
+def added_dof(previous: EffectFit, new: EffectFit) -> float:
+    """k of eq. (G3): the effective degrees of freedom ``new`` adds to ``previous`` that a
+    left-out fold inherits, i.e. without the per-capture parameters (at least 1)."""
+    known = {e.name for e in previous.problem.effects}
+    per_case = sum(
+        e.dim * len(new.problem.positions)
+        for e in new.problem.effects
+        if e.per_case and e.name not in known
+    )
+    return max(new.effective_dof() - previous.effective_dof() - per_case, 1.0)
+
+
 def prediction_check(
     previous: EffectFit,
     new: EffectFit,
     sigma: float,
     cache: dict | None = None,
     exact: bool = False,
+    level: float = LEVEL,
 ) -> PredictionCheck:
     """Leave-one-fold-out comparison of ``previous`` and ``new`` (see module docstring).
 
-    By one Gauss-Newton step from each full fit, unless ``exact`` or the resulting
-    improvement is within ``CLEAR_MARGIN`` of zero; then by two steps, unless that
-    improvement is within ``REFINED_MARGIN`` of zero or within ``STEP_FACTOR`` times
-    the second step's change of it: then by refits.
+    By one Gauss-Newton step from each full fit, unless ``exact`` or G lands within
+    ``CLEAR_MARGIN`` of the boundary of (G3); then by two steps, unless G is within
+    ``REFINED_MARGIN`` of it or within ``STEP_FACTOR`` times the second step's change
+    of it: then by refits.
     """
     cache = {} if cache is None else cache
     linearised = None
+    k = added_dof(previous, new)
     if not exact and previous.raw_jacobian is not None and new.raw_jacobian is not None:
-        check = _check(previous, new, sigma, cache, linearised_left_out, "linearised")
-        if abs(check.improvement) >= CLEAR_MARGIN:
+        check = _check(previous, new, sigma, cache, linearised_left_out, "linearised", k, level)
+        if abs(check.distance) >= CLEAR_MARGIN:
             check.linearised_improvement = check.improvement
             return check
-        linearised = check.improvement
-        check = _check(previous, new, sigma, cache, refined_left_out, "refined")
+        linearised, first = check.improvement, check.distance
+        check = _check(previous, new, sigma, cache, refined_left_out, "refined", k, level)
         check.linearised_improvement = linearised
-        moved = abs(check.improvement - linearised)  # what the second step changed
-        if abs(check.improvement) >= max(REFINED_MARGIN, STEP_FACTOR * moved):
+        moved = abs(check.distance - first)  # what the second step changed
+        if abs(check.distance) >= max(REFINED_MARGIN, STEP_FACTOR * moved):
             return check
-    check = _check(previous, new, sigma, cache, predict_left_out, "exact")
+    check = _check(previous, new, sigma, cache, predict_left_out, "exact", k, level)
     check.linearised_improvement = linearised
     return check
 
 
-def _check(previous, new, sigma, cache, predict, method: str) -> PredictionCheck:
+def _key(method: str, model_fit: EffectFit, held) -> tuple:
+    """A left-out prediction's cache key: the base problem too, as a revisit changes it
+    under the same effect names."""
+    names = tuple(e.name for e in model_fit.problem.effects)
+    return (method, id(model_fit.problem.base), names, tuple(held))
+
+
+def _predicted(cache: dict, method: str, predict, model_fit: EffectFit, held, sigma):
+    """``predict(model_fit, held, sigma)``, kept in ``cache``."""
+    key = _key(method, model_fit, held)
+    if key not in cache:
+        cache[key] = predict(model_fit, held, sigma)
+    return cache[key]
+
+
+def _check(
+    previous, new, sigma, cache, predict, method: str, k: float = 1.0, level: float = LEVEL
+) -> PredictionCheck:
     """The comparison with one way of predicting a fold (``predict``)."""
     held_out, before, after = [], [], []
     n_before = n_after = 0
     for held in folds(new.problem):
-        # the base problem too: a revisit changes it under the same effect names
-        base = id(previous.problem.base)
-        key = (method, base, tuple(e.name for e in previous.problem.effects), tuple(held))
-        if key not in cache:
-            cache[key] = predict(previous, held, sigma)
-        chi2_before, nuisance = cache[key]
-        chi2_after, nuisance_after = predict(new, held, sigma)
-        held_out.append([int(new.problem.indices[k]) for k in held])
+        chi2_before, nuisance = _predicted(cache, method, predict, previous, held, sigma)
+        chi2_after, nuisance_after = _predicted(cache, method, predict, new, held, sigma)
+        held_out.append([int(new.problem.indices[position]) for position in held])
         before.append(chi2_before)
         after.append(chi2_after)
         n_before += nuisance
         n_after += nuisance_after
-    return PredictionCheck(held_out, before, after, n_before, n_after, method)
+    rows = int(new.whitened.size)
+    return PredictionCheck(held_out, before, after, n_before, n_after, method, None, rows, k, level)
+
+
+def left_out(model_fit: EffectFit, sigma: float, cache: dict | None = None) -> LeftOut:
+    """The left-out prediction of ``model_fit`` (linearised, ``linearised_left_out``) over
+    its folds; with a single fold, the in-sample chi^2 over m - k instead."""
+    groups = folds(model_fit.problem)
+    rows = int(model_fit.whitened.size)
+    if len(groups) < 2 or model_fit.raw_jacobian is None:
+        fitted = int(round(model_fit.effective_dof()))
+        return LeftOut(model_fit.cost / sigma**2, rows, fitted, "in-sample")
+    cache = {} if cache is None else cache
+    chi2 = sum(
+        _predicted(cache, "linearised", linearised_left_out, model_fit, held, sigma)[0]
+        for held in groups
+    )
+    return LeftOut(float(chi2), rows)

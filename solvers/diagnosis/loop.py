@@ -1,23 +1,28 @@
-"""The discrepancy loop: residual -> candidate effect -> refit (issue 6; docs/diagnosis.md).
+"""The discrepancy loop: residual -> candidate effect -> refit (docs/diagnosis.md).
 
 1. Fit the base model (nested, whitened least squares; ``solvers.diagnosis.fit``).
 2. Test the residual against the noise: chi^2 of |W r|^2 / sigma^2, where
    W^-2 = I + P P^T carries the rest-marker noise that all load cases share.
 3. Score-test every candidate effect at theta = 0 (``solvers.diagnosis.stats``): one
    linearisation each, no refit.
-4. Take the most significant candidate (Bonferroni over the candidates left),
-   refit with it, and keep it if the refit keeps the parameters the model
-   already had off their bounds (``BOUND_MARGIN``), the BIC improves and,
-   with two or more load cases, it predicts a left-out case better
-   (``solvers.diagnosis.guard``); else try the next significant one. Repeat until no
-   candidate is significant, none is accepted, or ``max_effects``
-   are in (optionally also stop as soon as the residual is consistent with
-   the noise, ``stop_when_consistent``).
+4. Take the most significant candidate (Bonferroni over the candidates left, the
+   statistics divided by the current model's dispersion phi, ``solvers.diagnosis.leftout``),
+   refit with it and judge it (``_judge``): it is rejected when the BIC (chi^2 / phi +
+   k log m) does not improve; it is a **stand-in** (lowers the residual, is no cause:
+   ``Diagnosis.stand_ins``, never selected) when the refit puts a parameter the model
+   already had on a bound (``BOUND_MARGIN``), ends on one of its own bounds other than
+   its null value, leaves its plausible range for tissue (``Effect.plausible``), or,
+   with two or more load cases, does not predict left-out cases better than chance
+   (eq. G3, ``solvers.diagnosis.guard``); else it is accepted. Otherwise try the next
+   significant one. Repeat until no candidate is significant, none is accepted, or
+   ``max_effects`` are in (optionally also stop as soon as the residual is consistent
+   with the noise, ``stop_when_consistent``).
    With ``revisit`` (a continuum chosen by step 0), the surroundings are searched
    again with each accepted effect in, and (while the residual is significant) with a
    candidate the guard rejects, which is judged again on the surroundings it prefers
    (``experiments.basemodel.revisit``).
-5. ``unexplained`` is true when the final residual is still significant.
+5. ``unexplained`` is true when the final residual is still significant; the model
+   error that remains is the final model's left-out dispersion (eq. G4).
 6. Rivals: after an effect is accepted, the other significant candidates of the
    round whose score reaches ``RIVAL_SCREEN`` of the accepted chi^2 drop are refitted
    too (same bound and BIC rules). One whose drop beats the accepted one's by more
@@ -41,8 +46,10 @@ import numpy as np
 
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
-from solvers.diagnosis.guard import prediction_check
+from solvers.diagnosis.guard import left_out, prediction_check
+from solvers.diagnosis.leftout import chance
 from solvers.diagnosis.record import Diagnosis, DiagnosisSettings, Step
+from solvers.diagnosis.standin import bic_improves, stand_in_reason
 from solvers.diagnosis.stats import (
     ScoreTest,
     bic,
@@ -68,56 +75,37 @@ def _step(effect, current: EffectFit, sigma: float, statistic=None, p_value=None
     )
 
 
-BOUND_MARGIN = 0.01
-"""A parameter within this fraction of its internal range from a bound sits on it
-(for alpha, estimated in log space over [0.01, 100] N/mm: within 10 % of a bound)."""
-
-
-def _on_bounds(fit: EffectFit) -> np.ndarray:
-    """Entries of p on (or within ``BOUND_MARGIN`` of) a bound, in internal coordinates."""
-    problem = fit.problem
-    z = problem.to_internal(fit.p)
-    lower, upper = problem.to_internal(problem.lower), problem.to_internal(problem.upper)
-    margin = BOUND_MARGIN * (upper - lower)
-    return (z - lower <= margin) | (upper - z <= margin)
-
-
-def _pushed_to_bounds(current: EffectFit, refit: EffectFit) -> list[str]:
-    """Parameters of the current model that only the refit puts on a bound.
-
-    An effect that explains the residual by driving the model it extends to the
-    edge of its parameter space is standing in for something else (a regular
-    estimate is interior, and the chi^2 gain of a fit against a bound is no
-    evidence for the effect); the loop does not accept it.
-    """
-    before = _on_bounds(current)
-    after = _on_bounds(refit)[: before.size] & current.free
-    return [label for label, b, a in zip(current.problem.labels, before, after) if a and not b]
-
-
 RIVAL_SCREEN = 0.5
 """A candidate is refitted as a possible rival when its score statistic reaches this
 fraction of the accepted effect's chi^2 drop."""
 
 
-def _contenders(current, accepted, previous, ranked, library, sigma) -> list[Step]:
-    """The other significant candidates of the round, refitted, that keep the bound and
-    BIC rules; only those whose score reaches ``RIVAL_SCREEN`` of the accepted drop."""
-    drop = previous.residual.statistic - accepted.residual.statistic
+def _drop(previous: Step, step: Step, phi: float) -> float:
+    """The chi^2 drop from ``previous`` to ``step``, divided by the dispersion."""
+    return (previous.residual.statistic - step.residual.statistic) / phi
+
+
+def _contenders(current, accepted, previous, ranked, library, sigma, phi) -> list[Step]:
+    """The other significant candidates of the round, refitted, that keep the BIC rule
+    and are no stand-ins by their bounds; only those whose score reaches
+    ``RIVAL_SCREEN`` of the accepted drop."""
+    drop = _drop(previous, accepted, phi)
     steps = []
     for test in ranked:
         if test.effect == accepted.effect or test.statistic < RIVAL_SCREEN * drop:
             continue
         refit = _refit(current, library[test.effect], test)
         other = _step(test.effect, refit, sigma, test.statistic, test.p_value)
-        if not _pushed_to_bounds(current, refit) and other.bic < previous.bic:
+        if stand_in_reason(current, refit, library[test.effect]) is None and bic_improves(
+            previous, other, phi
+        ):
             steps.append(other)
     return steps
 
 
-def _settle(accepted, contenders, previous, margin, guard) -> Step:
-    """The accepted step, or a contender whose chi^2 drop beats it by more than
-    ``margin`` and passes ``guard``; its ``rivals`` are the others within ``margin``.
+def _settle(accepted, contenders, previous, margin, guard, phi) -> Step:
+    """The accepted step, or a contender whose chi^2 drop (over phi) beats it by more
+    than ``margin`` and passes ``guard``; its ``rivals`` are the others within ``margin``.
 
     The score order is local; when a refit shows another candidate explaining far more
     (on the diagnosis design a probe twice the declared radius: contact_patch lowered
@@ -126,7 +114,7 @@ def _settle(accepted, contenders, previous, margin, guard) -> Step:
     """
 
     def drop(step):
-        return previous.residual.statistic - step.residual.statistic
+        return _drop(previous, step, phi)
 
     for other in sorted(contenders, key=drop, reverse=True):
         if drop(other) <= drop(accepted) + margin:
@@ -195,103 +183,194 @@ def diagnose(
     """
     with one_thread():
         quiet = log or (lambda *_: None)
-        return _diagnose(base, loads, settings or DiagnosisSettings(), quiet, start, revisit)
+        return _Loop(base, loads, settings or DiagnosisSettings(), quiet, revisit).run(start)
 
 
-def _diagnose(
-    base, loads: list, settings: DiagnosisSettings, log, start=None, revisit=None
-) -> Diagnosis:
-    """``diagnose``'s loop."""
-    library = effect_library(settings.candidates, base.model.energy)
-    if start is None:
-        current = fit(ExtendedProblem(base, loads, []), tolerance=STATISTICAL_TOLERANCE)
-    else:
-        current = fit(start.problem, start.p, states=start.states, tolerance=STATISTICAL_TOLERANCE)
-    if base.noise_mm is not None:
-        sigma, source = float(base.noise_mm), "given"
-    else:
-        sigma, source = robust_sigma(current), "estimated (1.4826 median |W r|)"
-    current.problem.sigma = sigma  # scales the priors of the problems derived from it
-    steps = [_step(None, current, sigma)]
-    log(_line(steps[-1]))
-    rejected: list[dict] = []
-    guard_cache: dict = {}
+class _Loop:
+    """``diagnose``'s state: the library, the noise, the guard's cache, what was
+    rejected and what stood in."""
 
-    def predicts_better(step: Step, current: EffectFit) -> bool:
-        """The overfitting guard (two or more load cases); records ``step.prediction``."""
-        if not (settings.cross_validate and len(base.cases) >= 2):
-            return True
-        step.prediction = prediction_check(current, step.fit, sigma, guard_cache)
+    def __init__(self, base, loads, settings: DiagnosisSettings, log, revisit) -> None:
+        self.base, self.loads, self.settings, self.log = base, loads, settings, log
+        self.revisit = revisit
+        self.library = effect_library(settings.candidates, base.model.energy)
+        self.cache: dict = {}
+        self.rejected: list[dict] = []
+        self.stand_ins: list[dict] = []
+        self.dominant: list[Step] = []
+        """The round's stand-ins by their bounds or size (``undominated``)."""
+        self.sigma = 0.0
+
+    def predicts_better(self, step: Step, current: EffectFit) -> bool:
+        """The overfitting guard (two or more load cases; G3), recorded as
+        ``step.prediction``; with one case the in-sample drop over phi must beat chance."""
+        if not (self.settings.cross_validate and len(self.base.cases) >= 2):
+            step.left_out = left_out(step.fit, self.sigma, self.cache)
+            k = max(step.fit.effective_dof() - current.effective_dof(), 1.0)
+            drop = (current.cost - step.fit.cost) / self.sigma**2
+            return drop / step.left_out.dispersion > chance(self.settings.level, k)
+        step.prediction = prediction_check(
+            current, step.fit, self.sigma, self.cache, level=self.settings.level
+        )
+        step.left_out = step.prediction.after
         return step.prediction.improves
 
-    while len(steps) - 1 < settings.max_effects:
-        if settings.stop_when_consistent and not steps[-1].residual.significant(settings.level):
-            break
-        active = current.problem.effects
-        remaining = [e for name, e in library.items() if name not in {a.name for a in active}]
+    def left_out(self, step: Step) -> None:
+        """The step's own left-out prediction (its dispersion phi, eq. G2)."""
+        if step.left_out is None:
+            step.left_out = left_out(step.fit, self.sigma, self.cache)
+
+    def stand_in(self, step: Step, reason: str, previous: Step) -> None:
+        """Record a candidate that lowered the residual but is no cause."""
+        problem = step.fit.problem
+        block = problem.slice_of(step.effect)
+        values = dict(zip(problem.labels[block], map(float, step.fit.p[block])))
+        entry = {
+            "effect": step.effect,
+            "reason": reason,
+            "rms_mm": step.fit.rms()[0],
+            "chi2_drop": float(previous.residual.statistic - step.residual.statistic),
+            "parameters": values,
+        }
+        if step.prediction is not None:
+            entry["prediction"] = step.prediction.record(step.fit.problem.noise_rms(self.sigma))
+        self.stand_ins.append(entry)
+        self.rejected.append({"effect": step.effect, "reason": reason, "stand_in": True})
+        self.log(f"  {step.effect} is a stand-in: {reason}")
+
+    def judge(self, current: EffectFit, previous: Step, test: ScoreTest) -> Step | None:
+        """The refit with ``test``'s effect if it is accepted, else None (recorded as
+        rejected or as a stand-in)."""
+        effect = self.library[test.effect]
+        refit = _refit(current, effect, test)
+        candidate = _step(test.effect, refit, self.sigma, test.statistic, test.p_value)
+        phi = previous.left_out.dispersion
+        if not bic_improves(previous, candidate, phi):
+            self.rejected.append({"effect": test.effect, "reason": "BIC did not improve"})
+            return None
+        reason = stand_in_reason(current, refit, effect)
+        if reason is not None:
+            self.stand_in(candidate, reason, previous)
+            self.dominant.append(candidate)
+            return None
+        if self.predicts_better(candidate, current):
+            return candidate
+        reason = candidate.prediction.reason()
+        unexplained = previous.residual.significant(self.settings.level)
+        moved = self.revisit(refit) if self.revisit is not None and unexplained else None
+        if moved is not None:  # on the surroundings the effect prefers
+            candidate = _moved(candidate, *moved)
+            candidate.left_out = None
+            if self.predicts_better(candidate, current) and bic_improves(previous, candidate, phi):
+                return candidate
+            reason += "; on revisited surroundings " + candidate.prediction.reason()
+        self.stand_in(candidate, reason, previous)
+        return None
+
+    def run(self, start: EffectFit | None) -> Diagnosis:
+        """The loop (module docstring)."""
+        settings, log = self.settings, self.log
+        if start is None:
+            empty = ExtendedProblem(self.base, self.loads, [])
+            current = fit(empty, tolerance=STATISTICAL_TOLERANCE)
+        else:
+            current = fit(
+                start.problem, start.p, states=start.states, tolerance=STATISTICAL_TOLERANCE
+            )
+        if self.base.noise_mm is not None:
+            sigma, source = float(self.base.noise_mm), "given"
+        else:
+            sigma, source = robust_sigma(current), "estimated (1.4826 median |W r|)"
+        self.sigma = sigma
+        current.problem.sigma = sigma  # scales the priors of the problems derived from it
+        steps = [_step(None, current, sigma)]
+        self.left_out(steps[-1])
+        log(_line(steps[-1]))
+        while len(steps) - 1 < settings.max_effects:
+            if settings.stop_when_consistent and not steps[-1].residual.significant(settings.level):
+                break
+            accepted = self.round(current, steps[-1])
+            if accepted is None:
+                break
+            moved = None
+            if self.revisit is not None and not accepted.surroundings:
+                moved = self.revisit(accepted.fit)
+            if moved is not None:
+                accepted = _moved(accepted, *moved)
+                accepted.left_out = None
+            current = accepted.fit
+            current.problem.sigma = sigma
+            self.left_out(accepted)
+            steps.append(accepted)
+            log(_line(accepted))
+        noise_rms = ExtendedProblem(self.base, self.loads, []).noise_rms(sigma)
+        return Diagnosis(
+            steps, sigma, source, noise_rms, settings.level, self.rejected, None, self.stand_ins
+        )
+
+    def round(self, current: EffectFit, previous: Step) -> Step | None:
+        """One round: score tests at the dispersion, then the candidates in their order."""
+        settings = self.settings
+        active = {a.name for a in current.problem.effects}
+        remaining = [e for name, e in self.library.items() if name not in active]
         if not remaining:
-            break
-        tests = [score_test(current, effect, sigma) for effect in remaining]
-        steps[-1].scores = tests
+            return None
+        phi = previous.left_out.dispersion
+        tests = [score_test(current, effect, self.sigma * np.sqrt(phi)) for effect in remaining]
+        previous.scores = tests
         threshold = np.log(settings.level / len(remaining))
         ranked = sorted((t for t in tests if t.log_p < threshold), key=lambda t: t.log_p)
-        log("  score tests: " + ", ".join(f"{t.effect} {t.statistic:.1f}" for t in tests))
-        accepted = None
+        scaled = f" (over dispersion {phi:.3g})" if phi > 1.0 else ""
+        self.log(
+            f"  score tests{scaled}: " + ", ".join(f"{t.effect} {t.statistic:.1f}" for t in tests)
+        )
+        accepted, self.dominant = None, []
         for test in ranked[: settings.max_attempts]:
-            refit = _refit(current, library[test.effect], test)
-            candidate = _step(test.effect, refit, sigma, test.statistic, test.p_value)
-            pushed = _pushed_to_bounds(current, refit)
-            if pushed:
-                reason = f"refit drives {', '.join(pushed)} to a bound"
-                rejected.append({"effect": test.effect, "reason": reason})
-                log(f"  {test.effect} rejected: {reason}")
-                continue
-            if candidate.bic >= steps[-1].bic:
-                rejected.append({"effect": test.effect, "reason": "BIC did not improve"})
-                continue
-            if not predicts_better(candidate, current):
-                reason = candidate.prediction.reason()
-                unexplained = steps[-1].residual.significant(settings.level)
-                moved = revisit(refit) if revisit is not None and unexplained else None
-                if moved is not None:  # on the surroundings the effect prefers
-                    candidate = _moved(candidate, *moved)
-                    if predicts_better(candidate, current) and candidate.bic < steps[-1].bic:
-                        accepted = candidate
-                        break
-                    reason += "; on revisited surroundings " + candidate.prediction.reason()
-                rejected.append({"effect": test.effect, "reason": reason})
-                log(f"  {test.effect} rejected: {reason}")
-                continue
-            accepted = candidate
-            break
-        if accepted is None:
-            break
-        if settings.rival_margin > 0:
-            contenders = _contenders(current, accepted, steps[-1], ranked, library, sigma)
-            chosen = _settle(
-                accepted,
-                contenders,
-                steps[-1],
-                settings.rival_margin,
-                lambda step, current=current: predicts_better(step, current),
-            )
-            if chosen is not accepted:
-                log(f"  {chosen.effect} lowers chi2 by far more than {accepted.effect}: taken")
-            accepted = chosen
-        for rival in accepted.rivals:
-            log(
+            accepted = self.judge(current, previous, test)
+            if accepted is not None:
+                break
+        if accepted is None or settings.rival_margin <= 0:
+            return self.undominated(accepted, previous, phi)
+        contenders = _contenders(current, accepted, previous, ranked, self.library, self.sigma, phi)
+        chosen = _settle(
+            accepted,
+            contenders,
+            previous,
+            settings.rival_margin,
+            lambda step: (
+                stand_in_reason(current, step.fit, self.library[step.effect]) is None
+                and self.predicts_better(step, current)
+            ),
+            phi,
+        )
+        if chosen is not accepted:
+            self.log(f"  {chosen.effect} lowers chi2 by far more than {accepted.effect}: taken")
+        for rival in chosen.rivals:
+            self.log(
                 f"  {rival['effect']} explains it as well (chi2 drop {rival['chi2_drop']:.1f} "
                 f"against {rival['accepted_drop']:.1f})"
             )
-        moved = None if revisit is None or accepted.surroundings else revisit(accepted.fit)
-        if moved is not None:
-            accepted = _moved(accepted, *moved)
-        current = accepted.fit
-        current.problem.sigma = sigma
-        steps.append(accepted)
-        log(_line(accepted))
-    noise_rms = ExtendedProblem(base, loads, []).noise_rms(sigma)
-    return Diagnosis(steps, sigma, source, noise_rms, settings.level, rejected)
+        return self.undominated(chosen, previous, phi)
+
+    def undominated(self, chosen: Step | None, previous: Step, phi: float) -> Step | None:
+        """``chosen``, unless a stand-in of the round by its bounds or size lowered chi^2
+        (over phi) by more than ``rival_margin`` beyond it: the residual is then mostly
+        what that stand-in absorbs, which the library cannot represent, and the smaller
+        part ``chosen`` explains is not established as its cause (a stand-in too)."""
+        if chosen is None:
+            return None
+        drop = _drop(previous, chosen, phi)
+        margin = max(self.settings.rival_margin, 0.0)
+        for other in self.dominant:
+            if _drop(previous, other, phi) > drop + margin:
+                reason = (
+                    f"{other.effect}, a stand-in, lowers chi2 by far more "
+                    f"({_drop(previous, other, phi):.1f} against {drop:.1f}): the residual is "
+                    "mostly what the library cannot represent"
+                )
+                self.stand_in(chosen, reason, previous)
+                return None
+        return chosen
 
 
 def _moved(step: Step, fitted: EffectFit, record: dict) -> Step:
@@ -305,7 +384,10 @@ def _moved(step: Step, fitted: EffectFit, record: dict) -> Step:
 def _line(step: Step) -> str:
     rms, _ = step.fit.rms()
     name = step.effect or "base model"
-    return (
+    out = (
         f"{name}: rms {rms * 1e3:.1f} um, chi2 {step.residual.statistic:.0f}/{step.residual.dof} "
         f"(p {step.residual.p_value:.2g}), statistic {step.statistic:.1f}, p {step.p_value:.2g}"
     )
+    if step.left_out is not None and step.left_out.dispersion > 1.0:
+        out += f", left-out dispersion {step.left_out.dispersion:.3g}"
+    return out

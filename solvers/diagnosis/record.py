@@ -11,6 +11,7 @@ import numpy as np
 from solvers.diagnosis.blind import blind_spots
 from solvers.diagnosis.fit import EffectFit
 from solvers.diagnosis.guard import PredictionCheck
+from solvers.diagnosis.leftout import LeftOut
 from solvers.diagnosis.stats import (
     ResidualTest,
     ScoreTest,
@@ -82,6 +83,8 @@ class Step:
     rivals: list[dict] = field(default_factory=list)
     surroundings: dict | None = None
     """How the base model's surroundings changed once the effect was in (``revisit``)."""
+    left_out: LeftOut | None = None
+    """The model's own left-out prediction: its dispersion phi and model error (eq. G2, G4)."""
 
     def parameters(self) -> dict:
         """Every parameter of the fit: value, standard error, unit."""
@@ -102,6 +105,7 @@ class Step:
     def record(self) -> dict:
         """The step as in diagnosis.json."""
         rms, largest = self.fit.rms()
+        noise_rms = self.fit.problem.noise_rms(self.sigma)
         return {
             "effect": self.effect,
             "rms_mm": rms,
@@ -114,7 +118,8 @@ class Step:
             "residual_p_value": self.residual.p_value,
             "bic": self.bic,
             "effective_dof": self.fit.effective_dof(),
-            "prediction": None if self.prediction is None else self.prediction.record(),
+            "prediction": None if self.prediction is None else self.prediction.record(noise_rms),
+            "left_out": None if self.left_out is None else self.left_out.record(noise_rms),
             "rivals": self.rivals,
             "surroundings": self.surroundings,
             "score_tests": [
@@ -143,6 +148,8 @@ class Diagnosis:
     rejected: list[dict] = field(default_factory=list)
     base_choice: dict | None = None
     """How the base model was chosen (step 0, ``experiments.basemodel``), if it was."""
+    stand_ins: list[dict] = field(default_factory=list)
+    """Candidates that lowered the residual but are no cause (``solvers.diagnosis.standin``)."""
 
     @property
     def selected(self) -> list[str]:
@@ -165,8 +172,18 @@ class Diagnosis:
         """True when the final residual is significantly above the noise."""
         return self.steps[-1].residual.significant(self.level)
 
+    @property
+    def model_error_mm(self) -> float:
+        """The model error that remains [mm] (eq. G4): the final model's left-out RMS beyond
+        the noise's; 0 when its residual is consistent with the noise."""
+        last = self.steps[-1].left_out
+        if last is None or not self.unexplained:
+            return 0.0
+        return last.model_error_mm(self.noise_rms_mm)
+
     def document(self) -> dict:
         """diagnosis.json (schema dvs-diagnosis/1, docs/formats.md)."""
+        last = self.steps[-1].left_out
         return {
             "schema": SCHEMA,
             "success": all(bool(s.fit.success) for s in self.steps),
@@ -182,5 +199,14 @@ class Diagnosis:
             "rejected": self.rejected,
             "rivals": self.rivals,
             "blind_spots": self.blind_spots(),
+            "model_error_mm": self.model_error_mm,
+            "model_error": {
+                "dispersion": None if last is None else last.dispersion,
+                "source": None if last is None else last.source,
+                "times_noise": self.model_error_mm / self.noise_rms_mm
+                if self.noise_rms_mm
+                else 0.0,
+            },
+            "stand_ins": self.stand_ins,
             **({} if self.base_choice is None else {"base_choice": self.base_choice}),
         }

@@ -34,6 +34,25 @@ def verdict(document: dict) -> str:
     return text
 
 
+def _remains(document: dict) -> str:
+    """'model error X um (Y x the noise) remains' (eq. G4)."""
+    error = document.get("model_error_mm", 0.0)
+    ratio = document.get("model_error", {}).get("times_noise", 0.0)
+    return f"model error {error * 1e3:.1f} um ({ratio:.2g} x the noise) remains"
+
+
+def _stand_in_clause(document: dict) -> str:
+    """'; A, B lower the residual but are stand-ins' ('' without any)."""
+    names = list(dict.fromkeys(s["effect"] for s in document.get("stand_ins", [])))
+    if not names:
+        return ""
+    verb = "lowers" if len(names) == 1 else "lower"
+    return (
+        f"; {', '.join(names)} {verb} the residual but "
+        f"{'is a stand-in' if len(names) == 1 else 'are stand-ins'}, not causes (report.md)"
+    )
+
+
 def _verdict(document: dict) -> str:
     rivals = document.get("rivals", {})
     selected = ", ".join(
@@ -53,10 +72,14 @@ def _verdict(document: dict) -> str:
         return "consistent with noise: the base model needs nothing added"
     if selected:
         return (
-            f"unexplained: even with {selected} added the residual is not noise; these are "
-            "the library's closest approximations, not established causes"
+            f"unexplained: {_remains(document)} even with {selected} added (each predicts "
+            "left-out data better than chance); these are the library's closest "
+            "approximations, not established causes" + _stand_in_clause(document)
         )
-    return "unexplained: the residual is not noise and no candidate effect accounts for it"
+    return (
+        f"unexplained: {_remains(document)}; no effect in the library predicts it"
+        + _stand_in_clause(document)
+    )
 
 
 def report(diagnosis, document: dict) -> str:
@@ -73,6 +96,9 @@ def report(diagnosis, document: dict) -> str:
         f"{document['rms_after_mm'] * 1e3:.1f} um; max {first['max_residual_mm'] * 1e3:.1f} um -> "
         f"{last['max_residual_mm'] * 1e3:.1f} um",
         f"- selected: {', '.join(document['selected']) or 'nothing'}",
+        f"- model error: {document.get('model_error_mm', 0.0) * 1e3:.1f} um "
+        f"({document.get('model_error', {}).get('times_noise', 0.0):.2g} x the noise; the "
+        "final model's left-out RMS beyond the noise's)",
         f"- unexplained: **{str(document['unexplained']).lower()}** (final chi^2 "
         f"{last['residual_statistic']:.1f} on {last['residual_dof']} dof, p = "
         f"{last['residual_p_value']:.3g}, level {document['level']})",
@@ -122,8 +148,15 @@ def report(diagnosis, document: dict) -> str:
             lines.append(
                 f"Left-out prediction chi^2 {sum(check['chi2_before']):.1f} -> "
                 f"{sum(check['chi2_after']):.1f} (improvement {check['improvement']:.1f} "
-                f"after charging nuisance parameters)."
+                f"after charging nuisance parameters; over the dispersion "
+                f"{check['dispersion_after']:.3g}, {check['scaled_improvement']:.1f} against "
+                f"{check['chance']:.1f} by chance)."
             )
+            if "rms_before_mm" in check:
+                lines.append(
+                    f"Left-out RMS {check['rms_before_mm'] * 1e3:.1f} -> "
+                    f"{check['rms_after_mm'] * 1e3:.1f} um."
+                )
             lines.append("")
     if document.get("rivals"):
         lines += ["## Explanations the design cannot tell apart", ""]
@@ -152,8 +185,19 @@ def report(diagnosis, document: dict) -> str:
                 f"{spot['power']:.2f} | {above} |"
             )
         lines.append("")
+    if document.get("stand_ins"):
+        lines += [
+            "## Stand-ins",
+            "",
+            "Candidates that lowered the residual but are not causes: at a bound, implausible "
+            "for tissue, or not predicting left-out data better than chance. None is selected.",
+            "",
+        ]
+        lines += [f"- {s['effect']}: {s['reason']}" for s in document["stand_ins"]] + [""]
     if document["rejected"]:
         lines += ["## Candidates tried and rejected", ""]
-        lines += [f"- {r['effect']}: {r['reason']}" for r in document["rejected"]] + [""]
+        lines += [
+            f"- {r['effect']}: {r['reason']}" for r in document["rejected"] if not r.get("stand_in")
+        ] + [""]
     lines += ["## Residual maps", "", "![marker residuals before and after](residuals.png)", ""]
     return "\n".join(lines)

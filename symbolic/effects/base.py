@@ -218,6 +218,18 @@ class Effect:
         blocks = [magnitude * direction * self.case_factor(k) for k in range(n_cases)]
         return np.concatenate(blocks if self.per_case else blocks[:1])
 
+    def plausible_range(self, n_cases: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """The plausible lower and upper values of every entry of theta (all blocks;
+        ``Parameter.plausible``)."""
+        rows = getattr(self, "parameters", None)  # an effect of its own layout: the bounds
+        ranges = (
+            np.array([p.plausible_range for p in rows], dtype=float).reshape(-1, 2)
+            if rows is not None
+            else np.column_stack([self.lower, self.upper]).astype(float).reshape(-1, 2)
+        )
+        blocks = n_cases if self.per_case else 1
+        return np.tile(ranges[:, 0], blocks), np.tile(ranges[:, 1], blocks)
+
     def magnitude_range(self, n_cases: int = 1) -> tuple[float, float]:
         """Magnitudes whose ``true_parameters`` stay within ``lower`` and ``upper``.
 

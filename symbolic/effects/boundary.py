@@ -200,7 +200,7 @@ class SurroundingTissue(OneTermStiffness, Effect):
     """
 
     name = "surrounding_tissue"
-    parameters = (Parameter("k_s", "N/mm^3", 0.001, 0.0, 10.0),)
+    parameters = (Parameter("k_s", "N/mm^3", 0.001, 0.0, 10.0, plausible=(0.0, 1.0)),)
     magnitude = Magnitude(0.002, "N/mm^3")
     equation = "k_s integral_lateral |u|^2 dA (Winkler support of the lateral faces)"
 

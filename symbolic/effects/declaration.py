@@ -18,6 +18,10 @@ class Parameter:
         Typical magnitude: the unit of its internal coordinate.
     lower, upper : float
         Bounds in natural units; a lower bound of 0 makes the score test one-sided.
+    plausible : tuple of float, optional
+        The range a tissue (or a set-up) can have, where it is narrower than the bounds
+        (which keep the fit well posed); a fit outside it is a stand-in
+        (``solvers.diagnosis.standin``). None: the bounds.
     """
 
     name: str
@@ -25,6 +29,12 @@ class Parameter:
     scale: float
     lower: float
     upper: float
+    plausible: tuple[float, float] | None = None
+
+    @property
+    def plausible_range(self) -> tuple[float, float]:
+        """``plausible``, or the bounds."""
+        return self.plausible if self.plausible is not None else (self.lower, self.upper)
 
 
 @dataclass(frozen=True)

@@ -91,7 +91,7 @@ class MeasurementScale(Effect):
     """
 
     name = "measurement_scale"
-    parameters = (Parameter("scale", "1", 0.001, -0.2, 0.2),)
+    parameters = (Parameter("scale", "1", 0.001, -0.2, 0.2, plausible=(-0.05, 0.05)),)
     per_case = True
     magnitude = Magnitude(0.008, "1")
     equation = "y = c + (1 + s)(p - c) per capture"

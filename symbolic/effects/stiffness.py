@@ -229,8 +229,8 @@ class Layering(FieldStiffness, Effect):
     linear = True
     name = "layering"
     parameters = (
-        Parameter("s_1", "1", 1.0, -0.9, 20.0),
-        Parameter("s_2", "1", 1.0, -0.9, 20.0),
+        Parameter("s_1", "1", 1.0, -0.9, 300.0),
+        Parameter("s_2", "1", 1.0, -0.9, 300.0),
     )
     magnitude = Magnitude(4.0, "1 (E_skin / E - 1)", direction=(1.0, 0.5))
     equation = "E (1 + s_1 [depth < 1 mm] + s_2 [1 <= depth < 2 mm])"
@@ -304,7 +304,7 @@ class PreTension(StackedStiffness):
     """
 
     name = "pre_tension"
-    parameters = (Parameter("sigma0", "N/mm", 0.01, 0.0, 10.0),)
+    parameters = (Parameter("sigma0", "N/mm", 0.01, 0.0, 10.0, plausible=(0.0, 1.0)),)
     magnitude = Magnitude(0.05, "N/mm")
     equation = "sigma0 integral_skin g^ab (n . d_a u)(n . d_b u) dA"
 
@@ -367,7 +367,7 @@ class ShearCoupling(StackedStiffness):
     """
 
     name = "shear_coupling"
-    parameters = (Parameter("mu_L", "N/mm^2", 0.001, 0.0, 100.0),)
+    parameters = (Parameter("mu_L", "N/mm^2", 0.001, 0.0, 100.0, plausible=(0.0, 1.0)),)
     magnitude = Magnitude(0.005, "N/mm^2")
     equation = "mu_L integral 2 eps:eps dV (physical volume, eq. C3)"
     energies = ("dnurbs",)
