@@ -20,7 +20,6 @@ from experiments.basemodel.family import span_settings, with_radius
 
 def _patch_dataset(radius: float, probe: str, seed: int):
     """The module's FE patch (docstring) pressed by a probe of ``radius`` [mm] and shape."""
-    pytest.importorskip("skfem")
     from experiments.phantom.simulate import SimulationSettings
     from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
 

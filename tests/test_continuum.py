@@ -15,6 +15,7 @@ import casadi as ca
 import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
+import skfem
 from volumes import curved_volume
 
 from symbolic.basis import FIRST_DERIVATIVES
@@ -29,8 +30,6 @@ from symbolic.continuum import (
 from symbolic.energy import quadrature
 from symbolic.sparse import ProductTerm, padded, term_matrix
 from symbolic.volume import VolumeSpline
-
-skfem = pytest.importorskip("skfem")
 
 
 def vec(displacement: np.ndarray) -> np.ndarray:

@@ -7,20 +7,17 @@ import pytest
 from effectchecks import check_derivatives, check_theta_zero
 
 from experiments.diagnosis.diagnose import base_settings
-from experiments.problem.fitting import build_problem, dataset_loads
-from solvers.diagnosis.extended import ExtendedProblem
-from solvers.diagnosis.fit import fit
-from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
-
-pytest.importorskip("skfem")
-
-from experiments.phantom.fe import (  # noqa: E402 - after the optional import
+from experiments.phantom.fe import (
     Departure,
     ReferenceSlab,
     SlabSolution,
     design_cases,
     reference_dataset,
 )
+from experiments.problem.fitting import build_problem, dataset_loads
+from solvers.diagnosis.extended import ExtendedProblem
+from solvers.diagnosis.fit import fit
+from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
 
 CONTINUUM_EFFECTS = [n for n in EFFECT_NAMES if "linear-elastic" in make_effect(n).energies]
 SLAB = ReferenceSlab(elements=(12, 12, 2))

@@ -152,7 +152,6 @@ def _totals(block: np.ndarray) -> Totals:
 
 def test_the_lab_keeps_each_capture_as_it_was_filmed():
     """A press adds a capture and leaves the earlier ones, and the rest, as they were."""
-    pytest.importorskip("skfem")
     from experiments.design.lab import ContinuumLab
     from experiments.diagnosis.continuumstudy import ContinuumStudy
     from experiments.phantom.fe import ReferenceSlab
@@ -194,7 +193,6 @@ def test_the_sequential_loop_names_nothing_when_nothing_is_hidden(tmp_path):
     test: they do not yet meet the issue's acceptance at the 15x15x3 loop grid."""
     import json
 
-    pytest.importorskip("skfem")
     out = tmp_path / "seq"
     assert dvs(["design", "--sequential", "none", "--budget", "3", "--out", str(out)]) == 0
     document = json.loads((out / "sequential.json").read_text())

@@ -19,9 +19,8 @@ against themselves only (tests/test_hyperelastic.py). Here:
   (measured: 0.5-0.6 % at the fast level, 0.2-0.45 % at the finest slow one).
 
 A further energy is one more ``Material`` (with its parameters in ``parameters`` and
-its terms in the hand formulas); a material whose energy is not in ``ENERGIES`` yet is
-skipped. Run with ``-s`` to see the measured gaps; ``-m slow`` runs the convergence
-study (measured 236 s; the fast tests about 12 s).
+its terms in the hand formulas). Run with ``-s`` to see the measured gaps; ``-m slow``
+runs the convergence study (measured 236 s; the fast tests about 12 s).
 """
 
 from __future__ import annotations
@@ -34,6 +33,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import skfem
 from scipy.optimize import brentq
 
 from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
@@ -96,9 +96,7 @@ class Material:
         return values
 
     def model(self, volume, **options):
-        """The project's base model of this energy, or a skip when it is not there yet."""
-        if self.energy not in ENERGIES:
-            pytest.skip(f"the {self.energy!r} energy is not in ENERGIES yet")
+        """The project's base model of this energy."""
         return ENERGIES[self.energy](volume, self.parameters(), **options)
 
     def __str__(self) -> str:
@@ -321,7 +319,6 @@ class FeBlock:
     """
 
     def __init__(self, cells: tuple[int, int, int]):
-        skfem = pytest.importorskip("skfem")
         self.cells = tuple(cells)
         self.mesh = skfem.MeshTet.init_tensor(
             *(np.linspace(0.0, length, n + 1) for length, n in zip(BLOCK, cells))
@@ -443,7 +440,6 @@ def test_batched_assembly_is_scikit_fem_assembly():
     """``FeBlock``'s residual and tangent equal scikit-fem's ``LinearForm`` and
     ``BilinearForm`` of the same integrands on ``ElementVector(ElementTetP2())``, at a
     smooth state of ~10-20 % strain, with the stiffening term on (measured: 2e-16 relative)."""
-    skfem = pytest.importorskip("skfem")
     from skfem.helpers import ddot, grad
 
     fe = FeBlock((2, 2, 1))

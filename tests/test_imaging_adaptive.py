@@ -12,7 +12,6 @@ import pytest
 
 @pytest.mark.slow
 def test_the_adaptive_presses_surround_the_inclusion_and_the_map_finds_it():
-    pytest.importorskip("skfem")
     from experiments.imaging.adaptive import adaptive_run, place_rows
 
     place = place_rows(20, (23, 23, 4), log=lambda _: None)

@@ -24,7 +24,6 @@ from experiments.data.validation import DatasetError
 def session(tmp_path_factory):
     """FE continuum data (scikit-fem) of the paper's two presses on a stiffness
     gradient, one file per press and both together."""
-    pytest.importorskip("skfem")
     from experiments.design.lab import ContinuumLab
 
     folder = tmp_path_factory.mktemp("next")
@@ -163,7 +162,6 @@ def test_an_empty_dataset_exits_2(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def inclusion_data(tmp_path_factory):
     """FE data (scikit-fem) of a 10 mm disc twice as stiff at (6, -5) mm, 10 presses."""
-    pytest.importorskip("skfem")
     from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
     from experiments.phantom.simulate import SimulationSettings
 

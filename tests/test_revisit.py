@@ -26,7 +26,6 @@ WRONG_RADIUS_MM = 3.85
 
 @pytest.fixture(scope="module")
 def offset_data():
-    pytest.importorskip("skfem")
     from experiments.phantom.fe import Departure
     from experiments.phantom.simulate import SimulationSettings
     from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset

@@ -47,7 +47,6 @@ def _fingerprint(dataset) -> str:
 
 @pytest.fixture(scope="module")
 def tissue(tmp_path_factory):
-    pytest.importorskip("skfem")
     path = tmp_path_factory.mktemp("same") / "patch.npz"
     save_dataset(path, _patch_dataset())
     return path

@@ -80,7 +80,6 @@ def test_tissue_beyond_the_markers_halves_the_model_error_on_another_codes_slab(
     17 um at 15x15x3 and 27x27x3 alike) and biases nu low; a 10 mm margin, not the
     truth's 20 mm, halves it on the same grid and recovers nu.
     """
-    pytest.importorskip("skfem")
     from experiments.phantom.fe import (
         ReferenceSlab,
         SlabSolution,

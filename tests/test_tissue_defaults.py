@@ -34,7 +34,6 @@ ROWS = {name: ROWS_ALL[name] for name in ("A", "D", "E")}
 
 
 def _diagnosed(name: str) -> dict:
-    pytest.importorskip("skfem")
     data = row_dataset(name)
     assert data.probe_radius is None  # the radius is not declared
     return diagnose_dataset(data).document()
@@ -102,7 +101,6 @@ def test_one_injected_effect_is_named_first_and_nothing_stands_in(injected):
     selected, nothing but physics follows it at any step, and the RMS ends at <= 1.1x
     the noise (the surroundings re-estimated with it in, ``experiments.basemodel.revisit``).
     The verdict may stay "unexplained": the issue asks for the name, not for noise."""
-    pytest.importorskip("skfem")
     effect = injected_scenarios()[injected][2]
     document = diagnose_dataset(row_dataset("A", injected)).document()
     assert document["selected"][:1] == [effect], document["selected"]
@@ -115,7 +113,6 @@ PAPER_DESIGN_FAST = ("compliant_base", "contact_offset", "larger_probe_patch", "
 
 
 def _named_or_not_ruled_out(injected: str) -> None:
-    pytest.importorskip("skfem")
     effect = injected_scenarios()[injected][2]
     document = diagnose_dataset(row_dataset("C", injected)).document()
     listed = {spot["effect"] for spot in document["blind_spots"]}

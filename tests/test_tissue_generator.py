@@ -9,9 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("skfem")
-
-from experiments.phantom.tissue import (  # noqa: E402
+from experiments.phantom.tissue import (
     TissuePatch,
     TissueSolution,
     on_skin,
