@@ -391,14 +391,16 @@ def test_out_of_library_one_seed():
 
 
 def test_the_papers_energy_on_the_slab_adds_no_correct_effect_it_cannot_have():
-    """The paper's energy (``--energy dnurbs``) has no depth: on the slab it can only end
-    unexplained or add the couplings a continuum has (not the layering it lacks)."""
+    """The paper's energy (``--energy dnurbs``) has no depth: the loop offers it every
+    effect but layering, the slab's skin over fat, and on the slab it can only end
+    unexplained or add the couplings a continuum has."""
     from experiments.diagnosis.diagnose import base_settings
     from experiments.diagnosis.outoflibrary import simulate_slab
 
     settings = DiagnosisSettings(max_effects=1, max_attempts=2)
     document = diagnose_dataset(simulate_slab(seed=0), settings, base=base_settings()).document()
-    assert "layering" not in document["selected"]
+    offered = [t["effect"] for t in document["steps"][0]["score_tests"]]
+    assert offered == list(PAPERS_LIBRARY)  # screened in the library's order, layering out
     assert document["unexplained"] or set(document["selected"]) <= {"volumetric_coupling"}
 
 
