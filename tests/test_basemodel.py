@@ -10,12 +10,15 @@ the paper's own model (``experiments.phantom.simulate``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from scipy import stats
 
 from experiments.basemodel import MARGINS_MM, SUPPORTS, choose_base
-from experiments.basemodel.choice import linearised_refit
-from experiments.basemodel.family import span_settings, with_radius
+from experiments.basemodel.choice import MAX_CHECK_POINTS, MAX_REFINEMENTS, linearised_refit
+from experiments.basemodel.family import MIN_RADIUS_MM, span_settings, with_radius
 
 
 def _patch_dataset(radius: float, probe: str, seed: int):
@@ -55,21 +58,26 @@ def test_on_fe_tissue_step_0_keeps_the_continuum_with_its_surroundings(patch_cho
     best = min(choice.trials, key=lambda t: t.chi2).surroundings
     chosen = choice.chosen.surroundings
     assert (chosen.margin_mm, chosen.support) == (best.margin_mm, best.support)
-    # the undeclared radius is estimated, not 0 (a point force a continuum cannot carry)
-    assert 0.5 < chosen.radius_mm < 6.0
+    # the undeclared radius is estimated inside the profile's range, at neither end: not
+    # its smallest (a point force a continuum cannot carry), not the cap of a quarter of
+    # the shorter marked side (a load over the marked area, not a 2 mm probe)
+    assert MIN_RADIUS_MM < chosen.radius_mm < choice.chosen.family.max_radius()
 
 
 def test_the_resolution_is_refined_until_the_markers_do_not_move(patch_choice):
     """Each check that the data can see is followed by one on a finer volume; the last
-    is within the 1-dof chi^2 quantile (or stopped by the budget, and says so)."""
+    is within the 1-dof chi^2 quantile at the loop's level. The patch is small: every
+    check's volume is within the budget (``MAX_CHECK_POINTS``), so each check runs and
+    the refinements end converged, not "not checked" or out of refinements."""
     checks = patch_choice.resolution
-    assert checks, "the chosen continuum was not checked"
+    assert 1 <= len(checks) <= MAX_REFINEMENTS
+    assert all(math.prod(c["refined_grid"]) <= MAX_CHECK_POINTS for c in checks)
+    limit = stats.chi2.isf(0.01, 1)  # choose_base's default level
     for check in checks[:-1]:
         assert check["verdict"] == "refined" and check["prediction_chi2"] > check["limit"]
     last = checks[-1]
-    assert last["verdict"] in ("converged", "not checked")
-    if last["verdict"] == "converged":
-        assert last["prediction_chi2"] <= last["limit"]
+    assert last["verdict"] == "converged"
+    assert last["limit"] == pytest.approx(limit) and last["prediction_chi2"] <= limit
     assert list(patch_choice.settings.grid) == last["grid"]
 
 
