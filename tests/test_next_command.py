@@ -3,7 +3,9 @@
 The proposal is one step of the sequential loop (``experiments.design.sequential``) on
 the data given; these tests check the command around it: the merge of a session's
 captures, the files it writes, that the proposal is a press ``dvs simulate --design``
-can make and that the same data give the same proposal, and the bad-input contract.
+can make, that it promises more than the naive next press (the centre again: a press
+the dataset made there, repeated, judged by the same code on the same information), that
+the same data give the same proposal, and the bad-input contract.
 """
 
 from __future__ import annotations
@@ -33,6 +35,29 @@ def session(tmp_path_factory):
     for k, capture in enumerate(lab.captures):
         save_dataset(folder / f"press{k}.npz", capture)
     return folder, both, list(lab.captures)
+
+
+def _central(dataset) -> list[int]:
+    """The dataset's presses at its central contact (the one nearest the markers' centre):
+    pressing there again is the naive next press the proposal must beat."""
+    centre = dataset.outer_rest.reshape(-1, 3)[:, :2].mean(axis=0)
+    contacts = dataset.contacts[:, :2]
+    nearest = contacts[np.argmin(np.linalg.norm(contacts - centre, axis=1))]
+    return [k for k, c in enumerate(contacts) if np.allclose(c, nearest, atol=1e-6)]
+
+
+def _recorded(monkeypatch, module, name: str) -> dict:
+    """Wrap ``module.name`` to keep its arguments and result; the dict also holds the
+    function itself (``original``)."""
+    recorded = {"original": getattr(module, name)}
+
+    def wrapper(*args, **kwargs):
+        result = recorded["original"](*args, **kwargs)
+        recorded.update(args=args, kwargs=kwargs, result=result)
+        return result
+
+    monkeypatch.setattr(module, name, wrapper)
+    return recorded
 
 
 def _split(dataset, k):
@@ -81,13 +106,18 @@ def test_a_merge_refuses_captures_it_cannot_put_in_one_frame():
         merge_captures([first, replace(second, probe_radius=None)])
 
 
-def test_next_proposes_a_press_the_simulator_can_make(session, tmp_path, capsys):
+def test_next_proposes_a_press_the_simulator_can_make(session, tmp_path, capsys, monkeypatch):
     """On FE data of the paper's two presses, with the defaults (step 0 chooses the
-    model): a press inside the marked area, within the safe range, with its reason."""
+    model): a press inside the marked area, within the safe range, with its reason; for
+    the question it answers, and over all the open questions (eq. D7), it promises more
+    than pressing the centre again (the dataset's central presses repeated, judged on the
+    same information pool)."""
     from experiments.data.designfile import read_presses
+    from experiments.design import sequential
 
     folder, both, _ = session
     out = tmp_path / "n"
+    searched = _recorded(monkeypatch, sequential, "search")
     assert dvs(["next", str(folder / "both.npz"), "--budget", "8", "--out", str(out)]) == 0
     document = json.loads((out / "next.json").read_text())
     assert document["schema"] == "dvs-design/1" and document["kind"] == "next"
@@ -99,7 +129,25 @@ def test_next_proposes_a_press_the_simulator_can_make(session, tmp_path, capsys)
     assert np.linalg.norm(force) == pytest.approx(0.25)
     why = document["why"]
     assert why["question"] in document["open"]
-    assert why["ratio_after"] > why["ratio_before"] and why["progress"] > 0
+    pool, criterion, _, own = searched["args"][:4]
+    [proposed] = searched["result"].chosen
+    question = next(q for q in criterion.asked if q.label(pool.layout) == why["question"])
+
+    def ratio(design):
+        matrix = pool.totals(design).matrix()
+        return question.value(matrix, pool.layout, criterion.sigma) / question.needed
+
+    def progress(design):
+        now = criterion.score(pool.totals(own).matrix())
+        return criterion.score(pool.totals(design).matrix()) - now
+
+    assert ratio(own + [proposed]) == pytest.approx(why["ratio_after"])  # next.json's value
+    naive = [own[k] for k in _central(both)]  # the paper's two presses, both at the centre
+    naive_values = [(ratio(own + [k]), progress(own + [k])) for k in naive]
+    with capsys.disabled():
+        print(why, naive_values)  # -s: the proposal's margins over the naive presses
+    assert why["ratio_after"] > max(r for r, _ in naive_values), (why, naive_values)
+    assert why["progress"] > max(p for _, p in naive_values), (why, naive_values)
     assert document["model"]["energy"] == "linear-elastic"  # step 0 on FE tissue
     assert "base_choice" in document and document["wall_time_s"] > 0
     assert (out / "next.png").stat().st_size > 0
@@ -175,24 +223,102 @@ def inclusion_data(tmp_path_factory):
     return path
 
 
-def test_next_for_the_stiffness_map_presses_where_the_inclusion_is_likely(inclusion_data, tmp_path):
-    """``--target field``: the posterior of the inclusion's place is a distribution, its
-    mode lies near the disc (the data's own model is step 0's, not the FE slab's), and
-    the proposed press raises the inclusion's signal there and lies near the mode."""
+@pytest.fixture(scope="module")
+def field_proposal(inclusion_data, tmp_path_factory):
+    """``dvs next --target field`` on the inclusion data: its output folder, what eq. (I13)
+    scored (``press_scores``: the rows, the presses so far, the candidates, the
+    templates, the posterior's weights) and the candidates offered (their contacts)."""
+    from experiments.design import nextfield
+    from solvers.imaging import fielddesign
+
+    out = tmp_path_factory.mktemp("field") / "field"
+    argv = ["next", str(inclusion_data), "--budget", "4", "--target", "field", "--out", str(out)]
+    with pytest.MonkeyPatch.context() as patch:
+        scored = _recorded(patch, fielddesign, "press_scores")
+        offered = _recorded(patch, nextfield, "candidates")
+        assert dvs(argv) == 0
+    return out, scored, offered
+
+
+def _field_margins(field_proposal, naive) -> dict:
+    """The proposal's and the presses ``naive``'s (pool rows, each added alone to the
+    presses so far) eq. (I13) score and information at the posterior's mode, with the
+    proposal's values from next.json checked against the recorded rows."""
+    out, scored, _ = field_proposal
+    why = json.loads((out / "next.json").read_text())["why"]
+    rows, own, pool, templates, weights = scored["args"]
+    proposed = pool[int(np.argmax(scored["result"]))]
+    mode = int(np.argmax(weights))
+
+    def information(design):
+        return float(np.sum((rows.select(design)[0] @ templates[:, mode]) ** 2))
+
+    assert information(own + [proposed]) == pytest.approx(why["information_after"])
+    assert float(np.max(scored["result"])) == pytest.approx(why["progress"])
+    return {
+        "proposal": (why["progress"], why["information_after"]),
+        "naive": [
+            (float(score), information(own + [k]))
+            for k, score in zip(naive, scored["original"](rows, own, naive, templates, weights))
+        ],
+    }
+
+
+def _central_presses(inclusion_data, tilted: bool) -> list[int]:
+    """The dataset's presses at its central contact, tilted or along the normal."""
+    dataset = load_dataset(inclusion_data)
+    forces = dataset.forces
+    along = np.linalg.norm(forces[:, :2], axis=1) > 1e-9 * np.linalg.norm(forces, axis=1)
+    return [k for k in _central(dataset) if along[k] == tilted]
+
+
+def test_next_for_the_stiffness_map_presses_where_the_inclusion_is_likely(
+    field_proposal, inclusion_data
+):
+    """``--target field``: the posterior's mode lies near the disc (the data's own model
+    is step 0's, not the FE slab's), the proposed press lies near the mode, and it
+    promises more than pressing the centre again as the candidates press (along the
+    normal: the dataset's normal press there repeated, and the candidate at the centre,
+    0.25 N), on the same rows: a larger expected growth of the inclusion's signal over
+    the posterior (eq. I13), and a larger signal at the mode."""
     from experiments.data.designfile import read_presses
 
-    out = tmp_path / "field"
-    argv = ["next", str(inclusion_data), "--budget", "4", "--target", "field", "--out", str(out)]
-    assert dvs(argv) == 0
+    out, scored, offered = field_proposal
     document = json.loads((out / "next.json").read_text())
     assert document["target"] == "field" and document["stop"] is None
     posterior = document["posterior"]
-    assert np.isclose(sum(posterior["probability"]) + posterior["no_inclusion"], 1.0)
     assert np.linalg.norm(np.array(posterior["mode_mm"]) - [6.0, -5.0]) <= 5.0
     [(contact, force)] = read_presses(out / "next.json")
     assert np.linalg.norm(contact[:2] - posterior["mode_mm"]) <= 10.0
     assert np.linalg.norm(force) == pytest.approx(0.25)
-    why = document["why"]
-    assert why["information_after"] > why["information_before"] and why["progress"] > 0
-    assert (out / "next.png").stat().st_size > 0
-    assert "most probable place" in (out / "report.md").read_text()
+    dataset = load_dataset(inclusion_data)
+    centre = dataset.contacts[_central(dataset)[0], :2]
+    points = offered["result"][1][:, :2]
+    nearest = int(np.argmin(np.linalg.norm(points - centre, axis=1)))
+    assert np.linalg.norm(points[nearest] - centre) < 0.5  # the 7 x 7 grid has the centre
+    naive = _central_presses(inclusion_data, tilted=False) + [dataset.n_loads + nearest]
+    margins = _field_margins(field_proposal, naive)
+    print(margins)  # -s: the proposal's (I13 score, information) and the naive presses'
+    (score, information), others = margins["proposal"], margins["naive"]
+    assert score > max(s for s, _ in others) and information > max(i for _, i in others)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="the candidates of --target field press along the normal only (docs/imaging.md, "
+    "'Adaptive imaging'); repeating the dataset's 0.25 N press tilted at the centre scores "
+    "higher by eq. (I13) (0.456 against the proposal's 0.260) and at the mode (29.5 against "
+    "23.3)",
+)
+def test_next_for_the_stiffness_map_beats_repeating_the_tilted_central_press(
+    field_proposal, inclusion_data
+):
+    """The proposal promises more than repeating any press already made at the centre,
+    tilted ones included."""
+    naive = _central_presses(inclusion_data, tilted=True)
+    assert naive  # the diagnosis design tilts its second press at every contact
+    margins = _field_margins(field_proposal, naive)
+    print(margins)
+    (score, information), others = margins["proposal"], margins["naive"]
+    assert score > max(s for s, _ in others) and information > max(i for _, i in others)
