@@ -86,9 +86,13 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
         if revisit is not None:
             diagnosis.base_choice["revisits"] = revisit.records
         return diagnosis
-    problem = build_problem(dataset, base_settings(grid) if base == AUTO else base)
+    from experiments.diagnosis.refinement import Survival
+
+    chosen = base_settings(grid) if base == AUTO else base
+    problem = build_problem(dataset, chosen)
     loads = dataset_loads(dataset, problem.model.volume)
-    return diagnose(problem, loads, settings, log)
+    refine = Survival(dataset, chosen) if Survival.applies(dataset, chosen) else None
+    return diagnose(problem, loads, settings, log, refine=refine)
 
 
 def run(

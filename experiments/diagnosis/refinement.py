@@ -14,6 +14,12 @@ residual:
   (``--grid`` and ``--degrees``) before reading the effects as physics;
 - ``converged``: neither; the residual and the estimates are the physics'.
 
+Before that, inside the loop: on a volume whose resolution step 0 did not check (a
+``--grid`` given), an effect the loop would accept must still predict left-out data
+better than chance on the refined volume (``Survival``, the loop's ``refine``): an
+effect that stands in for the coarse volume's discretisation error (a softer base for a
+grid too stiff to follow the probe) loses its gain there, one that is physics keeps it.
+
 The check applies to the continuum energies, discretisations of a continuum whose
 parameters do not depend on the grid. For the paper's energy the grid is part of the
 model (its alpha, fitted on one grid, differ on another: on the phantom, 34 standard
@@ -109,3 +115,50 @@ def summary(record: dict) -> str:
         f"{record['refined_rms_mm'] * 1e3:.1f} um, chi2 drop {record['chi2_drop']:.1f} "
         f"(limit {record['chi2_limit']:.1f}), shifts in std: {shifts} -> {record['verdict']}"
     )
+
+
+class Survival:
+    """The loop's ``refine``: a fit's effects refitted on the refined volume
+    (``refined_grid``) from its estimate, each effect set once.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data.
+    settings : FitSettings
+        The base model's settings (a continuum energy, the grid given).
+    """
+
+    def __init__(self, dataset, settings) -> None:
+        from experiments.problem.fitting import build_problem, dataset_loads, model_grid
+
+        fine_grid, fine_degrees = refined_grid(*model_grid(dataset, settings))
+        self.grid = fine_grid
+        self.base = build_problem(dataset, replace(settings, grid=fine_grid, degrees=fine_degrees))
+        self.loads = dataset_loads(dataset, self.base.model.volume)
+        self.fits: dict = {}
+
+    @classmethod
+    def applies(cls, dataset, settings) -> bool:
+        """A continuum energy (the paper's is defined on its grid) whose refined volume is
+        within ``MAX_REFINED_POINTS``."""
+        from experiments.problem.fitting import model_grid
+
+        if settings.energy == "dnurbs":
+            return False
+        fine_grid, _ = refined_grid(*model_grid(dataset, settings))
+        return int(np.prod(fine_grid)) <= MAX_REFINED_POINTS
+
+    def __call__(self, coarse):
+        """``coarse``'s model (base and effects) fitted on the refined volume, from its
+        estimate (an ``EffectFit``)."""
+        from solvers.diagnosis.extended import ExtendedProblem
+        from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, fit
+
+        names = tuple(e.name for e in coarse.problem.effects)
+        if names not in self.fits:
+            problem = ExtendedProblem(self.base, self.loads, list(coarse.problem.effects))
+            problem.sigma = coarse.problem.sigma
+            start = np.clip(coarse.p, problem.lower, problem.upper)
+            self.fits[names] = fit(problem, start, tolerance=STATISTICAL_TOLERANCE)
+        return self.fits[names]

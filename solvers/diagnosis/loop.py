@@ -1,41 +1,26 @@
-"""The discrepancy loop: residual -> candidate effect -> refit (docs/diagnosis.md).
+"""The discrepancy loop: residual -> candidate effect -> refit (docs/diagnosis.md, "The
+loop and its selection rule").
 
-1. Fit the base model (nested, whitened least squares; ``solvers.diagnosis.fit``).
-2. Test the residual against the noise: chi^2 of |W r|^2 / sigma^2, where
-   W^-2 = I + P P^T carries the rest-marker noise that all load cases share.
-3. Score-test every candidate effect at theta = 0 (``solvers.diagnosis.stats``): one
-   linearisation each, no refit.
-4. Take the most significant candidate (Bonferroni over the candidates left, the
-   statistics divided by the current model's dispersion phi, ``solvers.diagnosis.leftout``),
-   refit with it and judge it (``_judge``): it is rejected when the BIC (chi^2 / phi +
-   k log m) does not improve; it is a **stand-in** (lowers the residual, is no cause:
-   ``Diagnosis.stand_ins``, never selected) when the refit puts a parameter the model
-   already had on a bound (``BOUND_MARGIN``), ends on one of its own bounds other than
-   its null value, leaves its plausible range for tissue (``Effect.plausible``), or,
-   with two or more load cases, does not predict left-out cases better than chance
-   (eq. G3, ``solvers.diagnosis.guard``); else it is accepted. Otherwise try the next
-   significant one. Repeat until no candidate is significant, none is accepted, or
-   ``max_effects`` are in (optionally also stop as soon as the residual is consistent
-   with the noise, ``stop_when_consistent``).
-   With ``revisit`` (a continuum chosen by step 0), the surroundings are searched
-   again with each accepted effect in, and (while the residual is significant) with a
-   candidate the guard rejects, which is judged again on the surroundings it prefers
-   (``experiments.basemodel.revisit``).
-5. ``unexplained`` is true when the final residual is still significant; the model
-   error that remains is the final model's left-out dispersion (eq. G4).
-6. Rivals: after an effect is accepted, the other significant candidates of the
-   round whose score reaches ``RIVAL_SCREEN`` of the accepted chi^2 drop are refitted
-   too (same bound and BIC rules). One whose drop beats the accepted one's by more
-   than ``rival_margin`` (and passes the guard) is taken instead. One whose drop
-   comes within ``rival_margin`` explains the residual as well: the design cannot
-   tell the two apart, and the verdict names both instead of a cause (on the paper's
-   design a probe patch twice the declared radius and pre-tension lower chi^2 by 18.4
-   and 16.9). Score statistics are local; a candidate far more nonlinear than its
-   score shows can be missed by the screen.
-7. Blind spots: the last round's score tests also give the power against each
-   candidate at its realistic size; the ones below 0.8 are named as not ruled out
-   (``solvers.diagnosis.blind``), so a residual at the noise on a weak design does not
-   read as proof that nothing else is there.
+1. Fit the base model (nested, whitened least squares; ``solvers.diagnosis.fit``) and
+   test its residual against the noise (chi^2 of |W r|^2 / sigma^2).
+2. Score-test every candidate effect at theta = 0 (``solvers.diagnosis.stats``), the
+   statistics over the current model's left-out dispersion phi (eq. G2,
+   ``solvers.diagnosis.leftout``); the significant ones (Bonferroni) are refitted in
+   their order and judged (``_Loop.judge``): rejected when the BIC (chi^2 / phi + k log m)
+   does not fall; a **stand-in** (``solvers.diagnosis.standin``: never selected) when it
+   drives the model to a bound, ends on its own bound, leaves its plausible range, does
+   not predict left-out data better than chance (eq. G3, ``solvers.diagnosis.guard``),
+   does not survive a refinement of an unchecked volume (``refine``), or a bounded
+   stand-in of the round explains far more (``undominated``); else accepted.
+3. Rivals: the other significant candidates whose score reaches ``RIVAL_SCREEN`` of the
+   accepted drop are refitted; one that explains far more is taken instead, one within
+   ``rival_margin`` is named beside it (the design cannot tell them apart).
+4. With ``revisit`` (a continuum chosen by step 0) the surroundings are searched again
+   with each accepted effect in (``experiments.basemodel.revisit``).
+5. Stop when nothing is accepted or ``max_effects`` are in. ``unexplained``: the final
+   residual is still significant; the model error left is the final model's left-out
+   dispersion (eq. G4). The last round's score tests give the blind spots
+   (``solvers.diagnosis.blind``).
 
 ``Diagnosis.document()`` is ``diagnosis.json`` (schema ``dvs-diagnosis/1``).
 """
@@ -154,6 +139,7 @@ def diagnose(
     log=None,
     start: EffectFit | None = None,
     revisit=None,
+    refine=None,
 ) -> Diagnosis:
     """Run the loop on a base problem, with BLAS on one thread (``solvers.linalg.blas``: the
     loop's dense work is small SVDs and QRs of Jacobians, which two OpenBLAS threads
@@ -180,19 +166,25 @@ def diagnose(
         fit it returns, and, while the residual is still significant, on a candidate the
         overfitting guard rejects, which is then judged again on the surroundings it
         prefers.
+    refine : callable, optional
+        Called with a fit; returns the same model fitted on a refined volume
+        (``experiments.diagnosis.refinement.Survival``). Where given (a volume whose
+        resolution was not checked), an effect is accepted only if it also predicts
+        left-out data better than chance there: else it stands in for the discretisation.
     """
     with one_thread():
         quiet = log or (lambda *_: None)
-        return _Loop(base, loads, settings or DiagnosisSettings(), quiet, revisit).run(start)
+        loop = _Loop(base, loads, settings or DiagnosisSettings(), quiet, revisit, refine)
+        return loop.run(start)
 
 
 class _Loop:
     """``diagnose``'s state: the library, the noise, the guard's cache, what was
     rejected and what stood in."""
 
-    def __init__(self, base, loads, settings: DiagnosisSettings, log, revisit) -> None:
+    def __init__(self, base, loads, settings: DiagnosisSettings, log, revisit, refine) -> None:
         self.base, self.loads, self.settings, self.log = base, loads, settings, log
-        self.revisit = revisit
+        self.revisit, self.refine = revisit, refine
         self.library = effect_library(settings.candidates, base.model.energy)
         self.cache: dict = {}
         self.rejected: list[dict] = []
@@ -254,7 +246,7 @@ class _Loop:
             self.dominant.append(candidate)
             return None
         if self.predicts_better(candidate, current):
-            return candidate
+            return self.surviving(candidate, current, previous)
         reason = candidate.prediction.reason()
         unexplained = previous.residual.significant(self.settings.level)
         moved = self.revisit(refit) if self.revisit is not None and unexplained else None
@@ -262,8 +254,21 @@ class _Loop:
             candidate = _moved(candidate, *moved)
             candidate.left_out = None
             if self.predicts_better(candidate, current) and bic_improves(previous, candidate, phi):
-                return candidate
+                return self.surviving(candidate, current, previous)
             reason += "; on revisited surroundings " + candidate.prediction.reason()
+        self.stand_in(candidate, reason, previous)
+        return None
+
+    def surviving(self, candidate: Step, current: EffectFit, previous: Step) -> Step | None:
+        """``candidate`` if it still predicts better than chance on the refined volume
+        (``refine``), or without one; else None, recorded as a stand-in."""
+        if self.refine is None:
+            return candidate
+        finer = _step(candidate.effect, self.refine(candidate.fit), self.sigma)
+        if self.predicts_better(finer, self.refine(current)):
+            return candidate
+        reason = "does not survive a refinement of the volume (discretisation error): "
+        reason += finer.prediction.reason() if finer.prediction else "no gain beyond chance"
         self.stand_in(candidate, reason, previous)
         return None
 
