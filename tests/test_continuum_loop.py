@@ -69,7 +69,9 @@ def test_continuum_effect_derivatives_match_finite_differences(setting, name):
     check_derivatives(setting, name)
 
 
-NEO_HOOKEAN_EFFECTS = [n for n in EFFECT_NAMES if "neo-hookean" in make_effect(n).energies]
+NEO_HOOKEAN_EFFECTS = [
+    n for n in EFFECT_NAMES if "neo-hookean" in make_effect(n, "neo-hookean").energies
+]
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +83,40 @@ def neo_hookean_setting(paper_dataset):
 def test_the_neo_hookean_library_leaves_out_the_linear_stiffness_effects():
     linear = {"heterogeneity", "base_compliance", "layering"}
     assert set(CONTINUUM_EFFECTS) - set(NEO_HOOKEAN_EFFECTS) == linear
+    # strain stiffening is one effect by name: eq. (C10) on the large-strain continuum,
+    # eq. (1) on the paper's energy, none on the small-strain continuum
+    assert set(NEO_HOOKEAN_EFFECTS) - set(CONTINUUM_EFFECTS) == {"nonlinear_stiffening"}
+    stiffening = effect_library(energy="neo-hookean")["nonlinear_stiffening"]
+    assert stiffening.parameter_names == ("k1",) and stiffening.units == ("kPa",)
+    assert effect_library(energy="dnurbs")["nonlinear_stiffening"].parameter_names == ("k0",)
+    assert "nonlinear_stiffening" not in effect_library(energy="linear-elastic")
+
+
+def test_continuum_stiffening_is_the_exponential_models_k1(neo_hookean_setting):
+    """The effect at k1 is ``ExponentialModel`` at the same E, nu, k1 and k2: the same
+    internal force for any state (eq. C8 with the stress C7 + C11)."""
+    import casadi as ca
+    import numpy as np
+
+    from symbolic.continuum_model import ExponentialModel
+    from symbolic.effects.base import CaseSymbols
+
+    problem, base_fit, library = neo_hookean_setting
+    model = problem.model
+    effect = library["nonlinear_stiffening"]
+    values = model.values(dict(zip(problem.names, base_fit.p)))
+    delta = ca.DM(np.random.default_rng(1).normal(0.0, 0.3, (model.n_free, 3)))
+    symbols = CaseSymbols(delta, values)
+    added = ca.evalf(
+        model.elastic_force(delta, values, ()) + effect.internal_force(model, symbols, [7.0])
+    )
+    import dataclasses
+
+    fields = {f.name: getattr(model, f.name) for f in dataclasses.fields(model) if f.init}
+    fields["parameters"] = {**model.parameters, "k1": 7.0}
+    exponential = ExponentialModel(**fields)
+    reference = ca.evalf(exponential.elastic_force(delta, {**values, "k1": 7.0}, ()))
+    np.testing.assert_allclose(np.array(added), np.array(reference), rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("name", NEO_HOOKEAN_EFFECTS)

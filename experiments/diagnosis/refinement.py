@@ -61,7 +61,6 @@ def refinement_check(diagnosis, dataset, settings) -> dict:
     from experiments.problem.fitting import build_problem, dataset_loads, model_grid
     from solvers.diagnosis.extended import ExtendedProblem
     from solvers.diagnosis.fit import fit
-    from symbolic.effects.library import make_effect
 
     grid, degrees = model_grid(dataset, settings)
     fine_grid, fine_degrees = refined_grid(grid, degrees)
@@ -78,7 +77,7 @@ def refinement_check(diagnosis, dataset, settings) -> dict:
         return {**record, "verdict": "not checked", "reason": "refined grid too large"}
     final = diagnosis.steps[-1]
     base = build_problem(dataset, replace(settings, grid=fine_grid, degrees=fine_degrees))
-    effects = [make_effect(name) for name in diagnosis.selected]
+    effects = list(diagnosis.steps[-1].fit.problem.effects)
     problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), effects)
     refit = fit(problem, np.clip(final.fit.p, problem.lower, problem.upper))
     sigma = diagnosis.noise_mm

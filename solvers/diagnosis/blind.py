@@ -60,7 +60,9 @@ def detectable_magnitude(test: ScoreTest, effect, n_cases: int, level: float, go
     return float(optimize.brentq(gap, 0.0, high, xtol=1e-6 * high))
 
 
-def blind_spots(scores: list[ScoreTest], n_cases: int, level: float, goal=GOAL) -> list[dict]:
+def blind_spots(
+    scores: list[ScoreTest], n_cases: int, level: float, goal=GOAL, energy: str | None = None
+) -> list[dict]:
     """The effects of a round of score tests that the design would miss at their
     realistic magnitude (power < ``goal`` at the round's level ``level / len(scores)``).
 
@@ -74,7 +76,7 @@ def blind_spots(scores: list[ScoreTest], n_cases: int, level: float, goal=GOAL) 
     spots = []
     each = level / max(len(scores), 1)
     for test in scores:
-        effect = make_effect(test.effect)
+        effect = make_effect(test.effect, energy)
         realistic = float(effect.default_magnitude)
         if realistic <= 0.0 or test.information is None:
             continue

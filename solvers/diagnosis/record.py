@@ -165,7 +165,8 @@ class Diagnosis:
         """Effects the final round's score tests would miss at realistic sizes
         (``solvers.diagnosis.blind``); empty when that round was not run."""
         last = self.steps[-1]
-        return blind_spots(last.scores, len(last.fit.problem.cases), self.level)
+        energy = last.fit.problem.model.energy
+        return blind_spots(last.scores, len(last.fit.problem.cases), self.level, energy=energy)
 
     @property
     def unexplained(self) -> bool:

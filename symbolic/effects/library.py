@@ -66,7 +66,7 @@ from symbolic.effects.functions import (
 )
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
-from symbolic.effects.nonlinearity import NonlinearStiffening
+from symbolic.effects.nonlinearity import ContinuumStiffening, NonlinearStiffening
 from symbolic.effects.stiffness import (
     Bending,
     Heterogeneity,
@@ -80,6 +80,7 @@ from symbolic.sparse import SparseCallback, padded
 
 EFFECT_CLASSES: tuple[type[Effect], ...] = (
     NonlinearStiffening,
+    ContinuumStiffening,
     Heterogeneity,
     RigidMotion,
     ForceDirection,
@@ -94,21 +95,25 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     SurroundingTissue,
     Layering,
 )
-EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
+EFFECT_NAMES: tuple[str, ...] = tuple(dict.fromkeys(c.name for c in EFFECT_CLASSES))
 """The default library: every effect name of docs/diagnosis.md ("The effects") but
-``stiffness_field``, in order."""
+``stiffness_field``, in order. One name may have a class per base energy
+(``nonlinear_stiffening``: eq. 1 or eq. C10); ``make_effect`` picks by the energy."""
 
 OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect,)
 """Effects searched only when named (``DiagnosisSettings.candidates``)."""
 ALL_EFFECT_NAMES: tuple[str, ...] = EFFECT_NAMES + tuple(c.name for c in OPT_IN_CLASSES)
 
 
-def make_effect(name: str) -> Effect:
-    """A fresh effect by name."""
-    for cls in EFFECT_CLASSES + OPT_IN_CLASSES:
-        if cls.name == name:
-            return cls()
-    raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(ALL_EFFECT_NAMES)}")
+def make_effect(name: str, energy: str | None = None) -> Effect:
+    """A fresh effect by name: the class of that name that extends ``energy`` when one
+    does, else the first of that name."""
+    named = [cls for cls in EFFECT_CLASSES + OPT_IN_CLASSES if cls.name == name]
+    if not named:
+        known = ", ".join(ALL_EFFECT_NAMES)
+        raise ValueError(f"unknown effect {name!r}; known effects: {known}")
+    fitting = [cls for cls in named if energy in cls.energies]
+    return (fitting or named)[0]()
 
 
 def effect_library(names=None, energy: str | None = None) -> dict[str, Effect]:
@@ -116,7 +121,9 @@ def effect_library(names=None, energy: str | None = None) -> dict[str, Effect]:
 
     With ``energy``, only the effects that extend that base energy.
     """
-    chosen = {name: make_effect(name) for name in (EFFECT_NAMES if names is None else names)}
+    chosen = {
+        name: make_effect(name, energy) for name in (EFFECT_NAMES if names is None else names)
+    }
     if energy is None:
         return chosen
     return {name: e for name, e in chosen.items() if energy in e.energies}

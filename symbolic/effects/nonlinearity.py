@@ -1,6 +1,15 @@
-"""``nonlinear_stiffening``: k0 of eq. (1) as an effect, with a closed-form Jacobian.
+"""``nonlinear_stiffening``: strain stiffening, the one effect of that name for every base
+energy that can carry it (docs/diagnosis.md, "The effects").
 
-On top of the model's own k0 (default 0), the effect adds to K(B; x)(B - B0)
+- On the paper's energy (and the real skin's slab), k0 of eq. (1) (``NonlinearStiffening``).
+- On the large-strain continuum (``--energy neo-hookean``), k1 of the isochoric exponential
+  term of eq. (C10) at the exponent k2 of the model's parameters (default 10)
+  (``ContinuumStiffening``): the stiffening that the real skin's continuum needs, and that
+  a small-strain continuum cannot carry (it is not offered there).
+
+Both are zero at theta = 0 for every state, with a null value of 0 and a one-sided test.
+
+**Eq. (1).** On top of the model's own k0 (default 0), the effect adds to K(B; x)(B - B0)
 
     F = -G^T (w * (G Delta)),    w = k_s (s(eps; k0_model + k0) - s(eps; k0_model)),
     eps = (|r0 + G Delta| - L) / L,   k_s = (negative part of K_t[a, b]) . c,
@@ -27,8 +36,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from symbolic.continuum import KPA
 from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient
 from symbolic.effects.declaration import Magnitude, Parameter
+from symbolic.hyperelastic import NeoHookeanForce
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -155,3 +166,30 @@ class NonlinearStiffening(Effect):
         force = self.cached(model, "force", lambda: stiffening_force(model))
         coefficients = ca.vertcat(*[linear_coefficient(symbols.values, t) for t in model.terms])
         return force(symbols.delta, coefficients, theta[0], symbols.values["k0"])
+
+
+class ContinuumStiffening(Effect):
+    """k1 [kPa] of eq. (C10) on the neo-Hookean continuum: the internal force gains the
+    exponential term's, eq. (C8) with the stress of eq. (C11) alone (mu_L = lambda = 0),
+
+        f_exp = integral P_exp(F; k1, k2) dN/dx dV,
+
+    at the model's exponent k2 [1] (``symbolic.parameters``, default 10). Zero at k1 = 0
+    for every state, and its stress and tangent vanish at rest, so the small-strain E and
+    nu stay the base model's. Realistic magnitude 20 kPa: at k2 = 10 a tissue of E = 20
+    kPa doubles its tangent modulus at about 10 % stretch.
+    """
+
+    name = "nonlinear_stiffening"
+    parameters = (Parameter("k1", "kPa", 10.0, 0.0, 1000.0),)
+    magnitude = Magnitude(20.0, "kPa")
+    equation = "W += k1 / (2 k2) (exp(k2 (Ibar1 - 3)^2) - 1) (eq. C10)"
+    energies = ("neo-hookean",)
+
+    def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
+        def build():
+            operators = [p[:, model.free] for p in model.gradient.operators]
+            return NeoHookeanForce(operators, model.gradient.volume, exponential=True)
+
+        force = self.cached(model, "exponential", build)
+        return force(symbols.delta, 0.0, 0.0, KPA * theta[0], symbols.values["k2"])
