@@ -87,9 +87,12 @@ class Step:
     """The model's own left-out prediction: its dispersion phi and model error (eq. G2, G4)."""
 
     def parameters(self) -> dict:
-        """Every parameter of the fit: value, standard error, unit."""
+        """Every parameter of the fit: value, standard error, unit. The standard errors
+        are at the step's dispersion phi (sigma sqrt(phi), quasi-likelihood): with model
+        error the residual scatters more than the noise, and so do the estimates."""
         problem = self.fit.problem
-        std = self.fit.standard_errors(self.sigma)
+        phi = 1.0 if self.left_out is None else self.left_out.dispersion
+        std = self.fit.standard_errors(self.sigma * np.sqrt(phi))
         units = [PARAMETERS[n].unit for n in problem.names]
         for effect in problem.effects:
             units += list(effect.units) * (len(problem.positions) if effect.per_case else 1)
