@@ -126,7 +126,7 @@ class TissueModel(UnitTerms):
     def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
         """Linear K0 (eq. 18) for the current parameters, full (n, n) [N/mm]."""
         values = self.values(overrides)
-        return sum(values[term_parameter(t)] * m for t, m in self.terms.items()).tocsr()
+        return sum(self.coefficient(t, values) * m for t, m in self.terms.items()).tocsr()
 
     def mass_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
         """M = mu M_1 (eq. 13), full (n, n) [t]."""
@@ -207,7 +207,7 @@ class TissueModel(UnitTerms):
 
     def _term_coefficients(self, values: dict) -> ca.MX:
         """Column of term coefficients (alpha_u, ..., beta_vw) as CasADi expressions."""
-        return ca.vertcat(*[values[term_parameter(t)] for t in self.terms])
+        return ca.vertcat(*[self.coefficient(t, values) for t in self.terms])
 
     def elastic_force(self, delta: ca.MX, values: dict, symbolic: tuple[str, ...]) -> ca.MX:
         """K(B; x)(B - B0) on the free points as an expression in delta and x."""
@@ -217,7 +217,7 @@ class TissueModel(UnitTerms):
             )
         force = 0
         for term in self.terms:
-            coefficient = values[term_parameter(term)]
+            coefficient = self.coefficient(term, values)
             if isinstance(coefficient, float) and coefficient == 0.0:
                 continue
             force = force + coefficient * ca.mtimes(self.free_term(term, "dm"), delta)

@@ -150,24 +150,18 @@ class SkinSlabModel(TissueModel):
         return force
 
     def coefficient(self, term: str, values: dict):
-        """c_t of one base term (a number or a CasADi expression)."""
+        """c_t of one term (a number or a CasADi expression): alpha_v tied to alpha_u when
+        ``isotropic``, and a region term's c_t (ratio - 1) of its base term."""
+        if term.endswith(REGION_SUFFIX):
+            base = term[: -len(REGION_SUFFIX)]
+            return self.coefficient(base, values) * (values[REGION_RATIO] - 1.0)
         if term == "alpha_v" and self.isotropic:
             return values["alpha_u"] * self.aspect**2 * values[ANISOTROPY]
         return values[term_parameter(term)]
 
     def coefficient_list(self, values: dict) -> list:
         """Coefficient of every term (numbers or CasADi expressions), in ``terms`` order."""
-        out = []
-        for term in self.terms:
-            if term.endswith(REGION_SUFFIX):
-                base = term[: -len(REGION_SUFFIX)]
-                out.append(self.coefficient(base, values) * (values[REGION_RATIO] - 1.0))
-            else:
-                out.append(self.coefficient(term, values))
-        return out
-
-    def _term_coefficients(self, values: dict) -> ca.MX:
-        return ca.vertcat(*self.coefficient_list(values))
+        return [self.coefficient(term, values) for term in self.terms]
 
     def membrane_tension(self, values: dict) -> tuple[float, float]:
         """(T_x, T_y) [N/mm] outside the region: alpha_u L_x / L_y, alpha_v L_y / L_x."""
@@ -176,11 +170,15 @@ class SkinSlabModel(TissueModel):
             float(self.coefficient("alpha_v", values)) / self.aspect,
         )
 
-    def stiffness_matrix(self, overrides: dict[str, float] | None = None) -> sp.csr_matrix:
-        """Linear K0 (eq. 18) including the region terms, (n, n) [N/mm]."""
-        values = self.values(overrides)
-        pairs = zip(self.coefficient_list(values), self.terms.values())
-        return sum(c * m for c, m in pairs).tocsr()
+    def linear_terms(self, names: tuple[str, ...]) -> tuple[ca.MX, ca.MX, list[str]]:
+        """As ``UnitTerms.linear_terms`` (the isotropy tie and the region terms through
+        ``coefficient``); refused while the volumetric coupling is on, which no unit term
+        of ``terms`` carries."""
+        if POISSON in names or self.poisson != 0.0:
+            raise NotImplementedError(
+                "the slab's volumetric coupling (poisson) is not a unit term of eq. (18)"
+            )
+        return super().linear_terms(names)
 
     def symbolic_values(self, names: tuple[str, ...]) -> tuple[ca.MX, dict]:
         """As ``TissueModel.symbolic_values``; the extra parameters may be among the names."""

@@ -25,6 +25,14 @@ def term_parameter(term: str) -> str:
 class UnitTerms:
     """The unit-term assembly of a model's linear stiffness (see the module docstring)."""
 
+    def coefficient(self, term: str, values: dict):
+        """c_t, the coefficient of the unit term K_t in eq. (18) [N/mm per unit K_t]: by
+        default its parameter, ``values[term_parameter(term)]`` (alpha_u for alpha_u, beta
+        for beta_uv); a model that ties parameters (``SkinSlabModel``'s in-plane isotropy)
+        overrides it, and every reader of a term's coefficient goes through it. A number
+        or a CasADi expression, as the entries of ``values`` are."""
+        return values[term_parameter(term)]
+
     def linear_terms(self, names: tuple[str, ...]) -> tuple[ca.MX, ca.MX, list[str]]:
         """The linear model as A(x) = sum_t c_t(x) (I3 (x) K_t) on the free points (eq. 11-18).
 
@@ -39,13 +47,10 @@ class UnitTerms:
         """
         x, values = self.symbolic_values(names)
         # terms whose coefficient is a fixed zero (beta = 0 by default) contribute nothing
-        terms = [
-            t
-            for t in self.terms
-            if term_parameter(t) in names or self.parameters[term_parameter(t)] != 0.0
-        ]
-        coefficients = ca.vertcat(*[values[term_parameter(t)] for t in terms])
-        return x, coefficients, terms
+        pairs = [(t, self.coefficient(t, values)) for t in self.terms]
+        pairs = [(t, c) for t, c in pairs if not (isinstance(c, float) and c == 0.0)]
+        coefficients = ca.vertcat(*[c for _, c in pairs])
+        return x, coefficients, [t for t, _ in pairs]
 
     def term_columns(self, terms: list[str], vector: ca.MX) -> ca.MX:
         """[(I3 (x) K_t) v]_t for a vector v on the free points, (3 n_free, n_terms).

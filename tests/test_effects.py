@@ -377,3 +377,44 @@ def test_a_fields_two_continuum_terms_share_one_pass_and_equal_their_matrices(mo
     for term, product in zip(terms, products):
         expected = term.matrix() @ x
         assert np.abs(product - expected).max() <= 1e-10 * np.abs(expected).max()
+
+
+def test_stiffening_effect_on_the_slab_is_the_slabs_own_k0():
+    """``nonlinear_stiffening`` on a ``SkinSlabModel`` (model k0 = 0) adds exactly the slab's
+    own eq. (1) force at k0 = k minus its linear force: the effect reads the slab's term
+    coefficients through ``TissueModel.coefficient``, alpha_v tied to alpha_u by the
+    in-plane isotropy, not the alpha_v parameter (whose default differs)."""
+    import casadi as ca
+
+    from experiments.realskin.geometry import Rect
+    from experiments.realskin.slab import slab_volume
+    from symbolic.constraints import BoundaryConditions
+    from symbolic.effects.base import CaseSymbols
+    from symbolic.skin_slab import SkinSlabModel
+    from symbolic.stiffening import exponential_stiffening
+
+    def slab(k0: float) -> SkinSlabModel:
+        return SkinSlabModel(
+            slab_volume(Rect(0.0, -5.0, 100.0, 45.0), 2.0, (8, 5)),
+            {"alpha_u": 0.012, "alpha_w": 0.06, "k0": k0},
+            BoundaryConditions(fix_inner=True),
+            stiffening=exponential_stiffening,
+            isotropic=True,
+        )
+
+    model, k = slab(0.0), 3.0
+    tied = model.coefficient("alpha_v", model.values())
+    assert abs(tied - model.values()["alpha_v"]) > 0.5 * tied  # the tie is not the default
+    delta = ca.MX.sym("delta", model.n_free, 3)
+    effect = make_effect("nonlinear_stiffening")
+    added = effect.internal_force(model, CaseSymbols(delta, model.values()), ca.DM([k]))
+    own = slab(k).elastic_force(delta, slab(k).values(), ()) - model.elastic_force(
+        delta, model.values(), ()
+    )
+    forces = ca.Function("forces", [delta], [added, own])
+    shift = np.random.default_rng(4).normal(0.0, 0.3, (model.n_free, 3))
+    effect_force, slab_force = (np.array(f) for f in forces(shift))
+    scale = np.abs(slab_force).max()
+    print(f"largest force {scale:.2e} N, difference {np.abs(effect_force - slab_force).max():.1e}")
+    assert scale > 1e-4
+    assert np.abs(effect_force - slab_force).max() <= 1e-12 * scale

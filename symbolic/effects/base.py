@@ -33,7 +33,6 @@ import scipy.sparse as sp
 from symbolic.effects.declaration import Magnitude
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
-from symbolic.unitterms import term_parameter
 
 
 @dataclass(frozen=True)
@@ -363,9 +362,10 @@ def per_model(store: dict, model: TissueModel, key, build, weak: bool = True):
     return entry[1]
 
 
-def linear_coefficient(values: dict, term: str):
-    """The coefficient of a unit stiffness term K_t (alpha_u, ..., beta for beta_uv)."""
-    return values[term_parameter(term)]
+def linear_coefficient(model: TissueModel, values: dict, term: str):
+    """The coefficient c_t of a unit stiffness term K_t (alpha_u, ..., beta for beta_uv) as
+    the model reads it (``TissueModel.coefficient``: the slab's tied alpha_v)."""
+    return model.coefficient(term, values)
 
 
 def free_matrix(model: TissueModel, matrix: sp.spmatrix) -> ca.DM:

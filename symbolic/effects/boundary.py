@@ -123,7 +123,7 @@ class BaseCompliance(Effect):
         with a fixed zero coefficient left out unless ``every``)."""
         if model.energy != "dnurbs":
             return list(zip(CONTINUUM_TERMS, model.coefficients(values)))
-        pairs = [(term, linear_coefficient(values, term)) for term in self._matrices(model)]
+        pairs = [(term, linear_coefficient(model, values, term)) for term in self._matrices(model)]
         return [p for p in pairs if every or not (isinstance(p[1], float) and p[1] == 0.0)]
 
     def stiffness_terms(self, model: TissueModel) -> list[sp.csr_matrix]:
@@ -144,7 +144,7 @@ class BaseCompliance(Effect):
                 grid = [[sp.csr_matrix((n, n)), free_inner], [inner_free, inner_inner]]
                 return sp.bmat(grid, format="csr")
 
-            terms = [t for t, _ in self._terms_used(model, dict(model.parameters), every=True)]
+            terms = [t for t, _ in self._terms_used(model, model.values(), every=True)]
             out = [placed(free_inner=stacked(blocks[t][0])) for t in terms]
             out += [placed(None, stacked(blocks[t][1]), stacked(blocks[t][2])) for t in terms]
             out.append(placed(inner_inner=componentwise(self.foundation_matrix(model))))

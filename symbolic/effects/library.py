@@ -228,8 +228,7 @@ class ExtendedModel:
         if key not in self._functions:
             x, base, names = model.linear_terms(self.names)
             p = ca.MX.sym("p", self.n_parameters)
-            values = dict(model.parameters)
-            values.update({name: p[i] for i, name in enumerate(self.names)})
+            values = self._values(p)
             base_coefficients = ca.Function("c", [x], [base])(p[: len(self.names)])
             coefficients = [base_coefficients]
             n = self.n_state
@@ -285,6 +284,13 @@ class ExtendedModel:
         extra = sum(e.extra_points(self.model) for e in self.effects)
         return 3 * (self.model.n_free + extra)
 
+    def _values(self, p: ca.MX) -> dict:
+        """Every parameter value of the model by name (``TissueModel.values``: numbers, and
+        the slab's own), with the estimated ones the first entries of p."""
+        values = self.model.values()
+        values.update({name: p[i] for i, name in enumerate(self.names)})
+        return values
+
     def _symbols(self, position: int) -> tuple[ca.MX, ca.MX, CaseSymbols, list]:
         """Fresh s and p, the case symbols on s and every effect's theta (a slice of p)."""
         model = self.model
@@ -292,8 +298,7 @@ class ExtendedModel:
         extra_sizes = [e.extra_points(model) for e in self.effects]
         s = ca.MX.sym("s", 3 * (n_free + sum(extra_sizes)))
         p = ca.MX.sym("p", self.n_parameters)
-        values = dict(model.parameters)
-        values.update({name: p[i] for i, name in enumerate(self.names)})
+        values = self._values(p)
         symbols = CaseSymbols(ca.reshape(s[: 3 * n_free], n_free, 3), values)
         start = 3 * n_free
         for effect, size in zip(self.effects, extra_sizes):
@@ -390,8 +395,7 @@ class ExtendedModel:
         if key not in self._functions:
             p = ca.MX.sym("p", self.n_parameters)
             delta = ca.MX.sym("delta", self.model.n_free, 3)
-            values = dict(self.model.parameters)
-            values.update({name: p[i] for i, name in enumerate(self.names)})
+            values = self._values(p)
             total = sum(e.stiffness(self.model, values, p[self.slices[e.name]]) for e in chosen)
             self._functions[key] = (
                 ca.Function("linear_force", [delta, p], [apply_stacked(total, delta)]),

@@ -164,7 +164,9 @@ class NonlinearStiffening(Effect):
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
         force = self.cached(model, "force", lambda: stiffening_force(model))
-        coefficients = ca.vertcat(*[linear_coefficient(symbols.values, t) for t in model.terms])
+        coefficients = ca.vertcat(
+            *[linear_coefficient(model, symbols.values, t) for t in model.terms]
+        )
         return force(symbols.delta, coefficients, theta[0], symbols.values["k0"])
 
 

@@ -117,7 +117,7 @@ def scaled_coefficients(model: TissueModel, values: dict, theta, n_fields: int) 
     if model.energy != "dnurbs":
         coefficients = model.coefficients(values)
     else:
-        coefficients = tuple(values[term] for term in ALPHA_TERMS)
+        coefficients = tuple(model.coefficient(term, values) for term in ALPHA_TERMS)
     return ca.vertcat(*[theta[j] * c for j in range(n_fields) for c in coefficients])
 
 
