@@ -47,6 +47,7 @@ from solvers.diagnosis.record import SCHEMA, DiagnosisSettings
 from solvers.diagnosis.report import verdict
 from solvers.diagnosis.stats import log_chi2_sf, log_chi2_sf_series, score_test
 from solvers.inverse.noise import rest_noise_map
+from solvers.inverse.problem import PlanarProblem
 from symbolic.effects.library import EFFECT_NAMES, make_effect
 
 SEED = 1
@@ -104,6 +105,30 @@ def _cases(criterion: str):
 
 
 # ----------------------------------------------------------------------- the noise model
+def test_planar_observation_is_the_inverse_problems_residual():
+    """x and y observed (``PlanarProblem``): the extended residual is
+    ``InverseProblem.case_residual`` at the same states, two rows per marker; its
+    whitening still inverts the rest-noise covariance of those rows, and the noise RMS of
+    a marker's distance is that of two components, sqrt(2/3) of the 3D one."""
+    dataset = simulate_with_effects({}, seed=0)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    planar = PlanarProblem(base.model, base.cases, base.space, base.noise_mm, base.rest_noise)
+    loads = dataset_loads(dataset, base.model.volume)
+    problem, spatial = ExtendedProblem(planar, loads, []), ExtendedProblem(base, loads, [])
+    r, _, states = problem.evaluate(problem.start())
+    expected = [planar.case_residual(c, s) for c, s in zip(planar.cases, states)]
+    assert problem.case_rows() == [2 * c.n_observations for c in planar.cases]
+    np.testing.assert_allclose(r, np.concatenate(expected), rtol=0, atol=1e-14)
+    for mine, theirs in zip(problem.point_errors(r), planar.point_errors(states)):
+        np.testing.assert_allclose(mine, theirs, rtol=1e-13)
+    p_map = planar.rest_noise_map().toarray()
+    assert p_map.shape[0] == r.size
+    whitening = problem.whitening.toarray()
+    covariance = np.eye(r.size) + p_map @ p_map.T
+    np.testing.assert_allclose(whitening @ whitening @ covariance, np.eye(r.size), atol=1e-12)
+    assert problem.noise_rms(0.02) == pytest.approx(np.sqrt(2 / 3) * spatial.noise_rms(0.02))
+
+
 def test_whitening_inverts_the_rest_noise_covariance():
     """W^2 (I + P P^T) = I, so |W r|^2 / sigma^2 ~ chi^2 under pure noise."""
     dataset = simulate_with_effects({}, seed=0)

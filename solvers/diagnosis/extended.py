@@ -32,8 +32,15 @@ from solvers.diagnosis import linear
 from solvers.diagnosis.cache import SharedCache
 from solvers.diagnosis.linear import StateJacobian
 from solvers.diagnosis.numeric import NumericFunction
+from solvers.diagnosis.observation import (
+    case_data,
+    force_errors,
+    noise_model,
+    point_errors,
+    row_offsets,
+)
 from solvers.forward.equilibrium import EquilibriumError
-from solvers.inverse.noise import Whitening, rest_noise_map
+from solvers.inverse.noise import Whitening
 from solvers.inverse.problem import InverseProblem, LoadCase
 from solvers.inverse.space import LOG_PARAMETERS
 from symbolic.effects.base import CaseData, Effect
@@ -42,27 +49,6 @@ from symbolic.effects.library import ExtendedModel
 
 def _dense(value) -> np.ndarray:
     return value.toarray() if sp.issparse(value) else np.asarray(value)
-
-
-def case_data(problem: InverseProblem, loads: list, index: int, position: int) -> CaseData:
-    """The numbers of base case ``position`` (dataset case ``index``) with its load."""
-    case: LoadCase = problem.cases[position]
-    load = loads[index]
-    full = np.asarray(load.generalized(problem.model.volume), dtype=float)
-    f = np.asarray(load.force, dtype=float)
-    return CaseData(
-        index=index,
-        force=case.force,
-        force_vector=f,
-        contact_uv=np.asarray(load.uv, dtype=float),
-        load_row=full @ f / float(f @ f),
-        rows=case.rows,
-        rest_points=case.rest_points,
-        offset=case.offset,
-        weights=case.weights,
-        probe_variance=0.25 * float(getattr(load, "radius", 0.0)) ** 2,
-        probe_shape=getattr(load, "shape", "gauss"),
-    )
 
 
 class ExtendedProblem:
@@ -129,10 +115,12 @@ class ExtendedProblem:
         return self.cache[key]
 
     def _noise_model(self) -> Whitening:
-        """The whitening of the cases in use (``solvers.inverse.noise``)."""
-        selected = [self.base.cases[k] for k in self.positions]
-        n = sum(3 * c.n_observations for c in selected)
-        return Whitening.of(rest_noise_map(selected, self.base.rest_noise), n)
+        """The whitening of the cases in use (``solvers.diagnosis.observation``)."""
+        return noise_model(self.base, self.cases)
+
+    def case_rows(self) -> list[int]:
+        """The residual rows of every case in use: len(observed) n_obs + n_F."""
+        return [int(n) for n in np.diff(row_offsets(self.base, self.cases))]
 
     # ----------------------------------------------------------------- layout
     @property
@@ -371,22 +359,28 @@ class ExtendedProblem:
 
     def point_errors(self, r: np.ndarray) -> list[np.ndarray]:
         """Per case, the distance of every observed marker from its prediction [mm]."""
-        errors, start = [], 0
-        for case in self.cases:
-            n = case.n_observations
-            block = r[start : start + 3 * n].reshape(3, n).T / case.weights[:, None]
-            errors.append(np.linalg.norm(block, axis=1))
-            start += 3 * n
-        return errors
+        return point_errors(self.base, self.cases, r)
+
+    def force_errors(self, r: np.ndarray) -> list[np.ndarray | None]:
+        """Per case, model minus measured force components [N] (None without a sensor)."""
+        return force_errors(self.base, self.cases, r)
 
     def rms(self, r: np.ndarray) -> tuple[float, float]:
-        """RMS and maximum marker distance over all cases [mm]."""
+        """RMS and maximum marker distance over all cases [mm] (0 without markers)."""
         every = np.concatenate(self.point_errors(r))
+        if not every.size:
+            return 0.0, 0.0
         return float(np.sqrt(np.mean(every**2))), float(every.max())
 
+    def force_rms(self, r: np.ndarray) -> float | None:
+        """RMS of the force errors over all cases with a force sensor [N] (None: none)."""
+        forces = [e for e in self.force_errors(r) if e is not None]
+        return float(np.sqrt(np.mean(np.concatenate(forces) ** 2))) if forces else None
+
     def noise_rms(self, sigma: float) -> float:
-        """Expected RMS marker distance of a pure-noise residual: sigma sqrt(3 tr(Sigma)/m)."""
-        return self.noise_model.noise_rms(sigma)
+        """Expected RMS marker distance of a pure-noise residual over the observed
+        components: sigma sqrt(len(observed) tr(Sigma) / m)."""
+        return self.noise_model.noise_rms(sigma, len(self.base.observed))
 
     def with_effects(self, effects: list[Effect], positions=None) -> ExtendedProblem:
         """The same base problem with other effects (or cases)."""

@@ -131,7 +131,7 @@ def _left_out_step(model_fit: EffectFit, held: list) -> tuple[np.ndarray, list, 
     train = [k for k in problem.positions if k not in held]
     train_problem = problem.with_effects(problem.effects, positions=train)
     test_problem = problem.with_effects(problem.effects, positions=held)
-    offsets = np.cumsum([0] + [3 * c.n_observations for c in problem.cases])
+    offsets = np.cumsum([0] + problem.case_rows())
 
     def rows(positions):
         order = [problem.positions.index(k) for k in positions]
@@ -189,15 +189,21 @@ def halves(problem) -> np.ndarray:
     """Which whitened residual rows of ``problem``'s cases belong to the first half of the
     markers: two opposite quadrants about the markers' centroid, in the principal axes of
     their rest positions (the skin's plane), the same markers in every case. Rows are
-    each case's x, y, z blocks in turn (``solvers.inverse.noise.rest_noise_map``), so a
-    marker's rows, which the whitening couples across cases, fall in one half."""
+    each case's blocks of observed components in turn, then its force rows
+    (``solvers.diagnosis.observation``), so a marker's rows, which the whitening couples
+    across cases, fall in one half; force rows, which no marker carries, go with the
+    first."""
     points = np.vstack([case.rest_points for case in problem.cases])
+    if len(points) < 2:  # force rows alone
+        return np.ones(sum(problem.case_rows()), dtype=bool)
     centre = points.mean(axis=0)
     _, _, axes = np.linalg.svd(points - centre, full_matrices=False)
+    width = len(problem.base.observed)
     masks = []
-    for case in problem.cases:
+    for case, rows in zip(problem.cases, problem.case_rows()):
         a, b = ((case.rest_points - centre) @ axes[:2].T).T
-        masks.append(np.tile(a * b >= 0.0, 3))
+        marker = np.tile(a * b >= 0.0, width)
+        masks.append(np.concatenate([marker, np.ones(rows - marker.size, dtype=bool)]))
     return np.concatenate(masks)
 
 

@@ -138,13 +138,14 @@ def fit_verdict(
     residual = np.concatenate(
         [problem.case_residual(case, state) for case, state in zip(problem.cases, states)]
     )
-    whitening = Whitening.of(problem.rest_noise_map(), residual.size)
+    markers = sum(len(problem.observed) * case.n_observations for case in problem.cases)
+    whitening = Whitening.of(problem.rest_noise_map(), residual.size, markers)
     sigma = float(problem.noise_mm)
     statistic = float(np.sum((whitening.matrix @ residual) ** 2) / sigma**2)
     dof = max(residual.size - int(np.sum(problem.active)), 1)
     log10_p = log_chi2_sf(statistic, dof) / np.log(10.0)
     p_value = float(10.0**log10_p)
-    noise_rms = whitening.noise_rms(sigma)
+    noise_rms = whitening.noise_rms(sigma, len(problem.observed))
     explains = p_value >= level
     line = _text(explains, rms_mm, noise_rms, statistic, dof, log10_p)
     return Verdict(explains, rms_mm, noise_rms, statistic, dof, p_value, log10_p, level, line)

@@ -25,7 +25,9 @@ import numpy as np
 import scipy.sparse as sp
 
 
-def rest_noise_map(cases, rest_noise: bool = True) -> sp.csr_matrix | None:
+def rest_noise_map(
+    cases, rest_noise: bool = True, observed: tuple[int, ...] = (0, 1, 2)
+) -> sp.csr_matrix | None:
     """P, mapping rest-marker coordinate noise into the stacked residual of ``cases``.
 
     Parameters
@@ -34,43 +36,54 @@ def rest_noise_map(cases, rest_noise: bool = True) -> sp.csr_matrix | None:
         Cases with ``marker_index`` (which rest marker each observation is) and weights.
     rest_noise : bool
         False when the rest geometry is exact (then there is no P).
+    observed : tuple of int
+        The components the markers are observed in (``InverseProblem.observed``); a
+        case's force rows (``LoadCase.force_rows``) follow its markers' and carry no
+        rest-marker noise.
 
     Returns
     -------
     scipy.sparse.csr_matrix or None
-        (sum of 3 n_obs, 3 n_markers), or None without rest noise.
+        (sum of len(observed) n_obs + n_F, 3 n_markers), or None without rest noise.
     """
     if not rest_noise or any(c.marker_index is None for c in cases):
         return None
-    n_markers = 1 + max(int(c.marker_index.max()) for c in cases)
+    seen = [int(c.marker_index.max()) for c in cases if c.marker_index.size]
+    n_markers = 1 + max(seen, default=-1)
+    select = sp.identity(3, format="csr")[list(observed)]
     blocks = []
     for case in cases:
         n = case.n_observations
         pick = sp.csr_matrix(
             (case.weights, (np.arange(n), case.marker_index)), shape=(n, n_markers)
         )
-        blocks.append(sp.kron(sp.identity(3), pick))
+        blocks.append(sp.kron(select, pick))
+        if getattr(case, "force_rows", None) is not None:
+            blocks.append(sp.csr_matrix((case.force_rows.shape[0], 3 * n_markers)))
     return sp.vstack(blocks).tocsr()
 
 
 @dataclass(frozen=True)
 class Whitening:
-    """W = (I + P P^T)^-1/2 of ``n`` residuals, and tr(I + P P^T) / n.
+    """W = (I + P P^T)^-1/2 of ``n`` residuals, and the mean variance of a marker row.
 
     Attributes
     ----------
     matrix : scipy.sparse.csr_matrix
         W, (n, n).
     trace_factor : float
-        tr(I + P P^T) / n: the mean variance of one residual over sigma^2.
+        tr(I + P P^T) / m over the m marker rows: the mean variance of one marker
+        residual over sigma^2.
     """
 
     matrix: sp.csr_matrix
     trace_factor: float
 
     @classmethod
-    def of(cls, p_map: sp.spmatrix | None, n: int) -> Whitening:
-        """The whitening of ``n`` residuals with rest-noise map ``p_map`` (None: W = I)."""
+    def of(cls, p_map: sp.spmatrix | None, n: int, markers: int | None = None) -> Whitening:
+        """The whitening of ``n`` residuals with rest-noise map ``p_map`` (None: W = I),
+        ``markers`` of them marker rows (default all; the others are force rows, which P
+        does not reach)."""
         if p_map is None:
             return cls(sp.identity(n, format="csr"), 1.0)
         counts = np.asarray(p_map.multiply(p_map).sum(axis=0)).ravel()
@@ -78,7 +91,8 @@ class Whitening:
         seen = counts > 0
         shrink[seen] = (1.0 - 1.0 / np.sqrt(1.0 + counts[seen])) / counts[seen]
         matrix = sp.identity(n, format="csr") - p_map @ sp.diags(shrink) @ p_map.T
-        return cls(matrix.tocsr(), float(n + counts.sum()) / n)
+        markers = n if markers is None else markers
+        return cls(matrix.tocsr(), float(markers + counts.sum()) / max(markers, 1))
 
     @staticmethod
     def root(p_map: sp.spmatrix | None, n: int) -> sp.csr_matrix:
@@ -93,6 +107,7 @@ class Whitening:
         grow[seen] = (np.sqrt(1.0 + counts[seen]) - 1.0) / counts[seen]
         return (sp.identity(n, format="csr") + p_map @ sp.diags(grow) @ p_map.T).tocsr()
 
-    def noise_rms(self, sigma: float) -> float:
-        """Expected RMS marker distance of a pure-noise residual: sigma sqrt(3 tr / n) [mm]."""
-        return float(sigma * np.sqrt(3.0 * self.trace_factor))
+    def noise_rms(self, sigma: float, components: int = 3) -> float:
+        """Expected RMS marker distance of a pure-noise residual over the ``components``
+        observed coordinates of a marker: sigma sqrt(components tr / m) [mm]."""
+        return float(sigma * np.sqrt(components * self.trace_factor))

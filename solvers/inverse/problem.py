@@ -300,7 +300,7 @@ class InverseProblem:
         The residual covariance is sigma^2 (I + P P^T) when ``rest_noise`` holds
         (``solvers.inverse.noise``).
         """
-        return rest_noise_map(self.cases, self.rest_noise)
+        return rest_noise_map(self.cases, self.rest_noise, self.observed)
 
     def marker_errors(self, states: list[np.ndarray]) -> list[np.ndarray]:
         """Per case, model minus measured displacement of every marker in the observed

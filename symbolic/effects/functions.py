@@ -167,11 +167,21 @@ def case_load(model: TissueModel, effects, case: CaseData, thetas, n_state: int)
 
 
 def case_observation(model: TissueModel, effects, case: CaseData, symbols, thetas) -> ca.MX:
-    """r = W (y - Y) with y = maps of S B, columns stacked (as ``InverseProblem``): the
+    """r = W (y - Y) with y = maps of S B over the observed components, columns stacked,
+    then the force rows w_f (R vec(lam) - F) (as ``InverseProblem.case_residual``): the
     predicted markers as the observation effects change them, in turn (eq. 24)."""
     rest = ca.DM(case.rest_points)
     predicted = rest + ca.mtimes(to_casadi_sparse(case.rows), symbols.delta)
     for effect, theta in zip(effects, thetas):
         predicted = effect.observe(model, case, predicted, theta)
-    weights = ca.repmat(ca.DM(case.weights), 1, 3)
-    return ca.vec(weights * (predicted - rest + ca.DM(case.offset)))
+    difference = predicted - rest + ca.DM(case.offset)
+    if tuple(case.observed) != (0, 1, 2):
+        difference = difference[:, list(case.observed)]
+    weights = ca.repmat(ca.DM(case.weights), 1, len(case.observed))
+    r = ca.vec(weights * difference)
+    if case.force_rows is None:
+        return r
+    if symbols.lam is None:
+        raise ValueError("a force observation needs prescribed points (their multipliers)")
+    force = ca.mtimes(to_casadi_sparse(case.force_rows), ca.vec(symbols.lam))
+    return ca.vertcat(r, case.force_weight * (force - ca.DM(case.force_target)))
