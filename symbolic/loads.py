@@ -10,7 +10,8 @@
     (``DISC_EDGE_MM``), so that F_B is smooth in r and in the contact.
   Both have the per-axis variance r^2 / 4 of the patch.
 - Prescribed displacements of outer-surface material points p_i:
-  J(p_i) (B - B0) = d_i, imposed with Lagrange multipliers by the model.
+  J(p_i) (B - B0) = d_i, imposed with Lagrange multipliers by the model; a frame of a
+  set-up driven by them alone is a ``FrameLoad`` (f = 0, no contact).
 """
 
 from __future__ import annotations
@@ -230,6 +231,33 @@ class PrescribedDisplacement:
     def constraint_matrix(self, volume: VolumeSpline) -> sp.csr_matrix:
         """A with rows J(p_i), so that A (B - B0) = d, shape (m, n)."""
         return volume.collocation(volume.outer_params(self.uv)).tocsr()
+
+
+@dataclass(frozen=True)
+class FrameLoad:
+    """One frame of a set-up driven by prescribed displacements alone (the two-pad
+    extensometer, docs/realskin.md): no applied force, f = 0 and F_B = 0, and no contact
+    point (``uv`` None); the frame's displacements d and its observations are its load
+    case's (``LoadCase.prescribed``, ``force_rows``).
+
+    Parameters
+    ----------
+    label : str
+        The frame's name for reports, e.g. "frame 49".
+    """
+
+    label: str = ""
+    uv = None
+    radius = 0.0
+
+    @property
+    def force(self) -> np.ndarray:
+        """f = 0, (3,) [N]."""
+        return np.zeros(3)
+
+    def generalized(self, volume: VolumeSpline) -> np.ndarray:
+        """F_B = 0, shape (n, 3) [N]."""
+        return np.zeros(volume.control_points.shape)
 
 
 def independent_rows(matrix: np.ndarray, tol: float = 1e-10) -> np.ndarray:

@@ -28,15 +28,19 @@ def check_theta_zero(setting, name: str, solved_atol: float = 1e-13) -> None:
     extended = problem.with_effects([library[name]])
     p = np.concatenate([base_fit.p, np.zeros(len(extended.labels) - base_fit.p.size)])
     rng = np.random.default_rng(0)
+    tail = 3 * problem.model.n_constraints  # the multipliers stay last
     for position in range(len(problem.positions)):
         n_base = problem.functions(position).n_state
         n_state = extended.functions(position).n_state
         state = rng.normal(0.0, 0.05, n_base)
-        padded = np.concatenate([state, np.zeros(n_state - n_base)])
+        kept = np.r_[0 : n_base - tail, n_state - tail : n_state]
+        added = np.r_[n_base - tail : n_state - tail]
+        padded = np.zeros(n_state)
+        padded[kept] = state
         g_base = problem.numeric(position, "equilibrium")(state, base_fit.p)[0].ravel()
         g = extended.numeric(position, "equilibrium")(padded, p)[0].ravel()
-        np.testing.assert_allclose(g[:n_base], g_base, rtol=0, atol=1e-15)
-        np.testing.assert_array_equal(g[n_base:], 0.0 * g[n_base:])
+        np.testing.assert_allclose(g[kept], g_base, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(g[added], 0.0 * g[added])
         r_base = problem.numeric(position, "residual")(state, base_fit.p)[0].ravel()
         r = extended.numeric(position, "residual")(padded, p)[0].ravel()
         np.testing.assert_allclose(r, r_base, rtol=0, atol=1e-14)  # c + (p - c) rounds
@@ -59,9 +63,10 @@ def check_newton_jacobian(extended: ExtendedProblem, p: np.ndarray) -> None:
     np.testing.assert_allclose(actual, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
 
 
-def check_derivatives(setting, name: str) -> None:
-    """d r / d p of the problem extended by ``name`` against central differences, and
-    the Newton Jacobian dg/ds against automatic differentiation of g."""
+def check_derivatives(setting, name: str, theta_step: float = 1e-5) -> None:
+    """d r / d p of the problem extended by ``name`` against central differences (steps of
+    ``theta_step`` times an effect parameter's scale), and the Newton Jacobian dg/ds
+    against automatic differentiation of g."""
     problem, base_fit, library = setting
     extended = problem.with_effects([library[name]])
     n_x = base_fit.p.size
@@ -69,7 +74,7 @@ def check_derivatives(setting, name: str) -> None:
     for point in (_point(extended, base_fit.p, 0.0), _point(extended, base_fit.p, 0.7)):
         r, jacobian, _ = extended.evaluate(point)
         for j in range(point.size):
-            step = extended.scale[j] * 1e-5 if j >= n_x else point[j] * 1e-6
+            step = extended.scale[j] * theta_step if j >= n_x else point[j] * 1e-6
             if point[j] - step < extended.lower[j]:  # one-sided at a lower bound of 0
                 plus = extended.evaluate(point + step * np.eye(point.size)[j])[0]
                 twice = extended.evaluate(point + 2 * step * np.eye(point.size)[j])[0]

@@ -229,8 +229,9 @@ class ExtendedProblem:
         if last is not None and last.same_as(matrix):
             factor = last
         else:
-            split = 3 * self.extended.model.n_free  # where an effect's extra state begins
-            factor = StateJacobian(matrix, linear.symmetric_rows(self, p), split)
+            split = 3 * self.model.n_free  # where an effect's extra state begins
+            rows = linear.symmetric_rows(self, p)
+            factor = StateJacobian(matrix, rows, split, definite=not self.model.n_constraints)
         self.cache["last_state_jacobian"] = factor
         self.cache[key] = (p.copy(), factor)
         return factor
@@ -293,7 +294,7 @@ class ExtendedProblem:
         last = self.cache.get("last_state_jacobian")
         if last is not None and last.same_as(matrix):
             return last
-        jacobian = StateJacobian(matrix)
+        jacobian = StateJacobian(matrix, definite=not self.model.n_constraints)
         self.cache["last_state_jacobian"] = jacobian
         return jacobian
 

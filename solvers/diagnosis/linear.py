@@ -60,19 +60,30 @@ class StateJacobian:
         back substitution with its two diagonal blocks factorised apart (both symmetric
         positive definite: CHOLMOD for each, where the whole matrix, not symmetric,
         went to SuperLU: 20 % of the CPU of one diagnosis at 47 x 40 x 7).
+    definite : bool
+        False for a matrix known to be indefinite (the KKT matrix of prescribed
+        displacements, ``symbolic.effects.prescribed``): SuperLU at once, without a
+        Cholesky attempt that would fail.
     """
 
     def __init__(
-        self, matrix: sp.spmatrix, rows: np.ndarray | None = None, split: int | None = None
+        self,
+        matrix: sp.spmatrix,
+        rows: np.ndarray | None = None,
+        split: int | None = None,
+        definite: bool = True,
     ):
         compressed = sp.issparse(matrix) and matrix.format in ("csr", "csc")
         self.matrix = matrix if compressed else sp.csc_matrix(matrix)
         self.rows = None if rows is None else np.asarray(rows, dtype=float)
         self.split = split
+        self.definite = definite
         self._lu = None
 
     def _factorise(self):
         """CHOLMOD for an SPD K(p), else SuperLU (``solvers.linalg.cholmod.factorised``)."""
+        if not self.definite:
+            return _lu(self.matrix if self.rows is None else _rows_scaled(self.matrix, self.rows))
         matrix, n = self.matrix, self.split
         if self.rows is None and n is not None and 0 < n < matrix.shape[0]:
             if matrix[n:, :n].count_nonzero() == 0:
@@ -252,13 +263,15 @@ def _same_pattern(a, b) -> bool:
 
 def symmetric_rows(problem, p: np.ndarray) -> np.ndarray | None:
     """The row scaling that makes K(p) symmetric, from the one effect with extra state
-    (on the linear path its rows follow the free points'), or None."""
-    n_free = 3 * problem.extended.model.n_free
+    (on the linear path its rows follow the free points', before the multipliers of
+    prescribed points), or None."""
+    model = problem.extended.model
+    n_free, n_state = 3 * model.n_free, problem.extended.n_state
     for effect in problem.effects:
         scale = effect.extra_row_scale(p[problem.slice_of(effect.name)])
         if scale is not None:
-            rows = np.ones(problem.extended.n_state)
-            rows[n_free:] = scale
+            rows = np.ones(n_state)
+            rows[n_free : n_state - 3 * model.n_constraints] = scale
             return rows
     return None
 

@@ -152,7 +152,10 @@ def extended_linearisation(
     extended = problem.with_effects(problem.effects + [candidate])
     p = np.concatenate([p, np.zeros(len(extended.labels) - len(p))])
     n_state = extended.extended.n_state
-    padded = [np.concatenate([state, np.zeros(n_state - state.size)]) for state in states]
+    tail = 3 * problem.model.n_constraints  # the multipliers stay last (after new state)
+    padded = [
+        np.insert(state, state.size - tail, np.zeros(n_state - state.size)) for state in states
+    ]
     same = [n_state == state.size for state in states]
     if extended.linear_state:  # one multi-column solve for every case (the linear path)
         factor = state_jacobians[0] if all(same) else None

@@ -77,8 +77,9 @@ class CaseData:
 
     @property
     def centroid(self) -> np.ndarray:
-        """Centroid of the observed rest markers, (3,) [mm]."""
-        return self.rest_points.mean(axis=0)
+        """Centroid of the observed rest markers, (3,) [mm] (0 for a case without
+        markers: a force-only frame)."""
+        return self.rest_points.mean(axis=0) if len(self.rest_points) else np.zeros(3)
 
 
 @dataclass

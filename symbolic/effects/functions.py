@@ -16,6 +16,7 @@ import scipy.sparse as sp
 
 from symbolic.effects.base import CaseData, LoadState
 from symbolic.effects.load import load_change
+from symbolic.effects.prescribed import constraint_load
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
 
@@ -92,8 +93,9 @@ class CaseParts:
     load: ca.Function
     observation: ca.Function
 
-    def widened(self, columns, n_p: int, n_state: int) -> CaseParts:
-        """These parts, of a p' = p[columns] and an s' that begins s, as parts of p and s.
+    def widened(self, columns, n_p: int, n_state: int, tail: int = 0) -> CaseParts:
+        """These parts, of a p' = p[columns] and an s' that begins s (and ends it in the
+        ``tail`` multipliers, when the model has prescribed points), as parts of p and s.
 
         The parts of an effect set equal those of its effects that change the load or
         the observation (``ExtendedModel.case_parts``): the others enter neither, so
@@ -108,15 +110,17 @@ class CaseParts:
         p, s = ca.MX.sym("p", n_p), ca.MX.sym("s", n_state)
         q = p[columns.tolist()]
         load, load_q = self.load(q)
-        extra = n_state - load.numel()
-        observed = self.observation(s[: load.numel()], q)
+        extra, head = n_state - load.numel(), load.numel() - tail
+        load_p = ca.mtimes(load_q, select)
+        observed = self.observation(ca.vertcat(s[:head], s[n_state - tail :]), q)
+        rows = observed[1].size1()
         return CaseParts(
             load=ca.Function(
                 "load",
                 [p],
                 [
-                    ca.vertcat(load, ca.MX(extra, 1)),
-                    ca.vertcat(ca.mtimes(load_q, select), ca.MX(extra, n_p)),
+                    ca.vertcat(load[:head], ca.MX(extra, 1), load[head:]),
+                    ca.vertcat(load_p[:head, :], ca.MX(extra, n_p), load_p[head:, :]),
                 ],
             ),  # fmt: skip
             observation=ca.Function(
@@ -124,7 +128,7 @@ class CaseParts:
                 [s, p],
                 [
                     observed[0],
-                    ca.horzcat(observed[1], ca.MX(observed[1].size1(), extra)),
+                    ca.horzcat(observed[1][:, :head], ca.MX(rows, extra), observed[1][:, head:]),
                     ca.mtimes(observed[2], select),
                 ],
             ),  # fmt: skip
@@ -154,8 +158,10 @@ class StiffnessTerms:
 
 
 def case_load(model: TissueModel, effects, case: CaseData, thetas, n_state: int) -> ca.MX:
-    """-F_B(theta) of the case on the free points, stacked, then zero on the extra rows:
-    the declared load as the load effects change it, in turn (eq. 20)."""
+    """-F_B(theta) of the case on the free points, stacked, then zero on the extra rows
+    and -vec(Q d_k) on the constraint rows of a model with prescribed points
+    (``symbolic.effects.prescribed``): the declared load as the load effects change it,
+    in turn (eq. 20)."""
     load = LoadState(np.asarray(case.force_vector, dtype=float))
     for effect, theta in zip(effects, thetas):
         load = effect.load(model, case, load, theta)
@@ -163,7 +169,10 @@ def case_load(model: TissueModel, effects, case: CaseData, thetas, n_state: int)
     change = load_change(model, case, load)
     if change is not None:
         force = force - change
-    return ca.vertcat(ca.vec(force), ca.MX(n_state - force.numel(), 1))
+    if not model.n_constraints:
+        return ca.vertcat(ca.vec(force), ca.MX(n_state - force.numel(), 1))
+    tail = ca.DM(constraint_load(model, case))
+    return ca.vertcat(ca.vec(force), ca.MX(n_state - force.numel() - tail.numel(), 1), tail)
 
 
 def case_observation(model: TissueModel, effects, case: CaseData, symbols, thetas) -> ca.MX:

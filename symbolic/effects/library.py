@@ -31,9 +31,10 @@ does not support it).
 ``ExtendedModel`` composes, per load case k, the named CasADi Functions of the
 extended equilibrium g_k(s, p) (eq. 22) and observation residual r_k(s, p)
 (eq. 24), with p = [x; theta_1; ...; theta_E] in natural units and
-s = [vec(B_free - B0_free); vec(extra state)] (columns stacked). They split as
+s = [vec(B_free - B0_free); vec(extra state); vec(lam)] (columns stacked; lam the
+multipliers of prescribed displacements, ``symbolic.effects.prescribed``). They split as
 
-    g_k(s, p) = h(s, p) - F_B,k(theta),
+    g_k(s, p) = h(s, p) - F_B,k(theta)      (and -Q d_k on the constraint rows),
 
 h the model part (the base model's force, the effects' internal forces and extra rows),
 the same for every case: it and its derivatives dh/ds, dh/dp are built once per effect
@@ -67,6 +68,7 @@ from symbolic.effects.functions import (
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
 from symbolic.effects.nonlinearity import ContinuumStiffening, NonlinearStiffening
+from symbolic.effects.prescribed import constraint_term, n_multipliers, with_constraint_rows
 from symbolic.effects.stiffness import (
     Bending,
     Heterogeneity,
@@ -135,7 +137,7 @@ class ExtendedModel:
     Parameters
     ----------
     model : TissueModel
-        The base model (no prescribed displacements).
+        The base model (prescribed displacements: ``symbolic.effects.prescribed``).
     names : tuple of str
         Estimated model parameters x (e.g. the three alpha).
     effects : list of Effect
@@ -155,8 +157,6 @@ class ExtendedModel:
         cases: list[CaseData],
         cache: dict | None = None,
     ):
-        if model.n_constraints:
-            raise ValueError("effects do not support prescribed displacements; drop them first")
         if len({e.name for e in effects}) != len(effects):
             raise ValueError("each effect can be active only once")
         self.model = model
@@ -242,6 +242,9 @@ class ExtendedModel:
                     effect.stiffness_coefficients(model, values, p[self.slices[effect.name]])
                 )
                 matrices += [padded(m, n) for m in effect.stiffness_terms(model)]
+            if model.n_constraints:  # the multipliers' block, constant (coefficient 1)
+                coefficients.append(ca.DM.ones(1))
+                matrices.append(constraint_term(model, n))
             c = ca.vertcat(*coefficients)
             self._functions[key] = StiffnessTerms(
                 matrices, ca.Function("coefficients", [p], [c, ca.jacobian(c, p)])
@@ -267,7 +270,8 @@ class ExtendedModel:
             fewer = ExtendedModel(self.model, self.names, changing, self.cases, self._functions)
             slices = [slice(0, len(self.names))] + [self.slices[e.name] for e in changing]
             columns = np.concatenate([np.arange(b.start, b.stop) for b in slices])
-            return fewer.case_parts(position).widened(columns, self.n_parameters, self.n_state)
+            parts, tail = fewer.case_parts(position), n_multipliers(self.model)
+            return parts.widened(columns, self.n_parameters, self.n_state, tail)
         s, p, symbols, thetas = self._symbols(position)
         load = case_load(self.model, self.effects, self.cases[position], thetas, s.numel())
         r = case_observation(self.model, self.effects, self.cases[position], symbols, thetas)
@@ -280,13 +284,12 @@ class ExtendedModel:
 
     @property
     def n_state(self) -> int:
-        """Length of s: the free points' displacements and the effects' extra state."""
+        """Length of s: free points' displacements, effects' extra state, multipliers."""
         extra = sum(e.extra_points(self.model) for e in self.effects)
-        return 3 * (self.model.n_free + extra)
+        return 3 * (self.model.n_free + extra) + n_multipliers(self.model)
 
     def _values(self, p: ca.MX) -> dict:
-        """Every parameter value of the model by name (``TissueModel.values``: numbers, and
-        the slab's own), with the estimated ones the first entries of p."""
+        """All parameter values by name (``TissueModel.values``), x the first entries of p."""
         values = self.model.values()
         values.update({name: p[i] for i, name in enumerate(self.names)})
         return values
@@ -296,7 +299,7 @@ class ExtendedModel:
         model = self.model
         n_free = model.n_free
         extra_sizes = [e.extra_points(model) for e in self.effects]
-        s = ca.MX.sym("s", 3 * (n_free + sum(extra_sizes)))
+        s = ca.MX.sym("s", self.n_state)
         p = ca.MX.sym("p", self.n_parameters)
         values = self._values(p)
         symbols = CaseSymbols(ca.reshape(s[: 3 * n_free], n_free, 3), values)
@@ -305,6 +308,8 @@ class ExtendedModel:
             if size:
                 symbols.extra[effect.name] = ca.reshape(s[start : start + 3 * size], size, 3)
                 start += 3 * size
+        if model.n_constraints:
+            symbols.lam = ca.reshape(s[start:], model.n_constraints, 3)
         thetas = [effect.block(p[self.slices[effect.name]], position) for effect in self.effects]
         return s, p, symbols, thetas
 
@@ -358,7 +363,8 @@ class ExtendedModel:
                 extra_rows.append(ca.vec(rows))
         n_state = s.numel()
         padding = n_state - 3 * n_free
-        rest = ca.vertcat(ca.vec(force), *extra_rows)
+        rest = ca.vertcat(ca.vec(force), *extra_rows, ca.MX(n_multipliers(model), 1))
+        rest = with_constraint_rows(model, rest, s)
         linear = self._linear_effects()
         if linear is not None:
             base = base + ca.vec(linear[0](symbols.delta, p))

@@ -1,0 +1,252 @@
+"""The two-pad extensometer through the shared diagnosis (``solvers.diagnosis``).
+
+The real-skin set-up (docs/realskin.md, "The experiment as a model load case") is a
+``SkinSlabModel`` with both pads prescribed (Lagrange multipliers), DIC markers observed
+in x and y, the moving pad's force observed through the multipliers, one load case per
+frame and no applied force (``FrameLoad``). ``ExtendedProblem`` must pose exactly the
+problem ``PlanarProblem`` poses, which the real-skin study solves with ``NestedSolver``:
+the same residual and Jacobian at any p, on its linear path and on Newton's, and the same
+fit.
+
+Without data: a small synthetic slab built by the real-skin helpers
+(``experiments.realskin.cases.load_cases``). With data (``shared_data``): today's healthy
+base problem (``experiments.realskin.setup.build``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from effectchecks import check_derivatives, check_theta_zero
+
+from experiments.realskin.cases import FrameData, force_weight, load_cases
+from experiments.realskin.geometry import Rect
+from experiments.realskin.slab import Pads, slab_volume
+from experiments.realskin.stages import stage_solver
+from solvers.diagnosis.extended import ExtendedProblem
+from solvers.diagnosis.fit import fit
+from solvers.diagnosis.guard import folds, halves
+from solvers.inverse.problem import PlanarProblem
+from solvers.inverse.space import ParameterSpace
+from symbolic.constraints import BoundaryConditions
+from symbolic.effects.library import effect_library
+from symbolic.loads import FrameLoad
+from symbolic.skin_slab import SkinSlabModel
+from symbolic.stiffening import exponential_stiffening
+
+REGION = Rect(0.0, -5.0, 100.0, 45.0)
+MOVING, FIXED = Rect(26.0, 16.0, 34.0, 24.0), Rect(66.0, 16.0, 74.0, 24.0)
+
+
+def synthetic_problem() -> tuple[PlanarProblem, list]:
+    """A 9 x 5 x 2 slab (inner layer fixed) pulled by its moving pad to 1 and 2 mm with
+    DIC markers between the pads, then to 3 mm observed through the force alone: the
+    base problem and its loads, made as the real-skin study makes them."""
+    pads = Pads.build(REGION, MOVING, FIXED, per_side=3)
+    model = SkinSlabModel(
+        slab_volume(REGION, 2.0, (9, 5)),
+        {"alpha_u": 0.012, "alpha_w": 0.06},
+        BoundaryConditions(fix_inner=True),
+        stiffening=exponential_stiffening,
+        prescribed=pads.prescribed,
+        isotropic=True,
+    )
+    x, y = np.meshgrid(np.linspace(38.0, 62.0, 5), np.linspace(12.0, 28.0, 3))
+    reference = np.column_stack([x.ravel(), y.ravel()])
+    rng = np.random.default_rng(5)
+    share = (FIXED.x0 - reference[:, 0]) / (FIXED.x0 - MOVING.x1)  # 1 at the moving pad
+    displacement = [
+        np.column_stack([-t * share, 0.1 * t * (reference[:, 1] - 20.0) / 20.0])
+        + rng.normal(0.0, 0.01, reference.shape)
+        for t in (1.0, 2.0)
+    ]
+    data = FrameData(
+        ["frame 1", "frame 2", "travel 3.00 mm (force only)"],
+        np.array([[-1.0, 0.0], [-2.0, 0.05], [-3.0, 0.05]]),
+        np.array([-0.02, -0.045, -0.08]),
+        displacement + [None],
+        reference,
+        [1, 2, None],
+    )
+    cases = load_cases(model, pads, data, force_weight(data))
+    space = ParameterSpace.create(
+        ("alpha_u", "alpha_w"), {"alpha_u": 0.012, "alpha_w": 0.06}, {"alpha_u": (1e-5, 1e3)}
+    )
+    base = PlanarProblem(model, cases, space, noise_mm=0.01)
+    return base, [FrameLoad(case.label) for case in cases]
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    """(ExtendedProblem without effects, its fit, the library) of ``synthetic_problem``."""
+    base, loads = synthetic_problem()
+    problem = ExtendedProblem(base, loads, [])
+    return problem, fit(problem), effect_library(("rigid_motion", "nonlinear_stiffening"))
+
+
+def _reference(base: PlanarProblem, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """r and dr/dp (natural units) of the real-skin study's solver, ``NestedSolver``."""
+    solver = stage_solver(base)
+    z = base.space.to_internal(p)
+    r, jacobian = solver.evaluate(z)
+    return r, jacobian / base.space.natural_derivative(z)
+
+
+def _relative(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+def test_a_frame_load_has_no_force_and_no_contact(synthetic):
+    """f = 0, F_B = 0, no contact point: each frame is its own fold; the rows of a case are
+    two per marker plus its force row, which the halves keep in the first half."""
+    problem, _, _ = synthetic
+    assert np.all(problem.loads[0].generalized(problem.model.volume) == 0.0)
+    assert folds(problem) == [[0], [1], [2]]
+    assert problem.case_rows() == [2 * 15 + 1, 2 * 15 + 1, 1]
+    first = halves(problem)
+    assert first.size == sum(problem.case_rows()) and first[30] and first[-1]
+
+
+@pytest.mark.parametrize("path", ["linear", "newton"])
+def test_residual_and_jacobian_are_the_planar_problems(synthetic, path):
+    """At a p away from the fit, r and dr/dp of ``ExtendedProblem`` (the multipliers'
+    block in h, -Q d_k in each case's load, the force row from lam) equal
+    ``NestedSolver``'s on ``PlanarProblem``, on the linear path (one LU of the KKT
+    matrix for all cases) and on Newton's."""
+    problem, _, _ = synthetic
+    problem.linear_path = path == "linear"
+    try:
+        assert problem.linear_state == (path == "linear")
+        p = np.array([0.015, 0.04])
+        r, jacobian, _ = problem.evaluate(p)
+    finally:
+        problem.linear_path = True
+    expected_r, expected_jacobian = _reference(problem.base, p)
+    assert _relative(r, expected_r) < 1e-10
+    assert _relative(jacobian, expected_jacobian) < 1e-10
+
+
+def test_the_kkt_matrix_goes_to_lu_without_a_cholesky_attempt(synthetic, monkeypatch):
+    """dg/ds with multipliers is symmetric but indefinite: factorised by SuperLU at once."""
+    import solvers.diagnosis.linear as linear
+
+    problem, _, _ = synthetic
+
+    def refused(*_):
+        raise AssertionError("Cholesky attempted on the KKT matrix")
+
+    monkeypatch.setattr(linear, "factorised", refused)
+    problem.cache.pop("last_state_jacobian", None)
+    problem.evaluate(np.array([0.013, 0.05]))
+
+
+@pytest.mark.parametrize("name", ["rigid_motion", "nonlinear_stiffening"])
+def test_effects_on_the_extensometer_are_off_at_zero(synthetic, name):
+    """A per-case observation effect (rigid motion: the case parts widened around the
+    multipliers) and the stiffening (Newton): g and r at theta = 0 are the base's."""
+    check_theta_zero(synthetic, name, solved_atol=1e-10)
+
+
+def test_rigid_motion_derivatives_on_the_extensometer(synthetic):
+    """dr/dp with rigid motion against central differences, of 1e-3 of a scale: the
+    markers lie 10-90 mm from the origin, and a rotation of 1e-8 rad moves them by less
+    than the rounding of their positions allows to difference."""
+    check_derivatives(synthetic, "rigid_motion", theta_step=1e-3)
+
+
+def test_stiffening_derivatives_on_the_extensometer(synthetic):
+    """dr/dp with nonlinear_stiffening (Newton with the multipliers) against differences
+    of 1e-4 in k0, at k0 = 0 (one-sided) and at 0.3, a real-skin value (the synthetic
+    slab's coarse pads strain it far beyond skin's at the library's test point, 7)."""
+    problem, base_fit, library = synthetic
+    extended = problem.with_effects([library["nonlinear_stiffening"]])
+    step = np.r_[0.0, 0.0, 1e-4]
+    for k0 in (0.0, 0.3):
+        p = np.r_[base_fit.p, k0]
+        r, jacobian, _ = extended.evaluate(p)
+        plus = extended.evaluate(p + step)[0]
+        if k0 == 0.0:
+            numeric = (4 * plus - 3 * r - extended.evaluate(p + 2 * step)[0]) / 2e-4
+        else:
+            numeric = (plus - extended.evaluate(p - step)[0]) / 2e-4
+        assert _relative(numeric, jacobian[:, 2]) < 1e-5
+
+
+# ----------------------------------------------------------------------------- real data
+@pytest.fixture(scope="module")
+def healthy(shared_data):
+    """Today's healthy base problem as the real-skin study builds and fits it (``build``,
+    ``load_cases``, ``fit_base`` with ``NestedSolver``), and the same problem posed as an
+    ``ExtendedProblem`` without effects, fitted by ``solvers.diagnosis.fit.fit``."""
+    from experiments.realskin.setup import RealSkinSettings, build
+    from experiments.realskin.skinloop import fit_base, parameter_space
+
+    settings = RealSkinSettings()
+    setup = build("healthy", settings)
+    today = fit_base(setup, settings, "linear", log=lambda *_: None)
+    space = parameter_space(setup.base_names, setup.start, settings)
+    base = PlanarProblem(setup.model, setup.cases, space, noise_mm=setup.noise_mm)
+    problem = ExtendedProblem(base, [FrameLoad(case.label) for case in setup.cases], [])
+    return setup, today, problem, fit(problem)
+
+
+@pytest.mark.realdata
+def test_fit_reproduces_todays_linear_healthy_fit(healthy):
+    """The shared fit ends where the study's does: the same alpha, cost (|r|^2 against the
+    study's |r|^2 / 2), RMS in-plane displacement per component and RMS pad force; six
+    DIC frames and four force-only travels, each its own fold."""
+    setup, today, problem, fitted = healthy
+    rms = problem.rms(fitted.residual)[0] / np.sqrt(len(problem.base.observed))
+    force = problem.force_rms(fitted.residual)
+    print(
+        f"alpha {fitted.p}, RMS {rms:.6f} mm, force {force:.6f} N; today alpha {today.x}, "
+        f"RMS {today.rms_displacement_mm:.6f} mm, force {today.rms_force_n:.6f} N"
+    )
+    assert fitted.success and problem.linear_state
+    np.testing.assert_allclose(fitted.p, today.x, rtol=1e-7)
+    assert fitted.cost == pytest.approx(2.0 * today.cost, rel=1e-8)
+    assert rms == pytest.approx(today.rms_displacement_mm, rel=1e-7)
+    assert force == pytest.approx(today.rms_force_n, rel=1e-7)
+    assert folds(problem) == [[k] for k in range(len(setup.cases))]
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("path", ["linear", "newton"])
+def test_healthy_residual_and_jacobian_are_the_nested_solvers(healthy, path):
+    """r and dr/dp at a p off the fit equal ``NestedSolver``'s on the study's
+    ``PlanarProblem`` to 1e-8, on the linear path and on Newton's."""
+    _, _, problem, _ = healthy
+    p = np.array([0.015, 0.05])
+    problem.linear_path = path == "linear"
+    try:
+        r, jacobian, _ = problem.evaluate(p)
+    finally:
+        problem.linear_path = True
+    expected_r, expected_jacobian = _reference(problem.base, p)
+    print(f"r {_relative(r, expected_r):.1e}, J {_relative(jacobian, expected_jacobian):.1e}")
+    assert _relative(r, expected_r) < 1e-8
+    assert _relative(jacobian, expected_jacobian) < 1e-8
+
+
+@pytest.mark.realdata
+def test_stiffening_score_test_is_the_studys(healthy):
+    """``stats.score_test`` of ``nonlinear_stiffening`` at the shared fit is the study's
+    own score test of k0 at its fit (``experiments.realskin.stages.score_test``): both
+    are (J_c'^T r)^2 / (|J_c'|^2 sigma^2) with the alpha profiled out, the shared one with
+    the DIC noise as sigma, the study's with sqrt(|r|^2 / (m - 2)), so T sigma^2 agree."""
+    from experiments.realskin.setup import RealSkinSettings
+    from experiments.realskin.stages import NULL, ONE_SIDED
+    from experiments.realskin.stages import score_test as study_score
+    from solvers.diagnosis.stats import score_test
+
+    setup, today, problem, fitted = healthy
+    effect = effect_library(("nonlinear_stiffening",))["nonlinear_stiffening"]
+    test = score_test(fitted, effect, setup.noise_mm)
+    study = study_score(
+        setup.model, setup.cases, today.names, today.x, "k0", NULL["k0"],
+        RealSkinSettings().bounds, ONE_SIDED["k0"], today.states,
+    )  # fmt: skip
+    sigma2 = fitted.cost / (fitted.whitened.size - 2)
+    print(f"T {test.statistic:.6g} (study {study.statistic:.6g}), k0 step {test.step[0]:.4g}")
+    assert test.dof == 1 and test.step[0] > 0.0 and not test.note
+    assert test.statistic * setup.noise_mm**2 == pytest.approx(study.statistic * sigma2, rel=1e-8)
