@@ -172,6 +172,58 @@ def test_stiffening_derivatives_on_the_extensometer(synthetic):
         assert _relative(numeric, jacobian[:, 2]) < 1e-5
 
 
+def _continuation_agrees(problem: ExtendedProblem, position: int, p: np.ndarray) -> None:
+    """Newton from rest fails on the case at ``position``; with the load continuation
+    ``solve_state`` reaches g = 0 to its tolerance, and the state is
+    ``EquilibriumSolver.solve_by_continuation``'s (displacements, then multipliers)."""
+    from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
+
+    with pytest.raises(EquilibriumError):
+        problem.solve_state(position, p, continuation=False)
+    state, _ = problem.solve_state(position, p)
+    equilibrium = problem.numeric(position, "equilibrium")
+    g, rest = (equilibrium(s, p)[0].ravel() for s in (state, np.zeros_like(state)))
+    assert np.linalg.norm(g) <= 1e-10 * np.linalg.norm(rest)
+    case = problem.cases[position]
+    solver = EquilibriumSolver(problem.model, ("alpha_u", "alpha_w", "k0"))
+    reference = solver.solve_by_continuation(case.force, p, case.prescribed).state
+    n = 3 * problem.model.n_free
+    assert _relative(state[:n], reference[:n]) < 1e-8
+    assert _relative(state[n:], reference[n:]) < 1e-6
+
+
+def test_load_continuation_reaches_the_equilibrium_newton_misses(synthetic):
+    """The stiffening at k0 = 0.8 on the synthetic slab's 3 mm travel: Newton from rest
+    fails, the load continuation reaches the study's equilibrium."""
+    problem, base_fit, library = synthetic
+    extended = problem.with_effects([library["nonlinear_stiffening"]])
+    _continuation_agrees(extended, 2, np.r_[base_fit.p, 0.8])
+
+
+def test_fit_steps_back_from_a_failed_equilibrium(synthetic, monkeypatch):
+    """An equilibrium that fails during trf is a NaN residual (trf shortens its step), not
+    the end of the fit: with the second evaluation failing, the fit ends where it ends
+    without the failure."""
+    from solvers.forward.equilibrium import EquilibriumError
+
+    problem, base_fit, _ = synthetic
+    start = np.array([0.03, 0.2])
+    expected = fit(problem, start)
+    original, calls = problem.evaluate_full, []
+
+    def failing_once(p, starts=None):
+        calls.append(1)
+        if len(calls) == 2:
+            raise EquilibriumError("no equilibrium here")
+        return original(p, starts)
+
+    monkeypatch.setattr(problem, "evaluate_full", failing_once)
+    fitted = fit(problem, start)
+    assert len(calls) > 2 and fitted.success
+    np.testing.assert_allclose(fitted.p, expected.p, rtol=1e-6)
+    np.testing.assert_allclose(fitted.p, base_fit.p, rtol=1e-6)
+
+
 # ----------------------------------------------------------------------------- real data
 @pytest.fixture(scope="module")
 def healthy(shared_data):
@@ -250,3 +302,16 @@ def test_stiffening_score_test_is_the_studys(healthy):
     print(f"T {test.statistic:.6g} (study {study.statistic:.6g}), k0 step {test.step[0]:.4g}")
     assert test.dof == 1 and test.step[0] > 0.0 and not test.note
     assert test.statistic * setup.noise_mm**2 == pytest.approx(study.statistic * sigma2, rel=1e-8)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_load_continuation_at_the_longest_healthy_travel(healthy):
+    """Healthy skin at the longest force-only travel (8.42 mm) with k0 = 1 and the linear
+    fit's tensions: Newton from rest fails, the load continuation reaches the equilibrium
+    ``EquilibriumSolver`` reaches (as tests/test_realskin.py shows for it)."""
+    _, _, problem, _ = healthy
+    last = len(problem.cases) - 1
+    effect = effect_library(("nonlinear_stiffening",))["nonlinear_stiffening"]
+    extended = problem.with_effects([effect], positions=[last])
+    _continuation_agrees(extended, 0, np.array([0.01199, 0.06124, 1.0]))

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.diagnosis import linear
+from solvers.diagnosis import linear, newton
 from solvers.diagnosis.cache import SharedCache
 from solvers.diagnosis.linear import StateJacobian
 from solvers.diagnosis.numeric import NumericFunction
@@ -250,38 +250,35 @@ class ExtendedProblem:
         )
         return np.concatenate(residuals), np.vstack(jacobians)
 
-    def solve_state(self, position: int, p: np.ndarray, start=None, tolerance=1e-10):
-        """Newton on g(s, p) = 0 for one case; returns the state and its ``StateJacobian``.
+    def solve_state(
+        self, position: int, p: np.ndarray, start=None, tolerance=1e-10, continuation=True
+    ):
+        """Newton on g(s, p) = 0 for one case; returns the state and its ``StateJacobian``
+        (``solvers.diagnosis.newton``: the Jacobian of the last Newton step, exact for a
+        model linear in s and accurate to the (tiny) last step otherwise).
 
-        The Jacobian returned is the one of the last Newton step, exact for a
-        model linear in s and accurate to the (tiny) last step otherwise.
+        Newton starts from ``start`` (default rest); where it fails, and ``continuation``
+        is on, the load is applied in steps from rest (``newton.by_continuation``).
         """
         equilibrium = self.numeric(position, "equilibrium")
-        newton = self.numeric(position, "newton")
+        jacobian = self.numeric(position, "newton")
         zero = np.zeros(self.functions(position).n_state)
-        scale = max(float(np.linalg.norm(equilibrium(zero, p)[0])), 1e-300)
-        state = zero if start is None else np.array(start, dtype=float)
-        g = equilibrium(state, p)[0].ravel()
-        jacobian = None
-        for _ in range(40):
-            if np.linalg.norm(g) <= tolerance * scale and jacobian is not None:
-                return state, jacobian
-            jacobian = self._factorised(newton(state, p)[1])
-            if np.linalg.norm(g) <= tolerance * scale:
-                return state, jacobian
-            step = jacobian.solve(-g)
-            norm, length = np.linalg.norm(g), 1.0
-            for _ in range(30):
-                trial = state + length * step
-                g_trial = equilibrium(trial, p)[0].ravel()
-                if np.linalg.norm(g_trial) < norm:
-                    break
-                length *= 0.5
-            state, g = trial, g_trial
-        raise EquilibriumError(
-            f"extended equilibrium did not converge (|g| = {np.linalg.norm(g):.2e}); "
-            "the effect parameters may be unrealistic"
-        )
+
+        def residual(state):
+            return equilibrium(state, p)[0].ravel()
+
+        def factorise(state):
+            return self._factorised(jacobian(state, p)[1])
+
+        target = tolerance * max(float(np.linalg.norm(residual(zero))), 1e-300)
+        first = zero if start is None else np.array(start, dtype=float)
+        try:
+            return newton.newton(residual, factorise, first, target)
+        except EquilibriumError:
+            if not continuation:
+                raise
+        load = np.ravel(_dense(self.numeric_of(self.extended.case_parts(position).load)(p)[0]))
+        return newton.by_continuation(residual, factorise, load, zero, target)
 
     def _factorised(self, matrix: sp.spmatrix) -> StateJacobian:
         """A ``StateJacobian`` of dg/ds, reusing the last one when the matrix is the same.

@@ -177,7 +177,12 @@ def fit(
         p = problem.to_natural(z)
         if not admissible(problem, p):  # no equilibrium: trf shrinks its step and retries
             return np.full_like(cache["rho"], np.nan), None
-        r, jac, new_states, state_jacobians = problem.evaluate_full(p, cache["states"])
+        try:
+            r, jac, new_states, state_jacobians = problem.evaluate_full(p, cache["states"])
+        except EquilibriumError:  # as for an inadmissible p: trf shrinks its step
+            if cache.get("rho") is None:
+                raise  # at the start: the fit cannot begin
+            return np.full_like(cache["rho"], np.nan), None
         cache.update(
             z=np.array(z_free), states=new_states, full=(r, jac, new_states, state_jacobians)
         )

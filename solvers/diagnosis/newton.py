@@ -1,0 +1,114 @@
+"""Newton on one load case's extended equilibrium, with load continuation as fallback.
+
+g(s) = h(s, p) + L = 0 (docs/model.md eq. 22; L the case's load, -F_B and -Q d on the
+constraint rows) is solved by Newton with a backtracking line search on |g|, as
+``EquilibriumSolver`` does. A stiff nonlinear base far from rest (the stiffening at the
+healthy skin's longest travel, 8.4 mm) can lose Newton from rest; then the load is
+applied in steps,
+
+    g_t(s) = h(s, p) + t L = 0,     t = 1/4, 2/4, ..., 1,
+
+each step's Newton starting from the last one's solution scaled by the load ratio, and a
+step that fails is halved (at most ``HALVINGS`` times in a row) before the fallback gives
+up, as ``EquilibriumSolver.solve_by_continuation`` does. F_B and the prescribed
+displacements d grow together, so every intermediate problem is the experiment at a
+shorter travel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solvers.forward.equilibrium import EquilibriumError
+
+ITERATIONS = 40
+"""Newton steps per solve."""
+
+BACKTRACKS = 30
+"""Halvings of one Newton step by the line search."""
+
+STEPS = 4
+"""Load steps of the continuation."""
+
+HALVINGS = 3
+"""How often in a row the continuation's step may be halved."""
+
+
+def newton(residual, factorise, state: np.ndarray, target: float):
+    """s with |g(s)| <= ``target`` by Newton from ``state``, and the factorised dg/ds of
+    its last step (exact for g linear in s, accurate to that step otherwise).
+
+    Parameters
+    ----------
+    residual : callable
+        s -> g(s), flat.
+    factorise : callable
+        s -> a ``StateJacobian`` of dg/ds at s.
+    state : numpy.ndarray
+        Start.
+    target : float
+        Tolerance on |g| [as g].
+
+    Raises
+    ------
+    EquilibriumError
+        Not converged within ``ITERATIONS`` steps, or g not finite.
+    """
+    g = residual(state)
+    jacobian = None
+    for _ in range(ITERATIONS):
+        norm = float(np.linalg.norm(g))
+        if not np.isfinite(norm):
+            break
+        if norm <= target and jacobian is not None:
+            return state, jacobian
+        jacobian = factorise(state)
+        if norm <= target:
+            return state, jacobian
+        step = jacobian.solve(-g)
+        length = 1.0
+        for _ in range(BACKTRACKS):
+            trial = state + length * step
+            g_trial = residual(trial)
+            if np.linalg.norm(g_trial) < norm:
+                break
+            length *= 0.5
+        state, g = trial, g_trial
+    raise EquilibriumError(
+        f"extended equilibrium did not converge (|g| = {np.linalg.norm(g):.2e}); "
+        "the effect parameters may be unrealistic"
+    )
+
+
+def by_continuation(residual, factorise, load: np.ndarray, zero: np.ndarray, target: float):
+    """``newton`` on g(s) - (1 - t) L for t = 1/4, ..., 1 from rest, each step started from
+    the last solution scaled by the load ratio (the module docstring); a failed step is
+    retried at half the size, at most ``HALVINGS`` times in a row.
+
+    Parameters
+    ----------
+    load : numpy.ndarray
+        L, the case's part of g (the load; g = h + L).
+    zero : numpy.ndarray
+        The rest state.
+    """
+    reached, state, size, failures = 0.0, zero, 1.0 / STEPS, 0
+    while True:
+        t = min(1.0, reached + size)
+        start = state * (t / reached) if reached else zero
+        try:
+            state, jacobian = newton(
+                lambda s, t=t: residual(s) - (1.0 - t) * load, factorise, start, target
+            )
+        except EquilibriumError as error:
+            failures += 1
+            if failures > HALVINGS:
+                raise EquilibriumError(
+                    f"extended equilibrium not reached by load continuation (at {t:.3g} of "
+                    f"the load: {error})"
+                ) from error
+            size *= 0.5
+            continue
+        if t == 1.0:
+            return state, jacobian
+        reached, failures = t, 0
