@@ -44,7 +44,7 @@ from solvers.inverse.noise import Whitening
 from solvers.inverse.problem import InverseProblem, LoadCase
 from solvers.inverse.space import LOG_PARAMETERS
 from symbolic.effects.base import CaseData, Effect
-from symbolic.effects.library import ExtendedModel
+from symbolic.effects.composition import ExtendedModel
 
 
 def _dense(value) -> np.ndarray:
