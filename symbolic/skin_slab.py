@@ -1,16 +1,13 @@
 """A flat skin slab with glued pads as a volume spline model (the two-pad extensometer).
 
-The slab's volume, its pads and the region indicator chi are set up in
-``experiments.realskin.slab`` (docs/realskin.md).
+The slab's volume and pads are set up in ``experiments.realskin`` (docs/realskin.md).
 A second material (``region``): every tension coefficient alpha_i is multiplied by
 1 + theta chi(x, y), and ``region_ratio`` = 1 + theta is a parameter that the inverse
 can estimate.
 
-``SkinSlabModel`` is a ``TissueModel`` with three additions: in-plane isotropy (alpha_v
-tied to alpha_u, with an optional anisotropy parameter), the region terms, and closed-form
-Jacobians of the linear and the nonlinear residual (eq. 1); the nonlinear one makes every
-Newton step of the stiffening model about 8x cheaper than CasADi's coloured AD Jacobian
-on these grids.
+``SkinSlabModel`` is a ``TissueModel`` with in-plane isotropy (alpha_v tied to alpha_u,
+optionally anisotropic), the region terms, and closed-form Jacobians of the linear and
+the nonlinear residual (eq. 1), about 8x cheaper than CasADi's coloured AD Jacobian.
 """
 
 from __future__ import annotations
@@ -42,7 +39,6 @@ LOG_EXTRA = frozenset({REGION_RATIO, ANISOTROPY})
 """Extra parameters estimated in log space (the others, with null value 0, linearly)."""
 COUPLING = "div"
 """Name of the volumetric coupling term integral (div_xy u)^2 (a 3n x 3n matrix)."""
-"""Parameters of ``SkinSlabModel`` beyond ``symbolic.model.PARAMETERS``."""
 REGION_SUFFIX = "@region"
 ALPHA_TERMS = tuple(f"alpha_{d}" for d in FIRST_DERIVATIVES)
 
@@ -111,6 +107,14 @@ class SkinSlabModel(TissueModel):
         self._coupling_free = {
             name: sp.csr_matrix(m)[index][:, index].tocsr() for name, m in self.couplings.items()
         }
+
+    def volumetric_matrix(self) -> sp.csr_matrix:
+        """K_lambda of ``volumetric_coupling`` here: integral (du_x/dx + du_y/dy)^2 dV,
+        (3n, 3n) stacked [mm]. In-plane: a thin slab contracts freely through its
+        thickness, so the 3D divergence would not couple u_x and u_y (lambda t = C)."""
+        thickness = float(np.ptp(self.rest[:, 2]))
+        volume = self.lengths[0] * self.lengths[1] * thickness
+        return (volume * self.couplings[COUPLING]).tocsr()
 
     # ------------------------------------------------------------ coefficients
     def values(self, overrides: dict[str, float] | None = None) -> dict[str, float]:

@@ -81,7 +81,8 @@ def synthetic():
     """(ExtendedProblem without effects, its fit, the library) of ``synthetic_problem``."""
     base, loads = synthetic_problem()
     problem = ExtendedProblem(base, loads, [])
-    return problem, fit(problem), effect_library(("rigid_motion", "nonlinear_stiffening"))
+    names = ("rigid_motion", "nonlinear_stiffening", "volumetric_coupling", "anisotropy")
+    return problem, fit(problem), effect_library(names, "dnurbs")
 
 
 def _reference(base: PlanarProblem, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -140,11 +141,53 @@ def test_the_kkt_matrix_goes_to_lu_without_a_cholesky_attempt(synthetic, monkeyp
     problem.evaluate(np.array([0.013, 0.05]))
 
 
-@pytest.mark.parametrize("name", ["rigid_motion", "nonlinear_stiffening"])
+@pytest.mark.parametrize(
+    "name", ["rigid_motion", "nonlinear_stiffening", "volumetric_coupling", "anisotropy"]
+)
 def test_effects_on_the_extensometer_are_off_at_zero(synthetic, name):
     """A per-case observation effect (rigid motion: the case parts widened around the
-    multipliers) and the stiffening (Newton): g and r at theta = 0 are the base's."""
+    multipliers), the stiffening (Newton) and the two linear membrane effects: g and r at
+    theta = 0 are the base's."""
     check_theta_zero(synthetic, name, solved_atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["volumetric_coupling", "anisotropy"])
+def test_membrane_effect_derivatives_on_the_extensometer(synthetic, name):
+    check_derivatives(synthetic, name)
+
+
+def test_the_shared_membrane_effects_are_the_slabs_own_terms(synthetic):
+    """volumetric_coupling at lambda on the slab is its in-plane Poisson coupling at
+    c = lambda t / T_x (its C of lateral contraction, eq. of ``coupling_matrix``), and
+    anisotropy at a is its tension ratio T_y / T_x = 1 + a: the same K on every control
+    point."""
+    import dataclasses
+
+    from symbolic.skin_slab import ANISOTROPY, POISSON
+
+    problem, base_fit, library = synthetic
+    model = problem.model
+    values = model.values(dict(zip(problem.names, base_fit.p)))
+    free = lambda m: m.tocsr()[model.free][:, model.free]  # noqa: E731
+    tension = model.membrane_tension(values)[0]
+    thickness = float(np.ptp(model.rest[:, 2]))
+    lam = 0.03
+    volumetric = library["volumetric_coupling"].matrix(model)
+    coupling = model.coupling_coefficients({**values, POISSON: lam * thickness / tension})[0]
+    expected = coupling * model.couplings["div"]
+    assert _relative((lam * volumetric).toarray(), expected.toarray()) < 1e-12
+    a = 0.7
+    stiffer = dataclasses.replace(model, anisotropy=1.0 + a)
+    added = library["anisotropy"].stiffness_terms(model)[0]
+    c_v = model.coefficient("alpha_v", values)
+    k_base = sum(model.coefficient(t, values) * m for t, m in model.terms.items() if "@" not in t)
+    k_after = sum(
+        stiffer.coefficient(t, stiffer.values({**values, ANISOTROPY: 1.0 + a})) * m
+        for t, m in stiffer.terms.items()
+        if "@" not in t
+    )
+    componentwise = np.kron(np.eye(3), free(k_after - k_base).toarray())
+    assert _relative(a * c_v * added.toarray(), componentwise) < 1e-12
 
 
 def test_rigid_motion_derivatives_on_the_extensometer(synthetic):

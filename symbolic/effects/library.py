@@ -33,6 +33,7 @@ The composition of a base model with active effects is ``symbolic.effects.compos
 
 from __future__ import annotations
 
+from symbolic.effects.anisotropy import Anisotropy
 from symbolic.effects.base import Effect
 from symbolic.effects.boundary import BaseCompliance, SurroundingTissue
 from symbolic.effects.fieldeffect import StiffnessFieldEffect
@@ -70,7 +71,7 @@ EFFECT_NAMES: tuple[str, ...] = tuple(dict.fromkeys(c.name for c in EFFECT_CLASS
 ``stiffness_field``, in order. One name may have a class per base energy
 (``nonlinear_stiffening``: eq. 1 or eq. C10); ``make_effect`` picks by the energy."""
 
-OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect,)
+OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect, Anisotropy)
 """Effects searched only when named (``DiagnosisSettings.candidates``)."""
 ALL_EFFECT_NAMES: tuple[str, ...] = EFFECT_NAMES + tuple(c.name for c in OPT_IN_CLASSES)
 

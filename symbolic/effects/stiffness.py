@@ -10,7 +10,8 @@ vanish at theta = 0 (``nonlinear_stiffening`` lives in ``stiffening``).
   stiffness of an in-plane pre-stress sigma0 [N/mm] of the skin against rotation
   of its surface (normal displacement), in the physical metric.
 - ``volumetric_coupling``: lambda integral (div u)^2 dV over the physical volume
-  (Poisson effect), coupling the x, y, z components.
+  (Poisson effect), coupling the x, y, z components; a model may say which divergence
+  (``volumetric_matrix``: the real skin's slab, a membrane, the in-plane one).
 - ``shear_coupling``: mu_L integral 2 eps:eps dV, the continuum's shear energy; with
   volumetric_coupling it completes the isotropic linear elasticity of eq. (C3)
   beside the alpha energy.
@@ -350,7 +351,12 @@ class VolumetricCoupling(StackedStiffness):
     energies = ("dnurbs",)
 
     def build(self, model: TissueModel) -> sp.csr_matrix:
-        """K_lambda on all control points, (3n, 3n) in stacked order [mm]."""
+        """K_lambda on all control points, (3n, 3n) in stacked order [mm]: the model's own
+        ``volumetric_matrix()`` when it has one (a membrane's in-plane divergence), else
+        the 3D divergence of the physical volume."""
+        own = getattr(model, "volumetric_matrix", None)
+        if own is not None:
+            return own()
         gradient = PhysicalGradient.of(model.volume)
         return gradient.gram([gradient.divergence()])
 
