@@ -20,18 +20,13 @@ BOUND_MARGIN = 0.01
 (for alpha, estimated in log space over [0.01, 100] N/mm: within 10 % of a bound)."""
 
 
-def on_bounds(fit: EffectFit, null: bool = True) -> np.ndarray:
-    """Entries of p on (or within ``BOUND_MARGIN`` of) a bound, in internal coordinates;
-    without ``null``, a bound at 0 (an effect's null value: the effect is off) does not
-    count."""
+def on_bounds(fit: EffectFit) -> np.ndarray:
+    """Entries of p on (or within ``BOUND_MARGIN`` of) a bound, in internal coordinates."""
     problem = fit.problem
     z = problem.to_internal(fit.p)
     lower, upper = problem.to_internal(problem.lower), problem.to_internal(problem.upper)
     margin = BOUND_MARGIN * (upper - lower)
-    low, high = z - lower <= margin, upper - z <= margin
-    if not null:
-        low, high = low & (problem.lower != 0.0), high & (problem.upper != 0.0)
-    return low | high
+    return (z - lower <= margin) | (upper - z <= margin)
 
 
 def pushed_to_bounds(current: EffectFit, refit: EffectFit) -> list[str]:
@@ -47,11 +42,25 @@ def pushed_to_bounds(current: EffectFit, refit: EffectFit) -> list[str]:
     return [label for label, b, a in zip(current.problem.labels, before, after) if a and not b]
 
 
+ACTIVE = 1e-4
+"""An effect's own parameter within this fraction of its natural range of a bound ends on
+it: the bound is active (the least squares would go beyond it; trf stops within about
+1e-9 of an active bound). A margin of the internal range, as for the model's own
+parameters, would count a modest estimate of a wide linear range (layering's -0.9 to
+300) as on its bound."""
+
+
 def own_bounds(refit: EffectFit, name: str) -> list[str]:
-    """The added effect's parameters that end on one of their bounds (not at 0)."""
-    block = refit.problem.slice_of(name)
-    labels = refit.problem.labels[block]
-    return [label for label, on in zip(labels, on_bounds(refit, null=False)[block]) if on]
+    """The added effect's parameters that end on one of their bounds other than 0
+    (``ACTIVE``)."""
+    problem = refit.problem
+    block = problem.slice_of(name)
+    values, lower, upper = refit.p[block], problem.lower[block], problem.upper[block]
+    margin = ACTIVE * (upper - lower)
+    on = ((values - lower <= margin) & (lower != 0.0)) | (
+        (upper - values <= margin) & (upper != 0.0)
+    )
+    return [label for label, o in zip(problem.labels[block], on) if o]
 
 
 def implausible(refit: EffectFit, effect) -> list[str]:
