@@ -67,6 +67,7 @@ from symbolic.effects.functions import (
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
 from symbolic.effects.nonlinearity import NonlinearStiffening
+from symbolic.effects.region import StiffnessRegion
 from symbolic.effects.stiffness import (
     Bending,
     Heterogeneity,
@@ -95,10 +96,10 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     Layering,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(c.name for c in EFFECT_CLASSES)
-"""The default library: every effect name of docs/diagnosis.md ("The effects") but
-``stiffness_field``, in order."""
+"""The default library: every effect name of docs/diagnosis.md ("The effects") but the
+opt-in ``stiffness_field`` and ``stiffer_region``, in order."""
 
-OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect,)
+OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect, StiffnessRegion)
 """Effects searched only when named (``DiagnosisSettings.candidates``)."""
 ALL_EFFECT_NAMES: tuple[str, ...] = EFFECT_NAMES + tuple(c.name for c in OPT_IN_CLASSES)
 
