@@ -181,6 +181,13 @@ class CellStiffness(FieldStiffness, Effect):
     def shapes(self, model: TissueModel):
         return [self.grid.indicator(c) for c in range(self.grid.n_cells)]
 
+    def stiffness_terms(self, model: TissueModel) -> list:
+        """The assembled terms on both energies. A cell's terms are local (the rows and
+        columns of its support), so products with them are cheap; the continuum's
+        matrix-free products (``field_products``) pass over every quadrature point for
+        each cell (196 cells at 17 x 17 x 3: 20 of the score test's 23 s)."""
+        return self.terms(model)
+
 
 @dataclass(frozen=True)
 class RegionFamily:
