@@ -133,6 +133,7 @@ class Step:
                     "p_value": t.p_value,
                     "log10_p_value": t.log_p / np.log(10.0),
                     "note": t.note,
+                    **({} if t.detail is None else {"detail": t.detail}),
                 }
                 for t in self.scores
             ],

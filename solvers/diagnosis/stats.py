@@ -20,6 +20,10 @@ Jacobian (implicit function theorem through the equilibrium, eq. 22).
   A parameter bounded below by 0 makes the test one-sided: T counts only when
   the one-step estimate -(A^T A)^+ A^T rho points into the allowed side, and the
   p-value is 1/2 P(chi^2_1 > T) (chi-bar-squared).
+- **Family score** of an effect whose shape is chosen from a family (``stiffer_region``:
+  a rectangle of cells): every member's one-sided T from one linearisation with a
+  column per cell, the best member chosen, its p-value times the number of members
+  (Bonferroni; ``family_score_test``, eq. S1).
 - **BIC** = |rho|^2/sigma^2 + k log m (known sigma), k the effective degrees of freedom
   (``EffectFit.effective_dof``: the count of estimated parameters, fewer for an effect
   with a prior such as ``stiffness_field``).
@@ -79,6 +83,8 @@ class ScoreTest:
         A^T A / sigma^2 on the test's ``dof`` directions, in theta's natural units: the
         profiled Fisher information, so that theta_1^T I theta_1 is the non-centrality
         of the test against theta_1 (eq. D2, linearised; ``solvers.diagnosis.blind``).
+    detail : dict or None
+        What a family test chose (``family_score_test``); None for an ordinary test.
     """
 
     effect: str
@@ -91,6 +97,7 @@ class ScoreTest:
     seconds: float
     note: str = ""
     information: np.ndarray | None = None
+    detail: dict | None = None
 
 
 def residual_test(fit: EffectFit, sigma: float) -> ResidualTest:
@@ -183,8 +190,15 @@ def candidate_jacobian(fit: EffectFit, candidate: Effect):
     return problem, p, whitened
 
 
-def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
-    """Score test of ``candidate`` at the fit (no refit; see the module docstring)."""
+def score_test(fit: EffectFit, candidate: Effect, sigma: float, family: bool = True) -> ScoreTest:
+    """Score test of ``candidate`` at the fit (no refit; see the module docstring).
+
+    An effect with a ``family`` of shapes (``stiffer_region``) is tested over the whole
+    family (``family_score_test``), which chooses its member; ``family=False`` tests
+    the effect as it stands.
+    """
+    if family and getattr(candidate, "family", None) is not None:
+        return family_score_test(fit, candidate, sigma)
     begin = time.perf_counter()
     problem, p, jacobian = candidate_jacobian(fit, candidate)
     block = problem.slice_of(candidate.name)
@@ -232,6 +246,99 @@ def score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
         seconds=time.perf_counter() - begin,
         note=note,
         information=kept @ kept.T / sigma**2,
+    )
+
+
+def family_columns(fit: EffectFit, candidate: Effect):
+    """The cells of ``candidate``'s family at the fit, linearised once.
+
+    Returns
+    -------
+    tuple
+        The ``family`` (grid, boxes, per-cell effect); D, the whitened d rho / d theta_c
+        of every cell in natural units, (m, n_cells); and the fitted parameters'
+        columns J_N, (m, k) (``candidate_jacobian`` of the per-cell effect: on the
+        linear path one multi-column solve).
+    """
+    family = candidate.family(fit.problem.model)
+    problem, p, jacobian = candidate_jacobian(fit, family.cells)
+    nuisance = np.flatnonzero(fit.estimated())
+    z_scale = problem.natural_derivative(problem.to_internal(p))
+    block = problem.slice_of(family.cells.name)
+    return family, jacobian[:, block], jacobian[:, nuisance] * z_scale[nuisance]
+
+
+def family_score_test(fit: EffectFit, candidate: Effect, sigma: float) -> ScoreTest:
+    """The one-sided score test of every member of ``candidate``'s family (the rectangles
+    of cells of ``stiffer_region``) at once, and the best member chosen in the effect.
+
+    With D the cells' columns (``family_columns``), A = (I - P_N) D and w_b the 0/1
+    weight of box b's cells, box b's column is A w_b and
+
+        T_b = (w_b^T A^T rho)^2 / (sigma^2 w_b^T A^T A w_b)                        (S1)
+
+    for every box from the n_cells vector A^T rho and matrix A^T A by cumulative sums
+    over the cells (``CellGrid.box_sums``, ``box_forms``). Only boxes whose one-step
+    estimate -w_b^T A^T rho / w_b^T A^T A w_b is positive count (s >= 0), and those
+    confounded (|A w_b| < CONFOUNDED |D w_b|) are not scored. The best box's log p is
+    log(1/2 P(chi^2_1 > T_b)) plus the log of the number of boxes scored (Bonferroni).
+    ``detail``: the box (i0, i1, j0, j1), its rectangle (u0, u1, v0, v1), T_b, the boxes
+    scored, and the signed statistic of every single cell (n_u, n_v).
+    """
+    begin = time.perf_counter()
+    family, columns, basis = family_columns(fit, candidate)
+    projected = columns
+    if basis.shape[1]:
+        q, _ = np.linalg.qr(basis)
+        projected = columns - q @ (q.T @ columns)
+    grid, boxes, rho = family.grid, family.boxes, fit.whitened
+    gradient, gram = projected.T @ rho, projected.T @ projected
+    score = grid.box_sums(gradient, boxes)
+    information = grid.box_forms(gram, boxes)
+    size = np.sqrt(np.maximum(grid.box_forms(columns.T @ columns, boxes), 0.0))
+    length = np.sqrt(np.maximum(information, 0.0))
+    scored = length > CONFOUNDED * np.maximum(size, 1e-300)
+    safe = np.where(scored, information, 1.0)
+    statistic = np.where(scored, score**2 / (sigma**2 * safe), 0.0)
+    step = np.where(scored, -score / safe, 0.0)
+    single = np.diag(gram)
+    cells = np.where(single > 0.0, -np.sign(gradient) * gradient**2 / (sigma**2 * single), 0.0)
+    detail = {"n_boxes": int(scored.sum()), "cell_statistic": cells.reshape(grid.shape).tolist()}
+    allowed = scored & (step > 0.0)
+    candidates = np.where(allowed if allowed.any() else scored, statistic, -1.0)
+    best = int(np.argmax(candidates)) if candidates.size else 0
+    log_p, information_best, distinct = 0.0, None, 0.0
+    if not scored.any():
+        note = "no rectangle of cells with influence beyond the fitted parameters (confounded)"
+    elif not allowed.any():
+        note = "every rectangle points to s < 0 (outside its bound)"
+    else:
+        note = ""
+        log_p = log_chi2_sf(statistic[best], 1) + np.log(0.5) + np.log(detail["n_boxes"])
+        log_p = min(float(log_p), 0.0)
+    if scored.any():
+        box = boxes[best]
+        candidate.choose(grid.rect(box))
+        information_best = np.array([[information[best] / sigma**2]])
+        distinct = float(length[best] / size[best])
+        detail.update(
+            box=[int(k) for k in box],
+            rect_uv=list(grid.rect(box)),
+            statistic=float(statistic[best]),
+        )
+    chosen = bool(allowed.any())
+    return ScoreTest(
+        effect=candidate.name,
+        statistic=float(statistic[best]) if chosen else 0.0,
+        dof=1,
+        p_value=float(np.exp(log_p)),
+        log_p=float(log_p),
+        step=np.array([step[best] if chosen else 0.0]),
+        distinct=distinct,
+        seconds=time.perf_counter() - begin,
+        note=note,
+        information=information_best,
+        detail=detail,
     )
 
 

@@ -40,6 +40,7 @@ from symbolic.effects.fieldeffect import StiffnessFieldEffect
 from symbolic.effects.load import ContactOffset, ContactPatch, ForceDirection
 from symbolic.effects.measurement import MeasurementScale, RigidMotion
 from symbolic.effects.nonlinearity import ContinuumStiffening, NonlinearStiffening
+from symbolic.effects.region import StiffnessRegion
 from symbolic.effects.stiffness import (
     Bending,
     Heterogeneity,
@@ -67,11 +68,12 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     Layering,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(dict.fromkeys(c.name for c in EFFECT_CLASSES))
-"""The default library: every effect name of docs/diagnosis.md ("The effects") but
-``stiffness_field``, in order. One name may have a class per base energy
-(``nonlinear_stiffening``: eq. 1 or eq. C10); ``make_effect`` picks by the energy."""
+"""The default library: every effect name of docs/diagnosis.md ("The effects") but the
+opt-in ``stiffness_field``, ``stiffer_region`` and ``anisotropy``, in order. One name may
+have a class per base energy (``nonlinear_stiffening``: eq. 1 or eq. C10);
+``make_effect`` picks by the energy."""
 
-OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect, Anisotropy)
+OPT_IN_CLASSES: tuple[type[Effect], ...] = (StiffnessFieldEffect, StiffnessRegion, Anisotropy)
 """Effects searched only when named (``DiagnosisSettings.candidates``)."""
 ALL_EFFECT_NAMES: tuple[str, ...] = EFFECT_NAMES + tuple(c.name for c in OPT_IN_CLASSES)
 
