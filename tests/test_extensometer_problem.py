@@ -221,8 +221,10 @@ def _continuation_agrees(problem: ExtendedProblem, position: int, p: np.ndarray)
     ``EquilibriumSolver.solve_by_continuation``'s (displacements, then multipliers)."""
     from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver
 
+    problem.forget_solves()  # from rest, not from a solve kept at another p
     with pytest.raises(EquilibriumError):
         problem.solve_state(position, p, continuation=False)
+    problem.forget_solves()
     state, _ = problem.solve_state(position, p)
     equilibrium = problem.numeric(position, "equilibrium")
     g, rest = (equilibrium(s, p)[0].ravel() for s in (state, np.zeros_like(state)))

@@ -272,8 +272,13 @@ class ExtendedProblem:
 
         target = tolerance * max(float(np.linalg.norm(residual(zero))), 1e-300)
         first = zero if start is None else np.array(start, dtype=float)
+        memory = self.cache.get(self._memory_key(position))
+        stale = None
+        if memory is not None and memory[0].shape == p.shape:
+            last_p, last_state, sensitivity, stale = memory
+            first = last_state + sensitivity @ (p - last_p)  # ds/dp: s(p) to first order
         try:
-            return newton.newton(residual, factorise, first, target)
+            return newton.newton(residual, factorise, first, target, stale)
         except EquilibriumError:
             if not continuation:
                 raise
@@ -296,13 +301,30 @@ class ExtendedProblem:
         return jacobian
 
     def linearise(self, position: int, p: np.ndarray, state: np.ndarray, jacobian=None):
-        """r and exact dr/dp of one case at a solved state (implicit function theorem)."""
+        """r and exact dr/dp of one case at a solved state (implicit function theorem).
+
+        The state, ds/dp and dg/ds are kept for the next solve of this case on this
+        problem (``solve_state``: the first-order start and its chord steps)."""
         if jacobian is None:
             jacobian = self._factorised(self.numeric(position, "newton")(state, p)[1])
         dg_dp, r, dr_ds, dr_dp = self.numeric(position, "sensitivity")(state, p)
         sensitivity = -jacobian.solve(_dense(dg_dp))
         total = dr_ds @ sensitivity + _dense(dr_dp)
+        memory = (np.array(p, dtype=float), np.array(state), np.asarray(sensitivity), jacobian)
+        self.cache[self._memory_key(position)] = memory
         return np.ravel(_dense(r)), total
+
+    def forget_solves(self) -> None:
+        """Drop the kept solves of this problem's cases: the next Newton starts from
+        ``start`` or rest."""
+        for position in range(len(self.positions)):
+            self.cache.pop(self._memory_key(position), None)
+
+    def _memory_key(self, position: int) -> tuple:
+        """Where the last solve of the case at ``position`` is kept: with the effect set's
+        Functions (dropped with them), by base case and by the layout of p."""
+        effect_set = self.extended.effect_set
+        return ("functions", effect_set, "newton", self.positions[position], tuple(self.labels))
 
     def evaluate(self, p: np.ndarray, starts=None):
         """Stacked raw residual r(p), its Jacobian dr/dp and the solved states."""

@@ -33,10 +33,23 @@ STEPS = 4
 HALVINGS = 3
 """How often in a row the continuation's step may be halved."""
 
+CHORDS = 6
+"""Chord steps at most with a factorisation from before (``newton``'s ``stale``)."""
 
-def newton(residual, factorise, state: np.ndarray, target: float):
+CONTRACTION = 0.25
+"""A chord step must shrink |g| at least this much, or full Newton takes over."""
+
+
+def newton(residual, factorise, state: np.ndarray, target: float, stale=None):
     """s with |g(s)| <= ``target`` by Newton from ``state``, and the factorised dg/ds of
     its last step (exact for g linear in s, accurate to that step otherwise).
+
+    With ``stale``, a factorisation of dg/ds from a nearby solve (the same case at the
+    last p), chord steps s <- s - stale^-1 g(s) come first while each shrinks |g| by
+    ``CONTRACTION`` (at most ``CHORDS``): from a start predicted to first order they
+    converge without a new factorisation; then dg/ds is factorised there and one Newton
+    step taken with it, as full Newton would end (the implicit-function sensitivities
+    and finite differences of the solution need it to rounding, not to ``target``).
 
     Parameters
     ----------
@@ -48,6 +61,8 @@ def newton(residual, factorise, state: np.ndarray, target: float):
         Start.
     target : float
         Tolerance on |g| [as g].
+    stale : StateJacobian, optional
+        A factorisation of dg/ds near ``state``.
 
     Raises
     ------
@@ -55,6 +70,19 @@ def newton(residual, factorise, state: np.ndarray, target: float):
         Not converged within ``ITERATIONS`` steps, or g not finite.
     """
     g = residual(state)
+    if stale is not None:
+        for _ in range(CHORDS):
+            norm = float(np.linalg.norm(g))
+            if not np.isfinite(norm) or norm <= target:
+                break
+            trial = state + stale.solve(-g)
+            g_trial = residual(trial)
+            if not np.linalg.norm(g_trial) <= CONTRACTION * norm:
+                break
+            state, g = trial, g_trial
+        if float(np.linalg.norm(g)) <= target:  # one Newton step more: to rounding
+            jacobian = factorise(state)
+            return state + jacobian.solve(-g), jacobian
     jacobian = None
     for _ in range(ITERATIONS):
         norm = float(np.linalg.norm(g))
