@@ -387,7 +387,7 @@ def test_a_sets_case_parts_are_those_of_its_case_effects_widened(continuum, monk
     smaller set's Functions built once for every set that shares it."""
     import casadi as ca
 
-    import symbolic.effects.library as effects
+    import symbolic.effects.composition as effects
 
     problem, base_fit, library = continuum
     model = problem.extended
