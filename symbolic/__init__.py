@@ -9,7 +9,6 @@
 - the continua (docs/continuum.md): ``continuum`` (linear elasticity), ``hyperelastic``
   (neo-Hookean and exponential stiffening), ``continuum_model`` (their base models,
   ``ENERGIES``), ``field`` (a stiffness field, docs/imaging.md);
-- the extensometer's planar models (docs/realskin.md): ``planar_neohookean``,
-  ``planar_stiffening``;
+- the extensometer's slab with glued pads (docs/realskin.md): ``skin_slab``;
 - ``effects``: the candidate effects of the diagnosis loop (docs/diagnosis.md).
 """

@@ -88,7 +88,7 @@ def test_every_script_is_a_dvs_command():
     assert re.findall(pattern, "run python -m experiments.inverse.paper --out x")
     text = " ".join(path.read_text() for path in DOCS.rglob("*.md"))
     named = set(re.findall(pattern, text + (root / "README.md").read_text()))
-    named -= {"experiments.realskin"}  # the package runs experiments.realskin.skinstudy
+    named -= {"experiments.realskin"}  # the package runs experiments.realskin.skinfit
     assert not named - modules, f"scripts without a dvs command: {sorted(named - modules)}"
 
 

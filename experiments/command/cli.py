@@ -84,14 +84,10 @@ GROUPS = {
         "diagnosis",
     ),
     "realskin": (
-        "real in vivo skin (the extensometer data): fit, twin, checks, ...",
+        "real in vivo skin (the extensometer data): fit, strain, data",
         {
-            "fit": ("experiments.realskin.skinstudy", "fit the real skin and close the loop"),
-            "twin": ("experiments.realskin.twin", "synthetic twin of the keloid extensometer"),
-            "checks": ("experiments.realskin.checks", "checks of the keloid's stiff region"),
+            "fit": ("experiments.realskin.skinfit", "the real skin through the shared loop"),
             "strain": ("experiments.realskin.strain", "model-free axial strain from the DIC"),
-            "continuum": ("experiments.realskin.skincontinuum", "E and nu of the continua"),
-            "authors": ("experiments.realskin.reproduce", "the authors' 2D fit, reproduced"),
             "data": ("experiments.realskin.data", "summary of the real skin measurements"),
         },
         "fit",
@@ -128,11 +124,7 @@ FORMER = {
     "designbench": "bench design",
     "imagebench": "bench image",
     "boardbench": "bench board",
-    "realskin-twin": "realskin twin",
-    "realskin-checks": "realskin checks",
     "realskin-strain": "realskin strain",
-    "realskin-continuum": "realskin continuum",
-    "realskin-authors": "realskin authors",
     "realskin-data": "realskin data",
 }
 """The flat names of before the groups, still accepted (docs/cli.md): old -> new."""

@@ -1,5 +1,5 @@
 """``python -m experiments.realskin``: the real-skin study (``dvs realskin fit``)."""
 
-from experiments.realskin.skinstudy import main
+from experiments.realskin.skinfit import main
 
 raise SystemExit(main())

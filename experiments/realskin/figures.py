@@ -1,166 +1,136 @@
-"""What one case's study reports: physical numbers of a fit, stage summaries, figures."""
+"""The real-skin study's figures: the force along the travel, the DIC residual maps of the
+base and the final model, and the skin with its pads, the keloid's outline and the stiffer
+rectangle the loop found (``experiments.realskin.skinfit``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from experiments.realskin.skinplots import (
-    plot_force_curves,
-    plot_residual_maps,
-    plot_scan_map,
-    plot_stiffness_map,
-)
-from experiments.realskin.stages import LABELS, StageFit, force_curve
-from symbolic.skin_slab import POISSON, REGION_RATIO
+from experiments.realskin.cases import FrameData, load_cases
+from solvers.diagnosis.extended import ExtendedProblem
+from solvers.inverse.problem import PlanarProblem
+from symbolic.loads import FrameLoad
 
-if TYPE_CHECKING:
-    from experiments.realskin.setup import Setup
+CURVE_POINTS = 12
+"""Travels at which the models' force curves are solved."""
 
 
-def physical(setup: Setup, fit: StageFit) -> dict:
-    """Membrane tensions [N/mm], foundation stiffness [N/mm^3], k0, ratio of a fit.
-
-    T = alpha_u L_x / L_y (isotropic in the plane); k_f = alpha_w / (L_x L_y): the
-    in-plane force per unit area and displacement of the layer under the skin.
-    """
-    model = fit.problem.model if fit.problem is not None else setup.model
-    values = model.values(fit.as_dict())
-    tension_x, tension_y = model.membrane_tension(values)
-    extent = np.ptp(model.rest, axis=0)
-    out = {
-        "tension_N_per_mm": tension_x,
-        "tension_y_N_per_mm": tension_y,
-        "k0": values["k0"],
-        "foundation_N_per_mm3": values["alpha_w"] / (extent[0] * extent[1])
-        if model.boundary.fix_inner
-        else None,
-    }
-    if POISSON in fit.names:
-        out["poisson_c"] = values[POISSON]
-        out["poisson_nu"] = values[POISSON] / (1.0 + values[POISSON])
-    if REGION_RATIO in fit.names:
-        out["region_ratio"] = values[REGION_RATIO]
-        out["theta"] = values[REGION_RATIO] - 1.0
-        out["tension_inside_N_per_mm"] = tension_x * values[REGION_RATIO]
-    return out
+def force_curve(setup, fit, travels: np.ndarray) -> np.ndarray:
+    """|F| [N] of a fitted model (an ``EffectFit`` of the study's problem) at pad travels
+    [mm]: force-only frames at those travels, solved with the fit's parameters."""
+    data = setup.data
+    pad = np.column_stack([-travels, np.full(travels.size, data.pad_mm[-1, 1])])
+    curve = FrameData(
+        [f"{t:.2f} mm" for t in travels],
+        pad,
+        np.zeros(travels.size),
+        [None] * travels.size,
+        data.reference_mm,
+        [None] * travels.size,
+    )
+    base = setup.base
+    cases = load_cases(base.model, setup.pads, curve, setup.weight)
+    planar = PlanarProblem(base.model, cases, base.space, noise_mm=setup.noise_mm)
+    problem = ExtendedProblem(planar, [FrameLoad(c.label) for c in cases], fit.problem.effects)
+    return np.abs(problem.residual(fit.p)) / setup.weight
 
 
-def stage_summary(setup: Setup, fit: StageFit) -> dict:
-    """A fitted stage as plain numbers (``summary.json``)."""
-    return {
-        "label": fit.label,
-        "estimates": {
-            n: {"value": float(v), "std": float(s), "at_bound": bool(b)}
-            for n, v, s, b in zip(fit.names, fit.x, fit.std, fit.at_bound)
-        },
-        "physical": physical(setup, fit),
-        "rms_displacement_mm": fit.rms_displacement_mm,
-        "rms_force_N": fit.rms_force_n,
-        "cost": fit.cost,
-        "sigma_mm": fit.sigma,
-        "success": fit.success,
-        "evaluations": fit.evaluations,
-        "seconds": fit.seconds,
-    }
+def _residual_field(setup, fit, position: int) -> np.ndarray | None:
+    """Model minus measured (ux, uy) [mm] of the DIC points at one frame (P, 2)."""
+    rows = fit.problem.case_rows()
+    start = int(np.sum(rows[:position]))
+    n = len(setup.data.reference_mm)
+    if setup.data.displacement_mm[position] is None:
+        return None
+    block = fit.residual[start : start + 2 * n]
+    return block.reshape(2, n).T
 
 
-def _curves(setup: Setup, stages: list[StageFit]) -> tuple[np.ndarray, dict]:
-    """Model force curves of the first and last stage over the record's travel."""
-    case = setup.case
-    travel_max = float(-case.force_ux_mm.min())
-    travels = np.linspace(travel_max / 24, travel_max, 24)
-    frame_travel = -case.pad_displacement_mm[:, 0]
-    drift = np.interp(travels, frame_travel, case.pad_displacement_mm[:, 1])
-    curves = {}
-    for fit in (stages[0], stages[-1]) if len(stages) > 1 else stages[:1]:
-        force = force_curve(fit.problem.model, setup.pads, fit, travels, drift)
-        name = (
-            "linear"
-            if fit is stages[0]
-            else "final: " + ", ".join(LABELS[n] for n in fit.names if n in LABELS)
-        )
-        curves[name] = (travels, -force)
-    return travels, curves
+def case_figures(setup, diagnosis, region: dict | None, folder: Path) -> list[Path]:
+    """force.png, residuals.png and skin.png of one case (with PDF twins); their paths."""
+    import matplotlib
 
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
-def case_figures(
-    out: Path, name: str, setup: Setup, stages: list[StageFit], found=None
-) -> list[Path]:
-    """Force curves, residual maps and (with a second material) the stiffness map."""
+    from experiments.output.atomic import atomic_savefig
+
+    first, last = diagnosis.steps[0].fit, diagnosis.steps[-1].fit
+    final = " + ".join(diagnosis.selected) or "nothing added"
     case, data = setup.case, setup.data
     paths = []
-    _, curves = _curves(setup, stages)
-    record = (-case.force_ux_mm, -case.force_fx_n)
-    has_dic = np.array([d is not None for d in data.displacement_mm])
-    paths.append(
-        plot_force_curves(
-            out / f"force_{name}.png",
-            f"{name}: force against pad travel",
-            record,
-            (data.travel_mm, -data.force_n, has_dic),
-            curves,
-        )
-    )
-    last = int(np.flatnonzero(has_dic)[-1])
-    residuals = {}
-    for fit in (stages[0], stages[-1]) if len(stages) > 1 else stages[:1]:
-        label = "before" if fit is stages[0] else "after"
-        residuals[label] = fit.problem.marker_errors(fit.states)[last]
-    paths.append(
-        plot_residual_maps(
-            out / f"residual_{name}.png",
-            f"{name}: model - measured displacement, {data.labels[last]} "
-            f"(pad travel {data.travel_mm[last]:.2f} mm)",
-            data.reference_mm,
-            residuals,
-            setup.pad_rects,
-            case.geometry.keloid,
-        )
-    )
-    final = stages[-1]
-    if REGION_RATIO in final.names:
-        region = case.geometry.region
-        x = np.linspace(region.x0, region.x1, 201)
-        y = np.linspace(region.y0, region.y1, 101)
-        grid = np.meshgrid(x, y, indexing="xy")
-        params = np.column_stack(
-            [
-                ((grid[0] - region.x0) / region.width).ravel(),
-                ((grid[1] - region.y0) / region.height).ravel(),
-                np.ones(grid[0].size),
-            ]
-        )
-        chi = final.problem.model.region(params).reshape(grid[0].shape)
-        values = physical(setup, final)
-        tension = values["tension_N_per_mm"] * (1.0 + values["theta"] * chi)
-        paths.append(
-            plot_stiffness_map(
-                out / f"stiffness_{name}.png",
-                f"{name}: fitted membrane tension T (outside {values['tension_N_per_mm']:.2g}, "
-                f"inside {values['tension_inside_N_per_mm']:.2g} N/mm)",
-                region,
-                tension,
-                grid,
-                setup.pad_rects,
-                case.geometry.keloid,
-                data.reference_mm,
+
+    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    ax.plot(-case.force_ux_mm, -case.force_fx_n, color="0.6", lw=2.5, label="measured")
+    ax.plot(data.travel_mm, -data.force_n, "ko", mfc="none", label="fitted frames")
+    travels = np.linspace(0.2, data.travel_mm.max(), CURVE_POINTS)
+    for label, fit, style in (("base model", first, "--"), (final, last, "-")):
+        ax.plot(travels, force_curve(setup, fit, travels), style, lw=1.6, label=label)
+    ax.set(xlabel="pad travel [mm]", ylabel="|force| [N]", title=f"{case.name}: force")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    paths.append(atomic_savefig(fig, folder / "force.png", dpi=110))
+    plt.close(fig)
+
+    position = max(k for k, d in enumerate(data.displacement_mm) if d is not None)
+    fields = {"base model": _residual_field(setup, first, position), final: None}
+    fields[final] = _residual_field(setup, last, position)
+    limit = max(float(np.abs(f).max()) for f in fields.values())
+    fig, axes = plt.subplots(2, 2, figsize=(11, 5.2), squeeze=False)
+    for row, (label, field) in enumerate(fields.items()):
+        for col in range(2):
+            ax = axes[row, col]
+            image = ax.scatter(
+                *data.reference_mm.T,
+                c=field[:, col],
+                s=5,
+                cmap="RdBu_r",
+                vmin=-limit,
+                vmax=limit,
+                rasterized=True,
+            )
+            rms = float(np.sqrt(np.mean(field[:, col] ** 2)))
+            ax.set_title(f"{label}: u{'xy'[col]} residual, RMS {rms:.3f} mm", fontsize=9)
+            ax.set_aspect("equal")
+            fig.colorbar(image, ax=ax, shrink=0.8, label="mm")
+    fig.suptitle(f"{case.name}, {data.labels[position]}: model minus DIC", fontsize=10)
+    paths.append(atomic_savefig(fig, folder / "residuals.png", dpi=110))
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7.0, 3.8))
+    area = case.geometry.region
+    ax.add_patch(plt.Rectangle((area.x0, area.y0), area.width, area.height, fill=False))
+    for pad in setup.pad_rects:
+        ax.add_patch(plt.Rectangle((pad.x0, pad.y0), pad.width, pad.height, color="0.3"))
+    ax.plot(*data.reference_mm.T, ".", ms=1, color="0.6", label="DIC points")
+    if case.geometry.keloid is not None:
+        outline = np.vstack([case.geometry.keloid, case.geometry.keloid[:1]])
+        ax.plot(*outline.T, "g-", label="keloid outline")
+    if region is not None:
+        x0, x1, y0, y1 = region["rect_mm"]
+        state = "named" if region["named"] else "not named"
+        ax.add_patch(
+            plt.Rectangle(
+                (x0, y0),
+                x1 - x0,
+                y1 - y0,
+                fill=False,
+                ec="r",
+                lw=2,
+                label=f"stiffer rectangle ({state})",
             )
         )
-    if found is not None:
-        paths.append(
-            plot_scan_map(
-                out / f"scan_{name}.png",
-                f"{name}: scan for a stiffer inclusion (chosen T = {found.score.statistic:.3g})",
-                case.geometry.region,
-                setup.grid.x_edges,
-                setup.grid.y_edges,
-                found.cell_statistic,
-                found.rect,
-                setup.pad_rects,
-                case.geometry.keloid,
-            )
-        )
+    ax.set(
+        xlim=(area.x0, area.x1),
+        ylim=(area.y0, area.y1),
+        aspect="equal",
+        xlabel="x [mm]",
+        ylabel="y [mm]",
+        title=f"{case.name}: the skin",
+    )
+    ax.legend(fontsize=7, loc="upper right")
+    paths.append(atomic_savefig(fig, folder / "skin.png", dpi=110))
+    plt.close(fig)
     return paths

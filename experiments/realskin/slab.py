@@ -1,4 +1,4 @@
-"""The extensometer's slab: its volume, the glued pads and a second material's region.
+"""The extensometer's slab: its volume and the glued pads.
 
 Geometry (model frame of ``geometry.geo``, units mm, N):
 
@@ -6,9 +6,7 @@ Geometry (model frame of ``geometry.geo``, units mm, N):
   at z = 0, inner surface (w = 0) at z = -thickness; the map from (u, v) to (x, y) is
   linear, so a material point's (u, v) is its position scaled to the rectangle;
 - each pad is a k x k grid of prescribed skin points covering its 8 x 8 mm square: the
-  fixed pad's displacement is 0, the moving pad's the measured pad displacement;
-- a second material's region is a smoothed indicator chi(x, y) of a polygon (the
-  keloid outline); the in-plane volumetric term (div u)^2 is ``symbolic.skin_slab.coupling_matrix``.
+  fixed pad's displacement is 0, the moving pad's the measured pad displacement.
 
 The model built on them is ``symbolic.skin_slab.SkinSlabModel``.
 """
@@ -19,8 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.realskin.geometry import Rect, points_in_polygon
-from symbolic.energy import Field
+from experiments.realskin.geometry import Rect
 from symbolic.loads import PrescribedDisplacement
 from symbolic.volume import VolumeSpline
 
@@ -108,32 +105,3 @@ class Pads:
         d = np.zeros((len(self.prescribed.uv), 3))
         d[: self.n_moving, :2] = np.asarray(moving_mm, dtype=float)[:2]
         return d
-
-
-def polygon_distance(points_xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Signed distance [mm] of points (n, 2) to a closed polygon (V, 2), positive inside."""
-    p = np.asarray(points_xy, dtype=float)[:, None, :]
-    a = polygon[None, :, :]
-    b = np.roll(polygon, -1, axis=0)[None, :, :]
-    edge = b - a
-    t = np.clip(np.sum((p - a) * edge, axis=2) / np.sum(edge**2, axis=2), 0.0, 1.0)
-    nearest = a + t[..., None] * edge
-    distance = np.sqrt(np.min(np.sum((p - nearest) ** 2, axis=2), axis=1))
-    inside = points_in_polygon(np.asarray(points_xy, dtype=float), polygon)
-    return np.where(inside, distance, -distance)
-
-
-def region_indicator(region: Rect, polygon: np.ndarray, smoothing_mm: float = 1.0) -> Field:
-    """chi(u, v, w) = 1/2 (1 + tanh(2 d / smoothing)), d the signed distance to the polygon.
-
-    chi goes from 0.12 to 0.88 over ``smoothing_mm`` across the outline [mm].
-    """
-    polygon = np.asarray(polygon, dtype=float)
-
-    def chi(params: np.ndarray) -> np.ndarray:
-        xy = np.column_stack(
-            [region.x0 + params[:, 0] * region.width, region.y0 + params[:, 1] * region.height]
-        )
-        return 0.5 * (1.0 + np.tanh(2.0 * polygon_distance(xy, polygon) / smoothing_mm))
-
-    return chi

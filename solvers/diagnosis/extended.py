@@ -39,7 +39,6 @@ from solvers.diagnosis.observation import (
     point_errors,
     row_offsets,
 )
-from solvers.forward.equilibrium import EquilibriumError
 from solvers.inverse.noise import Whitening
 from solvers.inverse.problem import InverseProblem, LoadCase
 from solvers.inverse.space import LOG_PARAMETERS
@@ -257,33 +256,11 @@ class ExtendedProblem:
         (``solvers.diagnosis.newton``: the Jacobian of the last Newton step, exact for a
         model linear in s and accurate to the (tiny) last step otherwise).
 
-        Newton starts from ``start`` (default rest); where it fails, and ``continuation``
-        is on, the load is applied in steps from rest (``newton.by_continuation``).
+        Newton starts from the case's last solve predicted to first order, else from
+        ``start`` (default rest); where it fails, and ``continuation`` is on, the load is
+        applied in steps from rest (``newton.solve_case``).
         """
-        equilibrium = self.numeric(position, "equilibrium")
-        jacobian = self.numeric(position, "newton")
-        zero = np.zeros(self.functions(position).n_state)
-
-        def residual(state):
-            return equilibrium(state, p)[0].ravel()
-
-        def factorise(state):
-            return self._factorised(jacobian(state, p)[1])
-
-        target = tolerance * max(float(np.linalg.norm(residual(zero))), 1e-300)
-        first = zero if start is None else np.array(start, dtype=float)
-        memory = self.cache.get(self._memory_key(position))
-        stale = None
-        if memory is not None and memory[0].shape == p.shape:
-            last_p, last_state, sensitivity, stale = memory
-            first = last_state + sensitivity @ (p - last_p)  # ds/dp: s(p) to first order
-        try:
-            return newton.newton(residual, factorise, first, target, stale)
-        except EquilibriumError:
-            if not continuation:
-                raise
-        load = np.ravel(_dense(self.numeric_of(self.extended.case_parts(position).load)(p)[0]))
-        return newton.by_continuation(residual, factorise, load, zero, target)
+        return newton.solve_case(self, position, p, start, tolerance, continuation)
 
     def _factorised(self, matrix: sp.spmatrix) -> StateJacobian:
         """A ``StateJacobian`` of dg/ds, reusing the last one when the matrix is the same.

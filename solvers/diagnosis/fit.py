@@ -138,6 +138,16 @@ most of them where an effect's parameter drifts along a flat valley of chi^2
 (docs/diagnosis.md, "How exactly the loop fits")."""
 
 
+def statistical_tolerance(problem: ExtendedProblem, rows: int) -> float:
+    """ftol of the loop's fits: ``STATISTICAL_TOLERANCE`` on a model linear in its state;
+    on one that is not (Newton per case, each evaluation dear), 0.1 / m for m residuals,
+    so that chi^2 is good to about 0.1 phi, a hundredth of what the selection rule
+    (docs/diagnosis.md, eq. G3) compares with it."""
+    if problem.linear_state:
+        return STATISTICAL_TOLERANCE
+    return max(STATISTICAL_TOLERANCE, 0.1 / max(int(rows), 1))
+
+
 def fit(
     problem: ExtendedProblem,
     start=None,

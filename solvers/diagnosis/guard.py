@@ -47,7 +47,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
+from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit, statistical_tolerance
 from solvers.diagnosis.leftout import LEVEL, LeftOut, PredictionCheck
 
 CLEAR_MARGIN = 10.0
@@ -92,7 +92,7 @@ def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
     ``held`` is one position or a list of them. The training fit starts from the
     Gauss-Newton step of ``linearised_left_out`` (exact for a residual linear in p, so
     the refit only corrects its curvature); a model nonlinear in its state starts from
-    the fit itself, its states warm, and stops at ``refit_tolerance``. The held cases'
+    the fit itself, its states warm, and stops at ``statistical_tolerance``. The held cases'
     per-capture parameters are
     fitted to them and predicted across their marker halves by one Gauss-Newton step from
     that fit (``across_halves``; exact where they enter linearly). Returns the chi^2 and
@@ -109,7 +109,7 @@ def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
     states = None
     if not problem.linear_state:  # Newton: from the fit's own states, to what phi reads
         states = [model_fit.states[problem.positions.index(k)] for k in train]
-    tolerance = refit_tolerance(model_fit)
+    tolerance = statistical_tolerance(problem, model_fit.whitened.size)
     trained = fit(train_problem, start, states=states, tolerance=tolerance)
     if not trained.success:  # the linear step led somewhere K(p) cannot go: from the fit
         start, _ = _mapped(problem.labels, model_fit.p, train_problem)
@@ -124,15 +124,6 @@ def predict_left_out(model_fit: EffectFit, held, sigma: float) -> tuple[float, i
         r, _, _ = test_problem.evaluate(start)
         rho = test_problem.whiten(r)
     return float(rho @ rho) / sigma**2, int(free.sum())
-
-
-def refit_tolerance(model_fit: EffectFit) -> float:
-    """ftol of a left-out refit: ``STATISTICAL_TOLERANCE`` on a model linear in its state;
-    on one that is not (Newton per case, each evaluation dear), 0.1 / m, so that a fold's
-    chi^2 is good to about 0.1 phi, a hundredth of what (G3) compares it with."""
-    if model_fit.problem.linear_state:
-        return STATISTICAL_TOLERANCE
-    return max(STATISTICAL_TOLERANCE, 0.1 / max(model_fit.whitened.size, 1))
 
 
 def _left_out_step(model_fit: EffectFit, held: list) -> tuple[np.ndarray, list, np.ndarray]:

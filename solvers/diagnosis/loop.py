@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from solvers.diagnosis.extended import ExtendedProblem
-from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit
+from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit, statistical_tolerance
 from solvers.diagnosis.guard import left_out, prediction_check
 from solvers.diagnosis.leftout import chance
 from solvers.diagnosis.record import Diagnosis, DiagnosisSettings, Step
@@ -125,10 +125,11 @@ def _refit(current: EffectFit, effect, test: ScoreTest) -> EffectFit:
     start = np.concatenate([current.p, np.zeros(block.stop - block.start)])
     if effect.prior(problem.model) is None:  # a field starts flat, not at the raw GN step
         start[block] = np.clip(test.step, problem.lower[block], problem.upper[block])
-    refit = fit(problem, start, states=None, tolerance=STATISTICAL_TOLERANCE)
+    tolerance = statistical_tolerance(problem, current.whitened.size)
+    refit = fit(problem, start, states=None, tolerance=tolerance)
     if not refit.success:
         start[block] = 0.0
-        refit = fit(problem, start, tolerance=STATISTICAL_TOLERANCE)
+        refit = fit(problem, start, tolerance=tolerance)
     return refit
 
 
@@ -331,11 +332,11 @@ class _Loop:
         )
         accepted, self.dominant = None, []
         for test in ranked[: settings.max_attempts]:
-            accepted = self.judge(current, previous, test)
+            accepted = self.undominated(self.judge(current, previous, test), previous, phi)
             if accepted is not None:
                 break
         if accepted is None or settings.rival_margin <= 0:
-            return self.undominated(accepted, previous, phi)
+            return accepted
         contenders = _contenders(current, accepted, previous, ranked, self.library, self.sigma, phi)
         chosen = _settle(
             accepted,
@@ -355,7 +356,7 @@ class _Loop:
                 f"  {rival['effect']} explains it as well (chi2 drop {rival['chi2_drop']:.1f} "
                 f"against {rival['accepted_drop']:.1f})"
             )
-        return self.undominated(chosen, previous, phi)
+        return chosen if chosen is accepted else self.undominated(chosen, previous, phi)
 
     def undominated(self, chosen: Step | None, previous: Step, phi: float) -> Step | None:
         """``chosen``, unless a stand-in of the round by its bounds or size lowered chi^2

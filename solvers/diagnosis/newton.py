@@ -18,6 +18,7 @@ shorter travel.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from solvers.forward.equilibrium import EquilibriumError
 
@@ -140,3 +141,36 @@ def by_continuation(residual, factorise, load: np.ndarray, zero: np.ndarray, tar
         if t == 1.0:
             return state, jacobian
         reached, failures = t, 0
+
+
+def solve_case(problem, position: int, p: np.ndarray, start, tolerance: float, continuation):
+    """``ExtendedProblem.solve_state``: Newton on one case's g(s, p) = 0 from the case's
+    last solve on ``problem`` predicted to first order (s + ds/dp dp, with chord steps on
+    that solve's factorisation), else from ``start`` (default rest); with
+    ``continuation``, load continuation from rest where Newton fails. Returns the state
+    and its ``StateJacobian``."""
+    equilibrium = problem.numeric(position, "equilibrium")
+    jacobian = problem.numeric(position, "newton")
+    zero = np.zeros(problem.functions(position).n_state)
+
+    def residual(state):
+        return equilibrium(state, p)[0].ravel()
+
+    def factorise(state):
+        return problem._factorised(jacobian(state, p)[1])
+
+    target = tolerance * max(float(np.linalg.norm(residual(zero))), 1e-300)
+    first = zero if start is None else np.array(start, dtype=float)
+    memory = problem.cache.get(problem._memory_key(position))
+    stale = None
+    if memory is not None and memory[0].shape == p.shape:
+        last_p, last_state, sensitivity, stale = memory
+        first = last_state + sensitivity @ (p - last_p)  # ds/dp: s(p) to first order
+    try:
+        return newton(residual, factorise, first, target, stale)
+    except EquilibriumError:
+        if not continuation:
+            raise
+    value = problem.numeric_of(problem.extended.case_parts(position).load)(p)[0]
+    load = np.ravel(value.toarray() if sp.issparse(value) else value)
+    return by_continuation(residual, factorise, load, zero, target)
