@@ -43,24 +43,27 @@ def pushed_to_bounds(current: EffectFit, refit: EffectFit) -> list[str]:
 
 
 ACTIVE = 1e-4
-"""An effect's own parameter within this fraction of its natural range of a bound ends on
-it: the bound is active (the least squares would go beyond it; trf stops within about
-1e-9 of an active bound). A margin of the internal range, as for the model's own
-parameters, would count a modest estimate of a wide linear range (layering's -0.9 to
-300) as on its bound."""
+"""An effect's own parameter within this fraction of its natural range of a bound is on
+it (trf stops within about 1e-9 of an active bound at a tight tolerance)."""
 
 
 def own_bounds(refit: EffectFit, name: str) -> list[str]:
-    """The added effect's parameters that end on one of their bounds other than 0
-    (``ACTIVE``)."""
+    """The added effect's parameters that end on one of their bounds other than 0: within
+    ``ACTIVE`` of it, or pressing against it, the Gauss-Newton step along the parameter
+    from the refit, -(J^T rho)_j / (J^T J)_jj, reaching the bound (the least squares would
+    go beyond it; a refit stopped at a loose tolerance ends just inside). A margin of the
+    range instead would count a modest estimate of a wide linear range (layering's -0.9
+    to 300) as on its bound."""
     problem = refit.problem
     block = problem.slice_of(name)
     values, lower, upper = refit.p[block], problem.lower[block], problem.upper[block]
+    columns = refit.jacobian[:, block]
+    curvature = np.maximum(np.sum(columns**2, axis=0), 1e-300)
+    step = -(columns.T @ refit.whitened) / curvature  # natural units
     margin = ACTIVE * (upper - lower)
-    on = ((values - lower <= margin) & (lower != 0.0)) | (
-        (upper - values <= margin) & (upper != 0.0)
-    )
-    return [label for label, o in zip(problem.labels[block], on) if o]
+    low = (values - lower <= np.maximum(margin, -step)) & (lower != 0.0)
+    high = (upper - values <= np.maximum(margin, step)) & (upper != 0.0)
+    return [label for label, o in zip(problem.labels[block], low | high) if o]
 
 
 def implausible(refit: EffectFit, effect) -> list[str]:
