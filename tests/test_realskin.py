@@ -16,8 +16,8 @@ import pytest
 import scipy.sparse as sp
 
 from experiments.realskin.geometry import Rect
-from experiments.realskin.slab import Pads, slab_volume, surface_uv
 from experiments.realskin.skinfit import overlap, region_record, region_verdict
+from experiments.realskin.slab import Pads, slab_volume, surface_uv
 from solvers.inverse.problem import LoadCase, PlanarProblem
 from solvers.inverse.space import ParameterSpace
 from symbolic.constraints import BoundaryConditions
