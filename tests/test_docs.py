@@ -13,27 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from formatkeys import json_keys as _keys
+from formatkeys import undocumented as _undocumented
 
 from experiments.command.cli import COMMANDS, command_parser, main
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-
-
-def _keys(document, prefix: str = "") -> set[str]:
-    """Every dict key in a JSON document (lists are searched, their indices are not keys)."""
-    found = set()
-    if isinstance(document, dict):
-        for key, value in document.items():
-            found.add(key)
-            found |= _keys(value)
-    elif isinstance(document, list):
-        for value in document:
-            found |= _keys(value)
-    return found
-
-
-def _undocumented(keys, text: str, skip=()) -> list[str]:
-    return sorted(k for k in keys if f"`{k}`" not in text and k not in skip)
 
 
 @pytest.fixture(scope="module")

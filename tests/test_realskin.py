@@ -129,6 +129,9 @@ def test_the_region_record_reads_the_rectangle_the_family_test_chose():
     assert not record["named"] and record["reason"] == stood[0]["reason"]
     assert "no stiffer region is named" in region_verdict(record)
     assert region_record(setup, {"steps": [{"effect": None, "score_tests": []}]}) is None
+    healthy = NS(case=NS(geometry=NS(region=REGION, keloid=None)))  # no outline: the reason
+    record = region_record(healthy, {"steps": steps[:1], "stand_ins": stood})
+    assert "iou" not in record and region_verdict(record).endswith(stood[0]["reason"])
 
 
 @pytest.mark.parametrize(
@@ -196,3 +199,22 @@ def test_keloid_names_a_region_on_the_outline_or_says_why_not(study):
     else:
         assert region["reason"] or "not significant" in document["region_verdict"]
         assert document["region_verdict"].startswith("no stiffer region is named")
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_every_realskin_key_is_in_the_format_reference(study):
+    """Both cases' diagnosis.json and summary.json: every key is named in docs/formats.md
+    (parameter labels and case names are data, not keys)."""
+    import json
+
+    from formatkeys import FORMATS, json_keys, undocumented
+
+    summary, out = study
+    text = FORMATS.read_text()
+    for name in ("healthy", "keloid"):
+        document = _document(out, name)
+        labels = {label for step in document["steps"] for label in step.get("parameters") or {}}
+        assert not undocumented(json_keys(document), text, labels), name
+    written = json.loads((out / "summary.json").read_text())
+    assert not undocumented(json_keys(written), text, {"healthy", "keloid"})

@@ -62,7 +62,7 @@ def case_figures(setup, diagnosis, region: dict | None, folder: Path) -> list[Pa
     case, data = setup.case, setup.data
     paths = []
 
-    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    fig, ax = plt.subplots(figsize=(5.2, 3.6), layout="constrained")
     ax.plot(-case.force_ux_mm, -case.force_fx_n, color="0.6", lw=2.5, label="measured")
     ax.plot(data.travel_mm, -data.force_n, "ko", mfc="none", label="fitted frames")
     travels = np.linspace(0.2, data.travel_mm.max(), CURVE_POINTS)

@@ -79,12 +79,17 @@ def region_record(setup: Setup, document: dict) -> dict | None:
 
 
 def region_verdict(record: dict | None) -> str:
-    """Whether the loop located the keloid as a stiffer region, and if not why."""
-    if record is None or "iou" not in record:
-        return "no outline to compare with"
-    where = f"x {record['rect_mm'][0]:.1f}-{record['rect_mm'][1]:.1f}, y "
-    where += f"{record['rect_mm'][2]:.1f}-{record['rect_mm'][3]:.1f} mm, IoU {record['iou']:.2f}"
+    """Whether the loop named a stiffer region and, against the keloid's outline, whether
+    it located it; if not named, why."""
+    if record is None:
+        return "the stiffer region was not a candidate"
+    x0, x1, y0, y1 = record["rect_mm"]
+    where = f"x {x0:.1f}-{x1:.1f}, y {y0:.1f}-{y1:.1f} mm"
+    if "iou" in record:
+        where += f", IoU {record['iou']:.2f}"
     if record["named"]:
+        if "iou" not in record:
+            return f"a stiffer region is named ({where}); no outline to compare with"
         located = "located" if record["iou"] >= LOCATED else "named off the outline"
         return f"a stiffer region is named ({where}): {located}"
     why = record["reason"] or "its score test was not significant"
@@ -185,11 +190,11 @@ def build_parser(prog: str = "python -m experiments.realskin.skinfit"):
     """The options of ``dvs realskin fit``."""
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--case", choices=CASES, default=None, help="one case (default both)")
+    parser.add_argument("--case", choices=CASES, default=None, help="one case (default: both)")
     parser.add_argument(
         "--candidates",
         default=",".join(CANDIDATES),
-        help=f"comma list of the effects the loop may add (default {','.join(CANDIDATES)})",
+        help="comma list of the effects the loop may add",
     )
     return parser
 

@@ -1,0 +1,26 @@
+"""Keys of a JSON output and which of them docs/formats.md does not name (for the tests)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+FORMATS = Path(__file__).resolve().parents[1] / "docs" / "formats.md"
+"""The format reference every key of every written output must appear in."""
+
+
+def json_keys(document) -> set[str]:
+    """Every dict key in a JSON document (lists are searched, their indices are not keys)."""
+    found = set()
+    if isinstance(document, dict):
+        for key, value in document.items():
+            found.add(key)
+            found |= json_keys(value)
+    elif isinstance(document, list):
+        for value in document:
+            found |= json_keys(value)
+    return found
+
+
+def undocumented(keys, text: str, skip=()) -> list[str]:
+    """The keys not written as `key` in ``text``, but for those in ``skip`` (data, not keys)."""
+    return sorted(k for k in keys if f"`{k}`" not in text and k not in skip)
