@@ -37,7 +37,7 @@ VERBS = {
 
 GROUPS = {
     "bench": (
-        "speed and accuracy benchmarks: inverse, design, image, board",
+        "speed and accuracy benchmarks: inverse, design, image, board, sidebyside",
         {
             "inverse": (
                 "experiments.inverse.inversebench",
@@ -49,6 +49,10 @@ GROUPS = {
             ),
             "image": ("experiments.imaging.imagebench", "stiffness imaging: fit time against N"),
             "board": ("experiments.stereo.boardbench", "checkerboard detection: time, accuracy"),
+            "sidebyside": (
+                "experiments.diagnosis.sidebyside",
+                "default dvs diagnose of two checkouts, side by side",
+            ),
         },
         "inverse",
     ),
