@@ -191,6 +191,28 @@ def test_verdict_never_presents_a_stand_in_as_the_cause(unexplained, selected):
         assert "rigid_motion" in sentence
 
 
+@pytest.mark.parametrize("base_p", [0.21, 1e-9])
+def test_an_effect_added_to_a_base_model_at_the_noise_is_not_presented_as_the_cause(base_p):
+    """The base residual already passes the residual test: what the loop adds is weak
+    evidence, not needed to explain the residual (issue 60's null data: p 0.44, then
+    base_compliance read as "explained once base_compliance is added")."""
+    from solvers.diagnosis.report import presents_as_cause
+
+    document = {
+        "unexplained": False,
+        "selected": ["base_compliance"],
+        "level": 0.01,
+        "steps": [{"effect": None, "residual_p_value": base_p}],
+    }
+    sentence = verdict(document)
+    assert sentence.startswith("explained") and "base_compliance" in sentence
+    at_noise = base_p >= 0.01
+    assert ("not needed to explain the residual" in sentence) == at_noise
+    assert ("not an established cause" in sentence) == at_noise
+    assert presents_as_cause(document) == (not at_noise)
+    assert not presents_as_cause({**document, "unexplained": True})
+
+
 def test_contenders_are_refitted_from_the_screen_and_keep_the_rules(monkeypatch):
     """Refit the significant candidates whose score reaches half the accepted drop;
     keep those off their bounds and with a better BIC."""

@@ -45,6 +45,8 @@ def test_a_false_discovery_is_any_effect_but_the_set_up_terms():
     assert not false_discovery(null) and not presented(null)
     assert false_discovery(named) and presented(named)
     assert false_discovery(hedged) and not presented(hedged)
+    weak = {**named, "presented_as_cause": False}  # the base model alone was at the noise
+    assert false_discovery(weak) and not presented(weak)
 
 
 @pytest.mark.slow

@@ -100,6 +100,7 @@ def timed_default_diagnosis(path: str) -> dict:
     from experiments.basemodel.family import Surroundings
     from experiments.command.isolation import peak_mb
     from experiments.diagnosis.diagnose import run
+    from solvers.diagnosis.report import presents_as_cause
 
     with tempfile.TemporaryDirectory() as out:
         begin, cpu = time.perf_counter(), time.process_time()
@@ -121,6 +122,8 @@ def timed_default_diagnosis(path: str) -> dict:
         "selected": list(document["selected"]),
         "rivals": document["rivals"],
         "unexplained": bool(document["unexplained"]),
+        "base_p_value": document["steps"][0]["residual_p_value"],
+        "presented_as_cause": presents_as_cause(document),
         "blind_spots": [spot["effect"] for spot in document["blind_spots"]],
         "rms_before_um": 1e3 * document["rms_before_mm"],
         "rms_after_um": 1e3 * document["rms_after_mm"],

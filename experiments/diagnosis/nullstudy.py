@@ -181,8 +181,10 @@ def false_discovery(row: dict) -> bool:
 
 
 def presented(row: dict) -> bool:
-    """True when a false discovery is the verdict's explanation (not "unexplained")."""
-    return false_discovery(row) and not row["unexplained"]
+    """True when a false discovery is the verdict's explanation: explained, and the base
+    model alone not consistent with noise (``solvers.diagnosis.report.presents_as_cause``;
+    rows without that record: explained)."""
+    return false_discovery(row) and row.get("presented_as_cause", not row["unexplained"])
 
 
 def base_label(row: dict) -> str:

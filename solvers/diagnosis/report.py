@@ -53,12 +53,36 @@ def _stand_in_clause(document: dict) -> str:
     )
 
 
+def base_at_noise(document: dict) -> bool:
+    """True when the base model's residual already passes the residual test (p >= level):
+    effects added after it are then not needed to explain the residual."""
+    p_value = document["steps"][0].get("residual_p_value") if document.get("steps") else None
+    return p_value is not None and p_value >= document.get("level", 0.01)
+
+
+def presents_as_cause(document: dict) -> bool:
+    """True when the verdict names the selected effects as what explains the residual:
+    explained, effects selected, and the base model alone not consistent with noise."""
+    return (
+        bool(document["selected"]) and not document["unexplained"] and not base_at_noise(document)
+    )
+
+
 def _verdict(document: dict) -> str:
     rivals = document.get("rivals", {})
     selected = ", ".join(
         " or ".join([name, *rivals[name]]) if name in rivals else name
         for name in document["selected"]
     )
+    if document["selected"] and not document["unexplained"] and base_at_noise(document):
+        p_value = document["steps"][0]["residual_p_value"]
+        one = len(document["selected"]) == 1 and not rivals
+        return (
+            f"explained: the base model alone is consistent with noise (p {p_value:.2g}); "
+            f"{selected} {'predicts' if one else 'predict'} left-out data better than chance "
+            f"but {'is' if one else 'are'} not needed to explain the residual: weak "
+            "evidence, not an established cause"
+        )
     if rivals:
         return (
             f"{'unexplained' if document['unexplained'] else 'explained'}: the residual "
