@@ -213,6 +213,32 @@ def test_an_effect_added_to_a_base_model_at_the_noise_is_not_presented_as_the_ca
     assert not presents_as_cause({**document, "unexplained": True})
 
 
+@pytest.mark.parametrize("contacts", [1, 2])
+def test_a_shared_effect_on_loads_at_one_point_is_not_established(contacts):
+    """Every load at one point: a left-out load is predicted by scaling the same point's
+    response, no test of prediction elsewhere (issue 60's null slab S02 on the paper's
+    two loads). A per-capture effect (no shared parameter: tested across marker halves)
+    keeps its verdict."""
+    from solvers.diagnosis.report import presents_as_cause
+
+    def step(effect, shared):
+        return {"effect": effect, "prediction": {"added_dof": shared}}
+
+    document = {
+        "unexplained": False,
+        "selected": ["heterogeneity", "rigid_motion"],
+        "level": 0.01,
+        "design": {"contacts": contacts},
+        "steps": [{"residual_p_value": 1e-6}, step("heterogeneity", 3), step("rigid_motion", 0)],
+    }
+    sentence = verdict(document)
+    assert sentence.startswith("explained")
+    assert ("heterogeneity is not established" in sentence) == (contacts == 1)
+    assert presents_as_cause(document) == (contacts != 1)
+    per_capture = {**document, "selected": ["rigid_motion"], "steps": document["steps"][::2]}
+    assert presents_as_cause(per_capture) and "not established" not in verdict(per_capture)
+
+
 def test_contenders_are_refitted_from_the_screen_and_keep_the_rules(monkeypatch):
     """Refit the significant candidates whose score reaches half the accepted drop;
     keep those off their bounds and with a better BIC."""

@@ -60,11 +60,31 @@ def base_at_noise(document: dict) -> bool:
     return p_value is not None and p_value >= document.get("level", 0.01)
 
 
+def untested_at_one_point(document: dict) -> list[str]:
+    """Selected effects with parameters shared by the loads when every load is at one
+    contact point: leaving out a load there is no test of prediction elsewhere (the
+    model scales the same point's response), so the left-out gain of such an effect is
+    no stronger evidence than its in-sample drop. Per-capture effects are tested across
+    each capture's marker halves and are not listed."""
+    if (document.get("design") or {}).get("contacts") != 1:
+        return []
+    return [
+        step["effect"]
+        for step in document.get("steps", [])[1:]
+        if step.get("effect") in document["selected"]
+        and (step.get("prediction") or {}).get("added_dof", 0) > 0
+    ]
+
+
 def presents_as_cause(document: dict) -> bool:
     """True when the verdict names the selected effects as what explains the residual:
-    explained, effects selected, and the base model alone not consistent with noise."""
+    explained, effects selected, the base model alone not consistent with noise, and
+    not a shared effect on a design with every load at one point."""
     return (
-        bool(document["selected"]) and not document["unexplained"] and not base_at_noise(document)
+        bool(document["selected"])
+        and not document["unexplained"]
+        and not base_at_noise(document)
+        and not untested_at_one_point(document)
     )
 
 
@@ -82,6 +102,14 @@ def _verdict(document: dict) -> str:
             f"{selected} {'predicts' if one else 'predict'} left-out data better than chance "
             f"but {'is' if one else 'are'} not needed to explain the residual: weak "
             "evidence, not an established cause"
+        )
+    untested = untested_at_one_point(document)
+    if document["selected"] and not document["unexplained"] and untested:
+        return (
+            f"explained: the residual is consistent with noise once {selected} is added; "
+            "every load is at one point, so the left-out loads do not test prediction "
+            f"elsewhere and {', '.join(untested)} {'is' if len(untested) == 1 else 'are'} "
+            "not established as the cause"
         )
     if rivals:
         return (
