@@ -50,6 +50,7 @@ FILE_OUTPUT = {
     "reconstruct": ("--out", ".npz", ["{tmp}"]),
     "study outoflibrary": ("--out", ".npz", []),
     "realskin strain": ("--figure", ".png", []),
+    "bench sidebyside": ("--json", ".json", ["--other", "{tmp}", "A"]),
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
@@ -194,6 +195,8 @@ OUT_OF_RANGE = [
     (["study realcheck", "--out", "o", "--data", "{tmp}/missing"], "--data"),
     (["study render", "run", "--scale", "100"], "--scale"),
     (["bench board", "--full-size-images", "0"], "--full-size-images"),
+    (["bench sidebyside", "--other", "{tmp}", "Z"], "unknown dataset"),
+    (["bench sidebyside", "--other", "{tmp}", "A"], "--other"),
     (["demo", "--out", ""], "--out"),
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),

@@ -78,21 +78,24 @@ def build_parser(prog: str):
 
 
 def work(args) -> int:
-    """Check the other checkout and the rows, then compare."""
-    from experiments.command.options import UsageError
+    """Check the output file, the rows and the other checkout, then compare."""
+    from experiments.command.options import UsageError, check_output_file
     from experiments.diagnosis.defaults import ROWS, injected_scenarios
 
-    if not (args.other / ".venv" / "bin" / "python").exists():
-        raise UsageError(f"--other: no {args.other}/.venv/bin/python; make that checkout first")
+    if args.json is not None:
+        check_output_file(args.json, ".json", "--json")
     for name in args.data:
         row, _, injected = name.partition(":")
         if row not in ROWS or (injected and injected not in injected_scenarios()):
-            raise UsageError(
-                f"unknown dataset {name!r}; use a row of {sorted(ROWS)}, optionally :effect"
-            )
+            rows = ", ".join(sorted(ROWS))
+            raise UsageError(f"unknown dataset {name!r}; use a row ({rows}), optionally :effect")
+    if not (args.other / ".venv" / "bin" / "python").exists():
+        raise UsageError(f"--other: no {args.other}/.venv/bin/python; make that checkout first")
     rows = compare(args.data, args.other, log=lambda text: print(text, flush=True))
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1, default=str))
+        from experiments.output.atomic import atomic_write_json
+
+        atomic_write_json(args.json, rows)
     return 0
 
 
