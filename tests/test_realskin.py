@@ -205,7 +205,8 @@ def test_keloid_names_a_region_on_the_outline_or_says_why_not(study):
 @pytest.mark.realdata
 def test_every_realskin_key_is_in_the_format_reference(study):
     """Both cases' diagnosis.json and summary.json: every key is named in docs/formats.md
-    (parameter labels and case names are data, not keys)."""
+    (the labels of fitted parameters, in the steps and the stand-ins, and the case names
+    are data, not keys)."""
     import json
 
     from formatkeys import FORMATS, json_keys, undocumented
@@ -214,7 +215,8 @@ def test_every_realskin_key_is_in_the_format_reference(study):
     text = FORMATS.read_text()
     for name in ("healthy", "keloid"):
         document = _document(out, name)
-        labels = {label for step in document["steps"] for label in step.get("parameters") or {}}
+        fitted = [*document["steps"], *document["stand_ins"]]  # parameter names are data
+        labels = {label for record in fitted for label in record.get("parameters") or {}}
         assert not undocumented(json_keys(document), text, labels), name
     written = json.loads((out / "summary.json").read_text())
     assert not undocumented(json_keys(written), text, {"healthy", "keloid"})
