@@ -116,6 +116,24 @@ def test_stiffening_closed_form_jacobian_matches_finite_differences(setting):
     assert float(ca.norm_inf(force(delta, c, 0.0, 5.0))) == 0.0
 
 
+def test_stiffening_enters_newton_by_its_closed_form_tangent(setting):
+    """dg/ds of a case with nonlinear_stiffening (its tangent added in closed form,
+    ``Effect.internal_tangent``, not by AD of the force) against central differences of g."""
+    problem, base_fit, library = setting
+    extended = problem.with_effects([library["nonlinear_stiffening"]])
+    p = np.concatenate([base_fit.p, [80.0]])
+    n = extended.functions(0).n_state
+    state = np.random.default_rng(2).normal(0.0, 0.2, n)
+    g, tangent = extended.numeric(0, "newton")(state, p)
+    equilibrium = extended.numeric(0, "equilibrium")
+    for column in np.random.default_rng(3).choice(n, 12, replace=False):
+        step = np.zeros(n)
+        step[column] = 1e-6
+        numeric = (equilibrium(state + step, p)[0] - equilibrium(state - step, p)[0]) / 2e-6
+        exact = tangent[:, [column]].toarray()
+        np.testing.assert_allclose(exact, numeric, atol=1e-6 * np.abs(numeric).max())
+
+
 def test_load_effects_keep_the_total_force(setting):
     """sum_a F_B[a] = f for any contact offset and patch (partition of unity, eq. 20)."""
     problem, base_fit, library = setting

@@ -63,7 +63,9 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     ``Diagnosis.base_choice``. A ``grid`` (M, N, L) without ``base`` is the paper's
     energy on that grid.
     """
+    from experiments.basemodel.choice import REFINEMENT
     from experiments.problem.fitting import build_problem, dataset_loads
+    from solvers.diagnosis.discretisation import remaining_error
     from solvers.diagnosis.loop import diagnose
     from solvers.diagnosis.record import DiagnosisSettings
 
@@ -81,8 +83,11 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
             from experiments.basemodel.revisit import Revisit
 
             revisit = Revisit(choice, lambda line: log("step 0 revisited: " + line), settings.level)
-        diagnosis = diagnose(problem.base, problem.loads, settings, log, start, revisit)
-        diagnosis.base_choice = choice.record()
+        left = remaining_error(choice.resolution, REFINEMENT)
+        diagnosis = diagnose(
+            problem.base, problem.loads, settings, log, start, revisit, None, left["chi2"]
+        )
+        diagnosis.base_choice = {**choice.record(), "discretisation": left}
         if revisit is not None:
             diagnosis.base_choice["revisits"] = revisit.records
         return diagnosis

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from solvers.diagnosis.discretisation import discretisation_reason
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import STATISTICAL_TOLERANCE, EffectFit, fit, statistical_tolerance
 from solvers.diagnosis.guard import left_out, prediction_check
@@ -141,6 +142,7 @@ def diagnose(
     start: EffectFit | None = None,
     revisit=None,
     refine=None,
+    discretisation: float = 0.0,
 ) -> Diagnosis:
     """Run the loop on a base problem, with BLAS on one thread (``solvers.linalg.blas``: the
     loop's dense work is small SVDs and QRs of Jacobians, which two OpenBLAS threads
@@ -172,10 +174,15 @@ def diagnose(
         (``experiments.diagnosis.refinement.Survival``). Where given (a volume whose
         resolution was not checked), an effect is accepted only if it also predicts
         left-out data better than chance there: else it stands in for the discretisation.
+    discretisation : float
+        D of eq. (D1), the discretisation error step 0's resolution check left (chi^2
+        units, ``solvers.diagnosis.discretisation``): an effect whose left-out gain is
+        no larger is a stand-in (D3).
     """
     with one_thread():
         quiet = log or (lambda *_: None)
         loop = _Loop(base, loads, settings or DiagnosisSettings(), quiet, revisit, refine)
+        loop.discretisation = discretisation
         return loop.run(start)
 
 
@@ -193,6 +200,7 @@ class _Loop:
         self.dominant: list[Step] = []
         """The round's stand-ins by their bounds or size (``undominated``)."""
         self.sigma = 0.0
+        self.discretisation = 0.0
 
     def predicts_better(self, step: Step, current: EffectFit) -> bool:
         """The overfitting guard (two or more load cases; G3), recorded as
@@ -246,6 +254,10 @@ class _Loop:
             self.stand_in(candidate, reason, previous)
             self.dominant.append(candidate)
             return None
+        # dominated is a stand-in whatever the left-out refits say; with ``revisit`` a
+        # rejected candidate may come back larger on new surroundings, so they decide
+        if self.revisit is None and self.undominated(candidate, previous, phi) is None:
+            return None
         if self.predicts_better(candidate, current):
             return self.surviving(candidate, current, previous)
         reason = candidate.prediction.reason()
@@ -261,8 +273,13 @@ class _Loop:
         return None
 
     def surviving(self, candidate: Step, current: EffectFit, previous: Step) -> Step | None:
-        """``candidate`` if it still predicts better than chance on the refined volume
-        (``refine``), or without one; else None, recorded as a stand-in."""
+        """``candidate`` if its left-out gain beats the discretisation error (D3) and it
+        still predicts better than chance on the refined volume (``refine``), or without
+        one; else None, recorded as a stand-in."""
+        reason = discretisation_reason(candidate.prediction, self.discretisation)
+        if reason is not None:
+            self.stand_in(candidate, reason, previous)
+            return None
         if self.refine is None:
             return candidate
         finer = _step(candidate.effect, self.refine(candidate.fit), self.sigma)
@@ -346,6 +363,7 @@ class _Loop:
             lambda step: (
                 stand_in_reason(current, step.fit, self.library[step.effect]) is None
                 and self.predicts_better(step, current)
+                and discretisation_reason(step.prediction, self.discretisation) is None
             ),
             phi,
         )

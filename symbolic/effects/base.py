@@ -186,6 +186,11 @@ class Effect:
         """
         return None
 
+    def internal_tangent(self, model: TissueModel, symbols: CaseSymbols, theta) -> ca.MX | None:
+        """d vec(internal_force) / d vec(Delta) in closed form, (3 n_free, 3 n_free) [N/mm],
+        or None: the builder then differentiates ``internal_force`` by AD."""
+        return None
+
     def stiffness(self, model: TissueModel, values: dict, theta) -> ca.MX:
         """K_theta of a ``linear`` effect: (3 n_free)-square, stacked order [N/mm].
 

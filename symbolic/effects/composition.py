@@ -263,9 +263,13 @@ class ExtendedModel:
         x = ca.vertcat(*[symbols.values[n] for n in self.names])
         base = ca.vec(self._base_force()(symbols.delta, x))
         force, extra_rows = ca.MX(n_free, 3), []
+        closed, tangents = ca.MX(n_free, 3), []  # forces with a closed-form tangent
         for effect, theta in zip(self.effects, thetas):
             term = effect.internal_force(model, symbols, theta)
-            if term is not None:
+            tangent = None if term is None else effect.internal_tangent(model, symbols, theta)
+            if tangent is not None:
+                closed, tangents = closed + term, tangents + [tangent]
+            elif term is not None:
                 force = force + term
             rows = effect.extra_residual(model, symbols, theta)
             if rows is not None:
@@ -277,6 +281,7 @@ class ExtendedModel:
         linear = self._linear_effects()
         if linear is not None:
             base = base + ca.vec(linear[0](symbols.delta, p))
+        base = base + ca.vec(closed)
         h = ca.vertcat(base, ca.MX(padding, 1)) + rest
         if model.is_linear(self.names):
             stiffness = self._base_stiffness()(x)
@@ -288,6 +293,8 @@ class ExtendedModel:
         else:
             if linear is not None:
                 stiffness = stiffness + linear[1](p)
+            for tangent in tangents:
+                stiffness = stiffness + tangent
             dh_ds = ca.diagcat(stiffness, ca.MX(padding, padding)) + ca.jacobian(rest, s)
         made = (
             ca.Function("model_part", [s, p], [h]),

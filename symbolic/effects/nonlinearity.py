@@ -81,6 +81,13 @@ def _gram_map(incidence: sp.csr_matrix) -> tuple[ca.Sparsity, ca.DM]:
 
 def stiffening_force(model: TissueModel) -> ca.Function:
     """F(delta, c, k, kb) of the module docstring, with a custom closed-form Jacobian."""
+    return _stiffening(model)[0]
+
+
+def _stiffening(model: TissueModel) -> tuple[ca.Function, ca.Function]:
+    """``stiffening_force`` and its tangent dF/dDelta(delta, c, k, kb) alone,
+    (3 n_free, 3 n_free): what Newton needs, without the parameter columns the custom
+    Jacobian also computes."""
     edges = model.edges()
     n_free, n_terms = model.n_free, edges.values.shape[1]
     incidence = to_casadi_sparse(edges.incidence)
@@ -138,7 +145,7 @@ def stiffening_force(model: TissueModel) -> ca.Function:
         names + ["out_F"],
         [f"jac_F_{n}" for n in names],
     )
-    return ca.Function(
+    force = ca.Function(
         "stiffening_force",
         inputs,
         [force],
@@ -146,6 +153,7 @@ def stiffening_force(model: TissueModel) -> ca.Function:
         ["F"],
         {"custom_jacobian": jacobian, "jac_penalty": 0, "never_inline": True},
     )
+    return force, ca.Function("stiffening_tangent", inputs, [d_delta], names, ["dF_ddelta"])
 
 
 class NonlinearStiffening(Effect):
@@ -163,11 +171,18 @@ class NonlinearStiffening(Effect):
     energies = ("dnurbs",)
 
     def internal_force(self, model: TissueModel, symbols: CaseSymbols, theta):
-        force = self.cached(model, "force", lambda: stiffening_force(model))
+        return self._call(model, symbols, theta, 0)
+
+    def internal_tangent(self, model: TissueModel, symbols: CaseSymbols, theta):
+        return self._call(model, symbols, theta, 1)
+
+    def _call(self, model: TissueModel, symbols: CaseSymbols, theta, which: int):
+        """The force (0) or its tangent (1) at the case's Delta and coefficients."""
+        function = self.cached(model, "stiffening", lambda: _stiffening(model))[which]
         coefficients = ca.vertcat(
             *[linear_coefficient(model, symbols.values, t) for t in model.terms]
         )
-        return force(symbols.delta, coefficients, theta[0], symbols.values["k0"])
+        return function(symbols.delta, coefficients, theta[0], symbols.values["k0"])
 
 
 class ContinuumStiffening(Effect):
