@@ -191,6 +191,24 @@ def test_verdict_never_presents_a_stand_in_as_the_cause(unexplained, selected):
         assert "rigid_motion" in sentence
 
 
+@pytest.mark.parametrize("error_mm", [0.0, 0.0125])
+def test_an_unexplained_verdict_states_a_model_error_only_where_one_was_estimated(error_mm):
+    """Significant in-sample but predicted to the noise out of sample (phi = 1, as on the
+    null slab S04): the verdict gives the residual test instead of "model error 0.0 um"."""
+    document = {
+        "unexplained": True,
+        "selected": [],
+        "model_error_mm": error_mm,
+        "model_error": {"times_noise": error_mm / 0.049},
+        "steps": [{"residual_statistic": 2416.3, "residual_dof": 2239, "residual_p_value": 0.0048}],
+    }
+    sentence = verdict(document)
+    assert sentence.startswith("unexplained") and "no effect in the library predicts it" in sentence
+    assert ("model error 12.5 um (0.26 x the noise) remains" in sentence) == (error_mm > 0)
+    assert ("chi2 2416 on 2239, p 0.0048" in sentence) == (error_mm == 0)
+    assert "0.0 um" not in sentence
+
+
 @pytest.mark.parametrize("base_p", [0.21, 1e-9])
 def test_an_effect_added_to_a_base_model_at_the_noise_is_not_presented_as_the_cause(base_p):
     """The base residual already passes the residual test: what the loop adds is weak

@@ -38,6 +38,13 @@ def _remains(document: dict) -> str:
     """'model error X um (Y x the noise) remains' (eq. G4)."""
     error = document.get("model_error_mm", 0.0)
     ratio = document.get("model_error", {}).get("times_noise", 0.0)
+    if error <= 0.0 and document.get("steps"):  # significant, yet predicted to the noise
+        last = document["steps"][-1]
+        return (
+            f"the residual exceeds the noise (chi2 {last['residual_statistic']:.0f} on "
+            f"{last['residual_dof']}, p {last['residual_p_value']:.2g}) but its left-out "
+            "prediction does not, so no model error can be stated"
+        )
     return f"model error {error * 1e3:.1f} um ({ratio:.2g} x the noise) remains"
 
 
