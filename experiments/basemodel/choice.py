@@ -59,6 +59,7 @@ from experiments.basemodel.family import (
 )
 from experiments.data.dataset import Dataset
 from experiments.problem.fitting import FitSettings, dataset_loads
+from solvers.diagnosis.discretisation import remaining_error
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.stats import residual_test, robust_sigma
@@ -202,6 +203,7 @@ class BaseChoice:
             },
             "trials": [t.record() for t in self.trials],
             "resolution": self.resolution,
+            "discretisation": remaining_error(self.resolution, REFINEMENT),
             "shapes": self.shapes,
             "seconds": self.seconds,
         }

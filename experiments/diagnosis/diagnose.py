@@ -63,9 +63,7 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     ``Diagnosis.base_choice``. A ``grid`` (M, N, L) without ``base`` is the paper's
     energy on that grid.
     """
-    from experiments.basemodel.choice import REFINEMENT
     from experiments.problem.fitting import build_problem, dataset_loads
-    from solvers.diagnosis.discretisation import remaining_error
     from solvers.diagnosis.loop import diagnose
     from solvers.diagnosis.record import DiagnosisSettings
 
@@ -83,11 +81,12 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
             from experiments.basemodel.revisit import Revisit
 
             revisit = Revisit(choice, lambda line: log("step 0 revisited: " + line), settings.level)
-        left = remaining_error(choice.resolution, REFINEMENT)
+        record = choice.record()
+        bound = record["discretisation"]["chi2"]  # eq. D1: what step 0's checks left
         diagnosis = diagnose(
-            problem.base, problem.loads, settings, log, start, revisit, None, left["chi2"]
+            problem.base, problem.loads, settings, log, start, revisit, None, bound
         )
-        diagnosis.base_choice = {**choice.record(), "discretisation": left}
+        diagnosis.base_choice = record
         if revisit is not None:
             diagnosis.base_choice["revisits"] = revisit.records
         return diagnosis
