@@ -35,6 +35,9 @@ MAX_COORDINATE_MM = 1e4
 """Largest absolute coordinate of any point [mm] (10 m: no tissue is larger)."""
 MAX_FORCE_N = 100.0
 """Largest force magnitude of a load case [N] (a probe on soft tissue; 5 N is a lot)."""
+MIN_NOISE_MM = 1e-9
+"""Smallest non-zero noise_mm [mm]: below it sigma^2 underflows towards zero and every
+chi^2 divides by it (0 means the noise is not given)."""
 MAX_NOISE_MM = 10.0
 """Largest noise_mm [mm]; plausible values are 1e-4 to 1 mm (a warning outside)."""
 MAX_PROBE_RADIUS_MM = 100.0
@@ -339,6 +342,12 @@ def _check_optional_values(arrays: dict[str, np.ndarray]) -> None:
     for key in ("noise_mm", "probe_radius"):
         if key in arrays and (arrays[key] < 0).any():
             raise DatasetError(f"negative value {arrays[key].min():.3g} mm; must be >= 0", key)
+    if "noise_mm" in arrays and 0.0 < float(arrays["noise_mm"]) < MIN_NOISE_MM:
+        raise DatasetError(
+            f"{float(arrays['noise_mm']):.3g} mm is below {MIN_NOISE_MM:g} mm; give the "
+            "marker noise in mm (plausible: 1e-4 to 1), or 0 when it is not known",
+            "noise_mm",
+        )
     if "times" in arrays:
         steps = np.diff(arrays["times"])
         if (steps <= 0).any():
