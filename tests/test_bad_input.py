@@ -114,6 +114,7 @@ def test_a_zip_with_a_non_array_member_is_refused(phantom, tmp_path):
         ("forces", lambda a: a.__setitem__("forces", a["forces"] * 1e308), "forces"),
         ("noise", lambda a: a.__setitem__("noise_mm", np.array(100.0)), "noise_mm"),
         ("tiny", lambda a: a.__setitem__("noise_mm", np.array(1e-300)), "noise_mm"),
+        ("far", lambda a: a.__setitem__("outer_loaded", a["outer_loaded"] + 1000.0), "loaded"),
         ("thick", lambda a: a.__setitem__("inner_rest", a["inner_rest"] * 100.0), "inner_rest"),
         ("ramp", lambda a: a.__setitem__("load_ramp_s", np.array(-1.0)), "load_ramp_s"),
         ("std", lambda a: a.__setitem__("marker_std_mm", np.ones((2, 9, 9))), "marker_std_mm"),

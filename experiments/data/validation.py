@@ -94,6 +94,7 @@ def validate(dataset) -> None:
     _check_contacts(arrays["contacts"], arrays["outer_rest"], spacing)
     _check_forces(arrays["forces"])
     _check_markers("outer_loaded", arrays["outer_loaded"], per_load=True)
+    _check_displacements(arrays["outer_loaded"], arrays["outer_rest"])
     _check_optional_values(arrays)
 
 
@@ -334,6 +335,24 @@ def _check_markers(key: str, markers: np.ndarray, per_load: bool) -> None:
             k = int(np.argmax(unseen))
             raise DatasetError(
                 f"no marker observed in load {k} (all NaN); drop that load case", key
+            )
+
+
+def _check_displacements(loaded: np.ndarray, rest: np.ndarray) -> None:
+    """No load case moves its seen markers by a median distance larger than the marked
+    area across (the diagonal of ``outer_rest``'s bounding box): such markers are not
+    the rest markers under a probe (another frame, other units, another grid)."""
+    points = rest.reshape(-1, 3)
+    across = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    for k, frame in enumerate(loaded):
+        moved = np.linalg.norm(frame - rest, axis=-1)
+        median = float(np.nanmedian(moved))
+        if median > across:
+            raise DatasetError(
+                f"load {k} moves its markers by a median {median:.3g} mm, more than the "
+                f"marked area's {across:.3g} mm across; give the same markers under the load "
+                "in the rest frame, in mm",
+                "outer_loaded",
             )
 
 
