@@ -122,3 +122,59 @@ def test_the_guide_paraview_example_runs(tmp_path, monkeypatch):
     namespace: dict = {}
     exec(compile(api + snippet.split("```", 1)[0], "docs/guide.md", "exec"), namespace)
     assert (tmp_path / "deformed.vtu").stat().st_size > 1000
+
+
+ROOT = DOCS.parent
+PACKAGES = ("symbolic", "solvers", "experiments", "tests")
+TICKED = re.compile(r"`([^`\s]+?)[.,;:)]*`")
+MODULE = re.compile(r"^(?:symbolic|solvers|experiments)(?:\.\w+)+$")
+SOURCE = re.compile(r"^[\w./-]+\.(?:py|ipynb)$")
+FILE = re.compile(r"^(?:symbolic|solvers|experiments|tests|docs)/[\w./-]+\.\w+$")
+
+
+def _named(text: str):
+    """Repository paths and modules a page names in backticks: dotted modules (with an
+    attribute after them), source files (``.py``, ``.ipynb``; a short path relative to a
+    package, as docs/api.md's tables give them, or a bare file name) and any file under a
+    top-level folder. Output files of the commands (``fit/result.json``) are not paths of
+    the repository and are not matched."""
+    for token in TICKED.findall(text):
+        if MODULE.match(token) or SOURCE.match(token) or FILE.match(token):
+            yield token
+
+
+def _exists(token: str) -> bool:
+    import importlib
+    import importlib.util
+
+    def found(name: str) -> bool:
+        try:
+            return importlib.util.find_spec(name) is not None
+        except ImportError:  # a name under a module, not a package
+            return False
+
+    if MODULE.match(token):
+        parts = token.split(".")
+        n = next(n for n in range(len(parts), 0, -1) if found(".".join(parts[:n])))
+        target = importlib.import_module(".".join(parts[:n]))
+        for attribute in parts[n:]:
+            if not hasattr(target, attribute):
+                return False
+            target = getattr(target, attribute)
+        return True
+    if "/" not in token:
+        return any(any(ROOT.joinpath(p).rglob(token)) for p in (*PACKAGES, "docs"))
+    return any(ROOT.joinpath(base, token).exists() for base in ("", *PACKAGES))
+
+
+def test_every_path_and_module_the_docs_name_exists():
+    """README.md and docs/ (not docs/results/, whose pages record a study at the commit
+    they name): every module, source file and repository file named in backticks exists."""
+    pages = [ROOT / "README.md"] + [p for p in DOCS.rglob("*.md") if "results" not in p.parts]
+    missing = [
+        f"{page.relative_to(ROOT)}: {token}"
+        for page in pages
+        for token in dict.fromkeys(_named(page.read_text()))
+        if not _exists(token)
+    ]
+    assert not missing, missing
