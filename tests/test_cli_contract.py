@@ -17,8 +17,12 @@ from pathlib import Path
 import pytest
 
 from experiments.command.cli import COMMANDS, FORMER, GROUPS, VERBS, build_parser, resolve
+from experiments.data.paths import shared_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
+
+TRUTH_CUBE = shared_data_dir() / "truth-cube" / "uniaxial_positions.csv"
+RECIPE = shared_data_dir() / "phantom-compression" / "data" / "EF10_0T"
 
 DIRECTORY_OUTPUT = {
     "demo": [],
@@ -51,6 +55,8 @@ FILE_OUTPUT = {
     "study outoflibrary": ("--out", ".npz", []),
     "realskin strain": ("--figure", ".png", []),
     "bench sidebyside": ("--json", ".json", ["--other", "{tmp}", "A"]),
+    "import truth-cube": ("--out", ".npz", [str(TRUTH_CUBE)]),
+    "import compression": ("--out", ".npz", [str(RECIPE)]),
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
@@ -199,6 +205,8 @@ OUT_OF_RANGE = [
     (["bench sidebyside", "--other", "{tmp}", "A"], "--other"),
     (["demo", "--out", ""], "--out"),
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
+    (["import truth-cube", str(TRUTH_CUBE), "--out", "x.txt"], ".npz"),
+    (["import compression", str(RECIPE), "--samples", "0", "--out", "x.npz"], "--samples"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
 ]
 
@@ -221,14 +229,15 @@ def test_every_command_is_covered():
 
 
 def test_the_top_level_lists_verbs_and_groups_alone(capsys):
-    """``dvs --help`` shows at most 12 entries: the verbs, then the groups."""
+    """``dvs --help`` shows at most 13 entries: the verbs, then the groups (``import``,
+    the thirteenth, is the design card's ``dvs import KIND``)."""
     with pytest.raises(SystemExit):
         build_parser().parse_args(["--help"])
     lines = capsys.readouterr().out.splitlines()
     listed = [line.split()[0] for line in lines if line.startswith("    ") and line.strip()]
     listed = [word for word in listed if word in VERBS or word in GROUPS]
     assert listed == [*VERBS, *GROUPS]
-    assert len(listed) <= 12
+    assert len(listed) <= 13
 
 
 def test_every_former_name_runs_its_command_in_a_group():

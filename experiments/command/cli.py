@@ -87,6 +87,17 @@ GROUPS = {
         },
         "diagnosis",
     ),
+    "import": (
+        "measured experiments to the dataset format: truth-cube, compression",
+        {
+            "truth-cube": ("experiments.data.truthcube", "the Truth Cube's bead file"),
+            "compression": (
+                "experiments.data.compression",
+                "one recipe's phantom compression tests",
+            ),
+        },
+        "truth-cube",
+    ),
     "realskin": (
         "real in vivo skin (the extensometer data): fit, strain, data",
         {

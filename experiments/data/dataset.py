@@ -56,6 +56,17 @@ class Dataset:
     """(T,) sample times of the transient, strictly increasing [s]."""
     outer_series: np.ndarray | None = None
     """(K, T, U, V, 3) marker trajectories during the transient [mm]; NaN = not seen."""
+    markers_rest: np.ndarray | None = None
+    """(N, 3) markers anywhere in the volume, e.g. beads inside it, unloaded [mm]."""
+    markers_loaded: np.ndarray | None = None
+    """(K, N, 3) measured positions of ``markers_rest`` under each load [mm]; NaN = not seen."""
+    plate_motion: np.ndarray | None = None
+    """(K, 3) prescribed displacement of a rigid plate on the outer surface [mm]; with it,
+    ``forces`` is the plate's measured force on the tissue, NaN where not measured."""
+    specimen: np.ndarray | None = None
+    """(K,) which specimen (or series) each load case was measured on, integers from 0."""
+    force_noise_n: float | None = None
+    """Standard deviation of a measured force [N], if known."""
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     """Unknown keys of the file, kept as they are and written back on save."""
 
@@ -69,6 +80,12 @@ class Dataset:
         """Marker grid size (U, V)."""
         u_count, v_count = np.shape(self.outer_rest)[:2]
         return int(u_count), int(v_count)
+
+    @property
+    def kind(self) -> str:
+        """ "indentation" (forces at contacts, markers on the skin) or "plate" (a
+        displacement-controlled plate, ``plate_motion``)."""
+        return "indentation" if self.plate_motion is None else "plate"
 
     @property
     def observed_mask(self) -> np.ndarray:
@@ -123,7 +140,8 @@ def to_arrays(dataset: Dataset) -> dict[str, np.ndarray]:
     for key in REQUIRED_KEYS + OPTIONAL_KEYS:
         value = getattr(dataset, key)
         if value is not None:
-            arrays[key] = np.asarray(value, dtype=np.float64)
+            kind = np.int64 if key == "specimen" else np.float64
+            arrays[key] = np.asarray(value, dtype=kind)
     arrays.update({key: np.asarray(value) for key, value in dataset.extra.items()})
     return arrays
 
@@ -149,6 +167,26 @@ def from_arrays(arrays: dict[str, np.ndarray]) -> Dataset:
     return _as_float(dataset)
 
 
+def require_indentation(dataset: Dataset, command: str) -> Dataset:
+    """``dataset`` when it is an indentation experiment; else a one-line DatasetError.
+
+    The commands that model a probe (fit, diagnose, image, design, next) read neither
+    a plate nor markers inside the volume: on such data they would fit the wrong
+    experiment without a word.
+    """
+    if dataset.plate_motion is not None or dataset.markers_rest is not None:
+        what = (
+            "a plate load (plate_motion)"
+            if dataset.plate_motion is not None
+            else ("markers inside the volume (markers_rest)")
+        )
+        raise DatasetError(
+            f"the dataset has {what}, which {command} does not model (it models probe "
+            "indentation); run that experiment's study (docs/experiments.md)"
+        )
+    return dataset
+
+
 def _check_schema(arrays: dict[str, np.ndarray]) -> None:
     """``schema`` must be the 0-d string ``"dvs-dataset/1"``."""
     if "schema" not in arrays:
@@ -172,6 +210,9 @@ def _as_float(dataset: Dataset) -> Dataset:
         value = getattr(dataset, key)
         if value is not None:
             values[key] = np.asarray(value, dtype=np.float64)
-    if dataset.noise_mm is not None:
-        values["noise_mm"] = float(np.asarray(dataset.noise_mm))
+    for key in ("noise_mm", "force_noise_n"):
+        if getattr(dataset, key) is not None:
+            values[key] = float(np.asarray(getattr(dataset, key)))
+    if dataset.specimen is not None:
+        values["specimen"] = np.asarray(dataset.specimen).astype(np.int64)
     return replace(dataset, **values)

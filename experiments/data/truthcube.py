@@ -10,6 +10,11 @@ the plate pushes towards +z. No force is recorded. The file comes from OpenSurgS
 
 File layout: seven header lines, then one line per bead: ``i,j,k`` (1-based bead
 index) and ``x, y, z`` [mm] for each of the four states, rest first.
+
+``dvs import truth-cube FILE --out X.npz`` writes it as a dataset (docs/formats.md,
+"Measured experiments"): the beads as ``markers_rest``/``markers_loaded``, the plate's
+nominal travel as ``plate_motion``, no force (``forces`` NaN), and the cube's faces
+placed from the bead lattice (``cube_faces``).
 """
 
 from __future__ import annotations
@@ -20,12 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.data.validation import DatasetError
+from experiments.command.options import Command, check_output_file, make_parser, path_argument
+from experiments.data.dataset import Dataset, save_dataset
+from experiments.data.dataseterror import DatasetError
 
 NOMINAL_COMPRESSION = (0.05, 0.125, 0.1825)
 """The three loaded states' nominal compression, as a fraction of the cube's height [1]."""
 CUBE_EDGE_MM = 80.0
 """The cube's nominal edge [mm]."""
+FACE_GRID = 9
+"""Points per side of the grids laid on the plate's face and the base."""
 HEADER_LINES = 7
 COLUMNS = 15  # i, j, k, then x, y, z of four states
 
@@ -108,3 +117,79 @@ def read_truth_cube(path: str | os.PathLike) -> TruthCube:
     loaded = positions[1:].copy()
     loaded[~np.isfinite(loaded).all(axis=-1)] = np.nan  # a bead is located or not
     return TruthCube(index=index, rest=positions[0].copy(), loaded=loaded)
+
+
+def lattice_centre(cube: TruthCube) -> np.ndarray:
+    """The rest lattice's centre [mm]: an affine map of the bead index fitted to the rest
+    positions, evaluated at the middle index (4, 4, 4)."""
+    design = np.column_stack([cube.index, np.ones(cube.n_beads)])
+    coefficients = np.linalg.lstsq(design, cube.rest, rcond=None)[0]
+    return np.array([4.0, 4.0, 4.0, 1.0]) @ coefficients
+
+
+def cube_faces(cube: TruthCube, points: int = FACE_GRID) -> tuple[np.ndarray, np.ndarray]:
+    """Grids (points, points, 3) [mm] on the plate's face and on the base.
+
+    **Choice**: the cube is centred on the bead lattice, its edges along x, y, z and
+    ``CUBE_EDGE_MM`` long: the beads sit nominally 1 cm inside the faces, and the file
+    gives no face. The base (bonded to the acrylic) is at the larger z, the plate's
+    face 80 mm above it (the file's -z is up).
+    """
+    centre = lattice_centre(cube)
+    half = CUBE_EDGE_MM / 2.0
+    axis = np.linspace(-half, half, points)
+    x, y = np.meshgrid(centre[0] + axis, centre[1] + axis, indexing="ij")
+    plate = np.stack([x, y, np.full_like(x, centre[2] - half)], axis=-1)
+    base = np.stack([x, y, np.full_like(x, centre[2] + half)], axis=-1)
+    return plate, base
+
+
+def truth_cube_dataset(cube: TruthCube) -> Dataset:
+    """The cube as a dataset: three load cases, the plate moved +z by its nominal travel,
+    no force measured, the beads observed."""
+    plate, base = cube_faces(cube)
+    k_count = cube.loaded.shape[0]
+    travel = cube.plate_travel_mm()
+    centre = plate[FACE_GRID // 2, FACE_GRID // 2]
+    return Dataset(
+        outer_rest=plate,
+        inner_rest=base,
+        forces=np.full((k_count, 3), np.nan),
+        contacts=np.tile(centre, (k_count, 1)),
+        outer_loaded=np.full((k_count, *plate.shape), np.nan),
+        plate_motion=np.column_stack([np.zeros(k_count), np.zeros(k_count), travel]),
+        markers_rest=cube.rest,
+        markers_loaded=cube.loaded,
+        extra={"source": np.array("truth-cube uniaxial_positions.csv (Kerdok et al. 2003)")},
+    )
+
+
+def build_parser(prog: str = "python -m experiments.data.truthcube"):
+    """The options of ``dvs import truth-cube``."""
+    parser = make_parser(prog, "The Truth Cube's bead file as a dataset.")
+    parser.add_argument("file", type=Path, help="uniaxial_positions.csv")
+    parser.add_argument(
+        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
+    )
+    return parser
+
+
+def work(args) -> int:
+    """Read the bead file and write the dataset."""
+    check_output_file(args.out, ".npz")
+    cube = read_truth_cube(args.file)
+    save_dataset(args.out, truth_cube_dataset(cube))
+    located = int(np.isfinite(cube.loaded).all(axis=-1).sum())
+    print(
+        f"{args.out}: {cube.n_beads} beads, {cube.loaded.shape[0]} compressed states "
+        f"({located} bead positions located), plate travel "
+        f"{', '.join(f'{t:g}' for t in cube.plate_travel_mm())} mm"
+    )
+    return 0
+
+
+main = Command("experiments.data.truthcube", build_parser, work).main
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -9,13 +9,20 @@ values no tissue has (``LIMITS``).
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import numpy as np
 
+from experiments.data.dataseterror import DatasetError, one_line
+from experiments.data.experimentkeys import (
+    EXPERIMENT_KEYS,
+    MAX_PLATE_FORCE_N,
+    check_experiment_keys,
+    has_other_observations,
+)
+
 REQUIRED_KEYS = ("outer_rest", "inner_rest", "forces", "contacts", "outer_loaded")
-OPTIONAL_KEYS = ("noise_mm", "probe_radius", "times", "outer_series")
+OPTIONAL_KEYS = ("noise_mm", "probe_radius", "times", "outer_series", *EXPERIMENT_KEYS)
 KNOWN_KEYS = ("schema", *REQUIRED_KEYS, *OPTIONAL_KEYS)
 
 MIN_FORCE_N = 1e-9
@@ -52,32 +59,6 @@ MAX_RAMP_S = 1e4
 _NUMERIC_KINDS = "iuf"
 
 
-def one_line(error: BaseException) -> str:
-    """Exception text squeezed onto one line."""
-    return " ".join(str(error).split()) or type(error).__name__
-
-
-class DatasetError(ValueError):
-    """A dataset file or object breaks format v1; the message is one line with the fix.
-
-    Attributes
-    ----------
-    key : str or None
-        The offending key (``None`` for problems with the file itself).
-    """
-
-    def __init__(self, message: str, key: str | None = None) -> None:
-        text = " ".join(str(message).split())
-        super().__init__(f"{key}: {text}" if key is not None else text)
-        self.key = key
-
-    def in_file(self, path: str | os.PathLike) -> DatasetError:
-        """The same error with the file name in front of the message."""
-        error = DatasetError(f"{os.fspath(path)}: {self}")
-        error.key = self.key
-        return error
-
-
 def validate(dataset) -> None:
     """Check ``dataset`` against format v1; raise DatasetError at the first problem.
 
@@ -92,9 +73,14 @@ def validate(dataset) -> None:
     _check_known_extras(dataset.extra, arrays)
     spacing = _check_rest_geometry(arrays["outer_rest"], arrays["inner_rest"])
     _check_contacts(arrays["contacts"], arrays["outer_rest"], spacing)
-    _check_forces(arrays["forces"])
-    _check_markers("outer_loaded", arrays["outer_loaded"], per_load=True)
+    check_experiment_keys(arrays, spacing)
+    if "plate_motion" not in arrays:
+        _check_forces(arrays["forces"])
+    _check_markers("outer_loaded", arrays["outer_loaded"], per_load=True, others=arrays)
     _check_displacements(arrays["outer_loaded"], arrays["outer_rest"])
+    if "markers_loaded" in arrays:
+        _check_markers("markers_loaded", arrays["markers_loaded"], per_load=False)
+        _check_displacements(arrays["markers_loaded"], arrays["markers_rest"], "markers_loaded")
     _check_optional_values(arrays)
 
 
@@ -188,8 +174,10 @@ def _expect_shape(arrays: dict[str, np.ndarray], key: str, shape: tuple, meaning
 
 def _check_finite(arrays: dict[str, np.ndarray]) -> None:
     """Everything except the measured markers must be finite."""
-    complete = ("outer_rest", "inner_rest", "forces", "contacts", "noise_mm", "probe_radius")
-    for key in (*complete, "times"):
+    complete = ("outer_rest", "inner_rest", "contacts", "noise_mm", "probe_radius", "times")
+    if "plate_motion" not in arrays:  # a plate's force may be unmeasured (NaN)
+        complete = (*complete, "forces")
+    for key in complete:
         if key not in arrays:
             continue
         bad = int(np.size(arrays[key]) - np.count_nonzero(np.isfinite(arrays[key])))
@@ -215,7 +203,10 @@ def _check_ranges(arrays: dict[str, np.ndarray]) -> None:
         "contacts": (MAX_COORDINATE_MM, "mm"),
         "outer_loaded": (MAX_COORDINATE_MM, "mm"),
         "outer_series": (MAX_COORDINATE_MM, "mm"),
-        "forces": (MAX_FORCE_N, "N"),
+        "markers_rest": (MAX_COORDINATE_MM, "mm"),
+        "markers_loaded": (MAX_COORDINATE_MM, "mm"),
+        "plate_motion": (MAX_COORDINATE_MM, "mm"),
+        "forces": (MAX_PLATE_FORCE_N if "plate_motion" in arrays else MAX_FORCE_N, "N"),
         "noise_mm": (MAX_NOISE_MM, "mm"),
         "probe_radius": (MAX_PROBE_RADIUS_MM, "mm"),
         "times": (MAX_TIME_S, "s"),
@@ -317,8 +308,10 @@ def _check_forces(forces: np.ndarray) -> None:
         )
 
 
-def _check_markers(key: str, markers: np.ndarray, per_load: bool) -> None:
-    """Measured markers: NaN for 'not seen' on all three coordinates, never infinite."""
+def _check_markers(key: str, markers: np.ndarray, per_load: bool, others=None) -> None:
+    """Measured markers: NaN for 'not seen' on all three coordinates, never infinite;
+    with ``per_load``, each load case observed (by a marker, or by what ``others``,
+    the dataset's arrays, observes: ``experimentkeys.has_other_observations``)."""
     if np.isinf(markers).any():
         raise DatasetError("contains infinite values; use NaN for markers not seen", key)
     missing = np.isnan(markers)
@@ -331,14 +324,18 @@ def _check_markers(key: str, markers: np.ndarray, per_load: bool) -> None:
         )
     if per_load:
         unseen = missing.all(axis=(1, 2, 3))
+        if others is not None:
+            unseen &= ~has_other_observations(others)
         if unseen.any():
             k = int(np.argmax(unseen))
             raise DatasetError(
-                f"no marker observed in load {k} (all NaN); drop that load case", key
+                f"nothing observed in load {k} (all markers NaN, no measured force); "
+                "drop that load case",
+                key,
             )
 
 
-def _check_displacements(loaded: np.ndarray, rest: np.ndarray) -> None:
+def _check_displacements(loaded: np.ndarray, rest: np.ndarray, key="outer_loaded") -> None:
     """No load case moves its seen markers by a median distance larger than the marked
     area across (the diagonal of ``outer_rest``'s bounding box): such markers are not
     the rest markers under a probe (another frame, other units, another grid)."""
@@ -346,13 +343,15 @@ def _check_displacements(loaded: np.ndarray, rest: np.ndarray) -> None:
     across = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     for k, frame in enumerate(loaded):
         moved = np.linalg.norm(frame - rest, axis=-1)
+        if not np.isfinite(moved).any():
+            continue  # observed otherwise (rule 14)
         median = float(np.nanmedian(moved))
         if median > across:
             raise DatasetError(
                 f"load {k} moves its markers by a median {median:.3g} mm, more than the "
                 f"marked area's {across:.3g} mm across; give the same markers under the load "
                 "in the rest frame, in mm",
-                "outer_loaded",
+                key,
             )
 
 

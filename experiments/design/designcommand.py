@@ -199,7 +199,7 @@ def build_parser(prog: str = "python -m experiments.design.designcommand"):
 def work(args) -> int:
     """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
     from experiments.command.options import UsageError, check_output_dir
-    from experiments.data.dataset import load_dataset
+    from experiments.data.dataset import load_dataset, require_indentation
     from experiments.design.designoptions import SEQUENTIAL_MODEL
     from experiments.design.designreport import report_text
     from experiments.diagnosis.diagnose import base_from_options
@@ -241,7 +241,7 @@ def work(args) -> int:
         return run_sequential(args.sequential, settings, args.budget, model, args.out)
     base = base_from_options(args)
     out = check_output_dir(args.out)
-    dataset = require_noise(load_dataset(args.dataset))
+    dataset = require_noise(require_indentation(load_dataset(args.dataset), args.prog))
     fit, base_choice = None, None
     if base == AUTO:
         base, fit, dataset, base_choice = chosen_base(

@@ -84,7 +84,7 @@ def work(args) -> int:
     """Check every input, then diagnose, choose and write the outputs."""
     from experiments.command.options import UsageError, check_output_dir
     from experiments.data.captures import merge_captures
-    from experiments.data.dataset import load_dataset, save_dataset
+    from experiments.data.dataset import load_dataset, require_indentation, save_dataset
     from experiments.design.designoptions import SEQUENTIAL_MODEL, given
     from experiments.design.plan import DesignSettings, require_noise
     from experiments.design.sequential import SequentialSettings, step
@@ -120,7 +120,9 @@ def work(args) -> int:
             args.inclusion, args.ratio, contacts=contacts, force_n=candidates.force_range[1]
         )
     out = check_output_dir(args.out)
-    parts = [require_noise(load_dataset(path)) for path in args.datasets]
+    parts = [
+        require_noise(require_indentation(load_dataset(path), args.prog)) for path in args.datasets
+    ]
     dataset = merge_captures(parts, [str(p) for p in args.datasets])
     print(f"{dataset.n_loads} presses so far, {args.budget} allowed from here", flush=True)
     if field:

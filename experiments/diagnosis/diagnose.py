@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from experiments.command.options import Command, plural
-from experiments.data.dataset import Dataset, load_dataset
+from experiments.data.dataset import Dataset, load_dataset, require_indentation
 from experiments.data.plausibility import dataset_warnings
 from experiments.diagnosis.design import design_note
 from solvers.diagnosis.report import report, verdict
@@ -120,6 +120,7 @@ def run(
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
+    require_indentation(dataset, "dvs diagnose")
     if base == AUTO and grid is not None:
         base = base_settings(grid)
     for line in dataset_warnings(dataset):

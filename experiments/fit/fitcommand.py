@@ -102,7 +102,7 @@ def work(args) -> int:
         plural,
         verb,
     )
-    from experiments.data.dataset import load_dataset
+    from experiments.data.dataset import load_dataset, require_indentation
 
     objective = "control_points" if args.method == "paper" else "markers"
     energy = args.energy
@@ -144,7 +144,7 @@ def work(args) -> int:
         margin=check_margin(args.margin),
     )
     check_output_dir(args.out)
-    dataset = load_dataset(args.dataset)
+    dataset = require_indentation(load_dataset(args.dataset), args.prog)
     early = dataset_warnings(dataset)
     _warn(args.prog, early)
     cases = plural(dataset.n_loads, "load case")

@@ -122,7 +122,7 @@ def work(args) -> int:
         parse_degrees,
         parse_grid,
     )
-    from experiments.data.dataset import load_dataset
+    from experiments.data.dataset import load_dataset, require_indentation
     from experiments.fit.stepzero import model_record, refuse_model_options
     from experiments.imaging.mapping import ImageSettings, image_dataset
     from experiments.imaging.outputs import document, plot_maps, write_vtu
@@ -149,7 +149,7 @@ def work(args) -> int:
     )
     settings = ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit)
     check_output_dir(args.out)
-    dataset = load_dataset(args.dataset)
+    dataset = require_indentation(load_dataset(args.dataset), args.prog)
     if noise is not None:
         dataset = replace(dataset, noise_mm=noise)
     if not dataset.noise_mm or dataset.noise_mm <= 0:

@@ -1,0 +1,161 @@
+"""``dvs import``: the measured experiments as datasets (docs/formats.md, "Measured
+experiments"), their round trip, the rules of the keys they add, and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import exit_code_and_stderr
+
+from experiments.command.cli import main
+from experiments.data.compression import compression_dataset, disc_grid, read_recipe
+from experiments.data.dataset import (
+    DatasetError,
+    from_arrays,
+    load_dataset,
+    save_dataset,
+    to_arrays,
+)
+from experiments.data.truthcube import read_truth_cube, truth_cube_dataset
+
+
+def _one_line(argv, capsys, expected=2) -> str:
+    code, err = exit_code_and_stderr(main, argv, capsys)
+    assert code == expected, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def cube_file(shared_data):
+    return shared_data / "truth-cube" / "uniaxial_positions.csv"
+
+
+@pytest.fixture(scope="module")
+def recipe_folder(shared_data):
+    return shared_data / "phantom-compression" / "data" / "EF10_0T"
+
+
+# ------------------------------------------------------------------ Truth Cube
+def test_the_truth_cube_round_trips_and_keeps_every_bead(cube_file, tmp_path, capsys):
+    out = tmp_path / "cube.npz"
+    assert main(["import", "truth-cube", str(cube_file), "--out", str(out)]) == 0
+    data = load_dataset(out)
+    cube = read_truth_cube(cube_file)
+    assert data.kind == "plate" and data.n_loads == 3
+    np.testing.assert_array_equal(data.markers_rest, cube.rest)
+    np.testing.assert_array_equal(data.markers_loaded, cube.loaded)
+    assert np.isnan(data.forces).all() and np.isnan(data.outer_loaded).all()
+    # the plate moves towards the base (+z in the file's frame) by 5, 12.5, 18.25 % of 80 mm
+    np.testing.assert_allclose(data.plate_motion[:, 2], [4.0, 10.0, 14.6])
+    # every bead lies between the plate's face and the base, about 1 cm inside
+    top, base = data.outer_rest[..., 2].mean(), data.inner_rest[..., 2].mean()
+    assert top < cube.rest[:, 2].min() - 5.0 and base > cube.rest[:, 2].max() + 5.0
+    again = from_arrays(to_arrays(data))
+    np.testing.assert_array_equal(again.markers_loaded, data.markers_loaded)
+
+
+def test_a_bead_file_with_a_short_line_is_one_line_exit_2(cube_file, tmp_path, capsys):
+    lines = cube_file.read_text().splitlines()
+    lines[9] = ",".join(lines[9].split(",")[:8])
+    bad = tmp_path / "short.csv"
+    bad.write_text("\n".join(lines))
+    out = tmp_path / "cube.npz"
+    err = _one_line(["import", "truth-cube", str(bad), "--out", str(out)], capsys)
+    assert "line 10" in err and not out.exists()
+
+
+def test_a_repeated_bead_index_is_refused(cube_file, tmp_path, capsys):
+    lines = cube_file.read_text().splitlines()
+    lines[8] = lines[7]
+    bad = tmp_path / "repeated.csv"
+    bad.write_text("\n".join(lines))
+    err = _one_line(["import", "truth-cube", str(bad), "--out", str(tmp_path / "o.npz")], capsys)
+    assert "repeated" in err
+
+
+# -------------------------------------------------------------------- phantoms
+def test_a_recipe_round_trips_with_its_curves(recipe_folder, tmp_path):
+    out = tmp_path / "ef.npz"
+    assert main(["import", "compression", str(recipe_folder), "--out", str(out)]) == 0
+    data = load_dataset(out)
+    recipe, tests = read_recipe(recipe_folder)
+    assert data.kind == "plate" and data.n_loads == 15 * len(tests) == 150
+    assert list(data.extra["specimen_names"]) == [t.name for t in tests]
+    # each specimen's curve: the plate moves down, the force grows with it
+    for number in range(len(tests)):
+        rows = data.specimen == number
+        assert np.all(np.diff(-data.plate_motion[rows, 2]) > 0)
+        assert np.all(np.diff(-data.forces[rows, 2]) > 0)
+    # a sampled force is the test's own record at that compression
+    first = tests[0]
+    c = -data.plate_motion[0, 2]
+    nearest = np.argmin(np.abs(first.compression_mm - c))
+    assert abs(-data.forces[0, 2] - first.load_n[nearest]) < 0.05 * first.load_n[nearest] + 0.05
+    assert 0.0 < data.force_noise_n < 0.5
+
+
+def test_the_disc_grid_covers_the_disc():
+    grid = disc_grid(25.0, 30.0)
+    radius = np.linalg.norm(grid[..., :2], axis=-1)
+    assert radius.max() == pytest.approx(25.0) and radius.min() == 0.0
+    # the edge of the square maps onto the circle
+    np.testing.assert_allclose(radius[0, :], 25.0)
+
+
+def test_a_folder_without_tests_and_a_strain_beyond_the_record_exit_2(
+    recipe_folder, tmp_path, capsys
+):
+    err = _one_line(["import", "compression", str(tmp_path), "--out", str(tmp_path / "x")], capsys)
+    assert "no" in err and not (tmp_path / "x").exists()
+    err = _one_line(
+        ["import", "compression", str(recipe_folder), "--strain", "0.9", "--out", "x.npz"], capsys
+    )
+    assert "lower --strain" in err
+
+
+# ---------------------------------------------------------------- the new rules
+@pytest.fixture(scope="module")
+def cube_arrays(cube_file):
+    return to_arrays(truth_cube_dataset(read_truth_cube(cube_file)))
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        (lambda a: a.pop("markers_loaded"), "markers_loaded"),
+        (lambda a: a.update(markers_rest=a["markers_rest"] + 500.0), "markers_rest"),
+        (lambda a: a.update(plate_motion=a["plate_motion"] * 10.0), "plate_motion"),
+        (lambda a: a.update(forces=np.where([[1, 0, 0]], 0.1, a["forces"])), "forces"),
+        (lambda a: a.update(specimen=np.array([0.0, 1.5, 2.0])), "specimen"),
+        (lambda a: a.update(force_noise_n=np.array(-1.0)), "force_noise_n"),
+        (lambda a: a.pop("plate_motion"), "forces"),  # NaN forces without a plate
+    ],
+)
+def test_each_rule_of_the_experiment_keys_names_its_key(cube_arrays, change, key):
+    arrays = {k: np.array(v, copy=True) for k, v in cube_arrays.items()}
+    change(arrays)
+    with pytest.raises(DatasetError) as raised:
+        from_arrays(arrays)
+    assert raised.value.key == key, str(raised.value)
+
+
+def test_a_load_case_that_observes_nothing_is_refused(cube_arrays):
+    arrays = {k: np.array(v, copy=True) for k, v in cube_arrays.items()}
+    arrays["markers_loaded"][1] = np.nan
+    with pytest.raises(DatasetError, match="nothing observed in load 1"):
+        from_arrays(arrays)
+
+
+def test_indentation_commands_refuse_a_plate_dataset(cube_file, tmp_path, capsys):
+    path = tmp_path / "cube.npz"
+    save_dataset(path, truth_cube_dataset(read_truth_cube(cube_file)))
+    for command in ("fit", "diagnose", "image"):
+        err = _one_line([command, str(path), "--out", str(tmp_path / command)], capsys)
+        assert "plate load" in err and not (tmp_path / command).exists()
+
+
+def test_the_phantom_curves_fit_the_load_limit(recipe_folder):
+    recipe, tests = read_recipe(recipe_folder)
+    with pytest.raises(DatasetError, match="at most 200 load cases"):
+        compression_dataset(recipe, tests, samples=25)
