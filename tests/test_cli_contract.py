@@ -39,6 +39,7 @@ DIRECTORY_OUTPUT = {
     "study detection": [],
     "realskin fit": [],
     "study realcheck": ["--data", "{tmp}"],
+    "study phantoms": ["--recipes", "EF10_0T"],
     "study continuum": [],
     "image": ["{data}"],
     "bench image": [],
@@ -64,6 +65,7 @@ NO_OUTPUT = {"realskin data", "bench board", "study imageweights"}
 """Commands that only print."""
 
 EXPENSIVE = (
+    "study phantoms",
     "demo",
     "study compare",
     "study diagnosis",
@@ -206,6 +208,7 @@ OUT_OF_RANGE = [
     (["demo", "--out", ""], "--out"),
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
     (["import truth-cube", str(TRUTH_CUBE), "--out", "x.txt"], ".npz"),
+    (["study phantoms", "--recipes", "EF99_0T", "--out", "o"], "--recipes"),
     (["import compression", str(RECIPE), "--samples", "0", "--out", "x.npz"], "--samples"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
 ]

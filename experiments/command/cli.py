@@ -84,6 +84,10 @@ GROUPS = {
             "imageadaptive": ("experiments.imaging.adaptive", "adaptive imaging at random places"),
             "render": ("experiments.stereo.render", "synthetic images of the forehead experiment"),
             "realcheck": ("experiments.stereo.realcheck", "the stereo pipeline on real images"),
+            "phantoms": (
+                "experiments.phantoms.phantomstudy",
+                "silicone phantoms: E, the B series predicted",
+            ),
         },
         "diagnosis",
     ),

@@ -1,0 +1,231 @@
+"""The silicone phantoms: E of every recipe from its A series, the B series predicted.
+
+For each recipe folder of ``phantom-compression`` (docs/experiments.md, "Silicone
+phantoms"), the tests are imported (``experiments.data.compression``) and two models of
+the same neo-Hookean energy are fitted to the A series (specimens A1-A5):
+
+- sliding plates, uniform stress (the published fits' assumption);
+- bonded plates, the 3D volume spline (the cylinder barrels).
+
+With the plate's motion prescribed and nu fixed, every force of either model is E times
+the force at E = 1 kPa (the equilibrium of a displacement-driven body does not depend
+on the scale of its energy), so each fit is linear least squares in E over the
+unit-E curves, computed once for all recipes (the 3D ones by the shared solver:
+``solvers.diagnosis.extended``). Two windows: compression up to 10 % of the height
+(small strain: E to compare with the published E) and up to 30 % (the curve).
+
+The selection rule is the loop's (docs/diagnosis.md): the contact model that predicts
+the **B series**, data it was not fitted on, better is the one named. The B series'
+scatter about the A series' mean curve is what no model of the A series can beat.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from experiments.command.options import Command, check_output_dir, make_parser
+from experiments.data.compression import compression_dataset, read_recipe
+from experiments.data.paths import shared_data_dir
+from experiments.output.atomic import atomic_write_json, atomic_write_text
+from experiments.phantoms.cylinder import cylinder_model, load_cases, uniform_force
+from solvers.diagnosis.extended import ExtendedProblem
+from solvers.inverse.problem import InverseProblem
+from solvers.inverse.space import ParameterSpace
+from symbolic.loads import FrameLoad
+
+WINDOWS = {"small strain": (0.10, 8), "curve": (0.30, 10)}
+"""Name -> (largest compression / height, samples per test)."""
+PUBLISHED_E_KPA = {
+    "EF10_0T": (56.27, 2.12),
+    "EF10_12_5T": (38.06, 1.28),
+    "EF10_25T": (28.16, 0.79),
+    "EF10_37_5T": (20.14, 0.83),
+    "EF10_50T": (16.29, 0.40),
+    "EF10_62_5T": (12.94, 0.52),
+    "EF10_75T": (9.58, 0.12),
+    "EF10_87_5T": (8.68, 0.26),
+    "EF10_100T": (6.19, 0.77),
+    "EF30_0T": (103.46, 2.32),
+    "EF30_12_5T": (72.58, 2.64),
+    "EF30_25T": (50.21, 1.50),
+    "EF30_37_5T": (37.16, 0.72),
+    "EF30_50T": (31.85, 0.62),
+}
+"""E [kPa], mean and standard deviation, as published by the dataset's authors (Dawood
+et al. 2026; the table of ``app/inverse_design_app.py`` in
+github.com/abubakardawood/tissue-phantom-material-database, MIT)."""
+SHAPE, DEGREE = (9, 9, 7), 3
+"""The 3D model's control points and degree: at nu = 0.49 its small-strain stiffness is
+scikit-fem's P2 within 0.1 %, where degree 2 on 11 x 11 x 8 is 2.3 % too stiff
+(``cylindercheck``; docs/experiments.md, "Locking")."""
+
+
+def data_folder() -> Path:
+    """The recipes' folder in the shared data."""
+    return shared_data_dir() / "phantom-compression" / "data"
+
+
+def unit_curves(travel: np.ndarray, radius: float, height: float, shape=SHAPE, degree=DEGREE):
+    """Forces [N] (> 0) at E = 1 kPa: (bonded 3D, sliding uniform), each (K,)."""
+    model = cylinder_model(radius, height, 1.0, shape, degree)
+    labels = [f"{t:.3f} mm" for t in travel]
+    cases = load_cases(model, travel, -np.ones(len(travel)), labels)
+    space = ParameterSpace.create(("E",), {"E": 1.0}, {"E": (1e-3, 1e4)})
+    problem = InverseProblem(model, cases, space, noise_mm=1.0)
+    extended = ExtendedProblem(problem, [FrameLoad(label) for label in labels], [])
+    residual = extended.evaluate(np.array([1.0]))[0]  # r = F_model - F_target, F_target = -1
+    bonded = -(residual - 1.0)
+    return bonded, uniform_force(travel, height, radius, 1.0)
+
+
+@dataclass(frozen=True)
+class LinearFit:
+    """E of a model F = E f fitted to forces: value, standard error, RMS [kPa, kPa, N]."""
+
+    young_kpa: float
+    std_kpa: float
+    rms_n: float
+
+    @classmethod
+    def of(cls, unit: np.ndarray, force: np.ndarray) -> LinearFit:
+        """Least squares over every (unit force, measured force) pair; the standard error
+        from the residual's own scatter, s^2 = |r|^2 / (n - 1) (model error included)."""
+        gram = float(unit @ unit)
+        young = float(unit @ force) / gram
+        residual = force - young * unit
+        scatter = float(residual @ residual) / max(len(force) - 1, 1)
+        return cls(young, np.sqrt(scatter / gram), float(np.sqrt(np.mean(residual**2))))
+
+
+def named_contact(held: np.ndarray, entry: dict, unit: tuple) -> str:
+    """The contact model that predicts the held-out specimens better than chance, or
+    "neither": the paired difference of the two models' squared prediction errors,
+    one value per held-out specimen, must exceed twice its standard error (the loop's
+    rule, docs/diagnosis.md, with the specimens as the left-out folds)."""
+    errors = []
+    for contact, curve in zip(("bonded", "sliding"), unit):
+        errors.append(np.sum((held - entry[contact]["E_kPa"] * curve) ** 2, axis=1))
+    difference = errors[1] - errors[0]  # > 0: bonded predicts better
+    spread = difference.std(ddof=1) / np.sqrt(len(difference)) if len(difference) > 1 else 0.0
+    if abs(difference.mean()) <= 2.0 * spread:
+        return "neither"
+    return "bonded" if difference.mean() > 0 else "sliding"
+
+
+def recipe_row(folder: Path, curves: dict, windows=None) -> dict:
+    """The fits and predictions of one recipe (every window of ``windows``, default
+    ``WINDOWS``, whose unit-E curves ``curves`` holds; both contact models)."""
+    recipe, tests = read_recipe(folder)
+    json_path = folder.parent / "hyperelastic_parameters.json"
+    published = json.loads(json_path.read_text())["engineering"].get(recipe, {})
+    best = min(published, key=lambda k: published[k]["AIC"]) if published else None
+    row = {"recipe": recipe, "published_E_kPa": PUBLISHED_E_KPA.get(recipe), "aic_best": best}
+    for window, (strain, samples) in (windows or WINDOWS).items():
+        data = compression_dataset(recipe, tests, samples, strain)
+        travel = -data.plate_motion[:samples, 2]
+        force = -data.forces[:, 2].reshape(len(tests), samples)
+        series_a = np.array([t.name.startswith("A") for t in tests])
+        mean_a = force[series_a].mean(axis=0)
+        scatter = float(np.sqrt(np.mean((force[~series_a] - mean_a) ** 2)))
+        entry = {"travel_mm": travel.tolist(), "b_scatter_n": scatter}
+        for contact, unit in zip(("bonded", "sliding"), curves[window]):
+            fitted = LinearFit.of(np.tile(unit, series_a.sum()), force[series_a].ravel())
+            error = force[~series_a] - fitted.young_kpa * unit
+            entry[contact] = {
+                "E_kPa": fitted.young_kpa,
+                "E_std_kPa": fitted.std_kpa,
+                "fit_rms_n": fitted.rms_n,
+                "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
+            }
+        entry["named"] = named_contact(force[~series_a], entry, curves[window])
+        row[window] = entry
+    return row
+
+
+def run(out: Path, recipes=None, log=print) -> dict:
+    """Every recipe (default all folders); writes ``phantoms.json`` and ``phantoms.md``."""
+    begin = time.perf_counter()
+    folders = sorted(p for p in data_folder().iterdir() if p.is_dir())
+    if recipes:
+        folders = [f for f in folders if f.name in recipes]
+    _, first = read_recipe(folders[0])
+    radius, height = first[0].diameter_mm / 2.0, first[0].height_mm
+    curves = {}
+    for window, (strain, samples) in WINDOWS.items():
+        travel = np.linspace(0.02, 1.0, samples) * strain * height
+        log(f"unit-E curves, {window}: {samples} travels to {strain * height:g} mm")
+        curves[window] = unit_curves(travel, radius, height)
+    rows = []
+    for folder in folders:
+        rows.append(recipe_row(folder, curves))
+        log(f"{folder.name}: done")
+    document = {
+        "schema": "dvs-phantoms/1",
+        "model": {"shape": list(SHAPE), "degree": DEGREE, "windows": WINDOWS},
+        "recipes": rows,
+        "wall_time_s": time.perf_counter() - begin,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "phantoms.json", document)
+    atomic_write_text(out / "phantoms.md", table(rows))
+    return document
+
+
+def table(rows: list) -> str:
+    """The markdown tables of docs/experiments.md."""
+    lines = [
+        "| recipe | published E | AIC-best | E sliding (10 %) | E bonded (10 %) | "
+        "B rms sliding / bonded / scatter (10 %) | same, to 30 % | named (10 %, 30 %) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        small, curve = row["small strain"], row["curve"]
+        published = row["published_E_kPa"]
+        shown = f"{published[0]:.1f} +- {published[1]:.1f}" if published else "-"
+
+        def e(w, c):
+            return f"{w[c]['E_kPa']:.1f} +- {w[c]['E_std_kPa']:.1f}"
+
+        def b(w):
+            sliding, bonded = (w[c]["b_prediction_rms_n"] for c in ("sliding", "bonded"))
+            return f"{sliding:.2f} / {bonded:.2f} / {w['b_scatter_n']:.2f}"
+
+        lines.append(
+            f"| {row['recipe']} | {shown} | {row['aic_best']} | {e(small, 'sliding')} | "
+            f"{e(small, 'bonded')} | {b(small)} | {b(curve)} | {small['named']}, "
+            f"{curve['named']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def build_parser(prog: str = "python -m experiments.phantoms.phantomstudy"):
+    """The options of ``dvs study phantoms``."""
+    parser = make_parser(prog, __doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--recipes", default="", help="comma list (default: every folder)")
+    return parser
+
+
+def work(args) -> int:
+    """Run the study and print its table."""
+    check_output_dir(args.out)
+    recipes = [r for r in args.recipes.split(",") if r]
+    known = {p.name for p in data_folder().iterdir() if p.is_dir()}
+    unknown = sorted(set(recipes) - known)
+    if unknown:
+        raise ValueError(f"--recipes: no recipe {unknown[0]}; choose from {sorted(known)}")
+    document = run(args.out, recipes or None)
+    print(table(document["recipes"]), end="")
+    return 0
+
+
+main = Command("experiments.phantoms.phantomstudy", build_parser, work).main
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,87 @@
+"""The silicone phantoms (docs/experiments.md): the cylinder against scikit-fem, E
+recovered from a synthetic twin, one recipe on real data, the full table (slow)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from experiments.phantoms.cylinder import uniform_force
+from experiments.phantoms.cylindercheck import reference_ratio, spline_ratio
+from experiments.phantoms.phantomstudy import (
+    PUBLISHED_E_KPA,
+    LinearFit,
+    named_contact,
+    recipe_row,
+    run,
+    unit_curves,
+)
+
+
+def test_the_spline_cylinder_matches_scikit_fem_where_nothing_locks():
+    """At nu = 0.3 the bonded cylinder's apparent modulus (E A delta / H = 1 under
+    uniform stress) is the P2 reference's within 1 %, and both exceed 1 (barrelling)."""
+    spline = spline_ratio(0.3, (7, 7, 5), 2)
+    reference = reference_ratio(0.3, 6)
+    assert reference > 1.05
+    assert spline == pytest.approx(reference, rel=0.01)
+
+
+def test_near_incompressibility_the_bonded_cylinder_stiffens_and_degree_2_locks_a_little():
+    """At nu = 0.49 the barrelling factor grows (about 1.39); degree 2 on the coarse
+    grid is measurably too stiff, and refining it moves it towards the reference."""
+    reference = reference_ratio(0.49, 6)
+    coarse, finer = spline_ratio(0.49, (7, 7, 5), 2), spline_ratio(0.49, (9, 9, 6), 2)
+    assert 1.3 < reference < 1.5
+    assert coarse > finer > reference * 0.995
+
+
+def test_uniform_stress_is_linear_elastic_at_small_strain():
+    """The sliding model's force at 0.1 % strain is E A strain (kPa = 1e-3 N/mm^2)."""
+    force = uniform_force(np.array([0.03]), 30.0, 25.0, 40.0)[0]
+    assert force == pytest.approx(1e-3 * 40.0 * np.pi * 25.0**2 * 0.001, rel=2e-3)
+
+
+def test_a_twin_with_known_e_and_noise_is_recovered_within_its_standard_error():
+    """Five specimens from the sliding model with E = 27 kPa, 3 % specimen scatter and
+    force noise: E within 3 standard errors, and bonded and sliding are told apart
+    only when the data's curve shape says so (here it cannot: both are linear in E)."""
+    rng = np.random.default_rng(4)
+    travel = np.linspace(0.06, 3.0, 8)
+    unit = uniform_force(travel, 30.0, 25.0, 1.0)
+    specimens = 27.0 * (1 + 0.03 * rng.standard_normal((5, 1))) * unit
+    specimens += 0.05 * rng.standard_normal(specimens.shape)
+    fitted = LinearFit.of(np.tile(unit, 5), specimens.ravel())
+    assert abs(fitted.young_kpa - 27.0) < 3 * fitted.std_kpa + 0.02 * 27.0
+    # a "bonded" curve that is the sliding one times a constant predicts equally well
+    entry = {"sliding": {"E_kPa": fitted.young_kpa}, "bonded": {"E_kPa": fitted.young_kpa / 1.4}}
+    assert named_contact(specimens, entry, (1.4 * unit, unit)) == "neither"
+
+
+def test_one_recipe_on_real_data_predicts_its_b_series_within_the_scatter(shared_data):
+    """EF10_100T at small strain on a coarse grid: E of the A series near the published E
+    under uniform stress, the bonded E lower by the barrelling factor, and the B series
+    predicted about as well as the A series' own mean curve predicts it."""
+    travel = np.linspace(0.02, 1.0, 5) * 0.1 * 30.0
+    curves = {"small strain": unit_curves(travel, 25.0, 30.0, (7, 7, 5), 2)}
+    folder = shared_data / "phantom-compression" / "data" / "EF10_100T"
+    row = recipe_row(folder, curves, {"small strain": (0.1, 5)})
+    small = row["small strain"]
+    published = PUBLISHED_E_KPA["EF10_100T"][0]
+    assert small["sliding"]["E_kPa"] == pytest.approx(published, rel=0.15)
+    ratio = small["sliding"]["E_kPa"] / small["bonded"]["E_kPa"]
+    assert 1.3 < ratio < 1.6
+    for contact in ("sliding", "bonded"):
+        assert small[contact]["b_prediction_rms_n"] < 1.5 * small["b_scatter_n"]
+
+
+@pytest.mark.slow
+def test_every_recipe(tmp_path):
+    """The table of docs/experiments.md: every recipe's sliding E within 15 % of the
+    published E at small strain; the B series within 1.5 x its scatter at small strain."""
+    document = run(tmp_path)
+    assert len(document["recipes"]) == 14
+    for row in document["recipes"]:
+        small = row["small strain"]
+        assert small["sliding"]["E_kPa"] == pytest.approx(row["published_E_kPa"][0], rel=0.15)
+        assert small["sliding"]["b_prediction_rms_n"] < 1.5 * small["b_scatter_n"]
