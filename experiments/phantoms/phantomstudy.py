@@ -15,7 +15,9 @@ unit-E curves, computed once for all recipes (the 3D ones by the shared solver:
 (small strain: E to compare with the published E) and up to 30 % (the curve).
 
 The selection rule is the loop's (docs/diagnosis.md): the contact model that predicts
-the **B series**, data it was not fitted on, better is the one named. The B series'
+the **B series**, data it was not fitted on, better is the one named, if it does so
+better than chance (``named_contact``), on both discretisations (``CHECK_SHAPE``), and by
+more than the load cell's noise in one sample (``force_noise_n``). The B series'
 scatter about the A series' mean curve is what no model of the A series can beat.
 """
 
@@ -59,6 +61,9 @@ PUBLISHED_E_KPA = {
 """E [kPa], mean and standard deviation, as published by the dataset's authors (Dawood
 et al. 2026; the table of ``app/inverse_design_app.py`` in
 github.com/abubakardawood/tissue-phantom-material-database, MIT)."""
+CHECK_SHAPE, CHECK_DEGREE = (9, 9, 6), 2
+"""A second discretisation of the bonded model: a contact is named only if both name it
+(the loop's discretisation rule, docs/diagnosis.md, eq. D3, in its simplest form)."""
 SHAPE, DEGREE = (9, 9, 7), 3
 """The 3D model's control points and degree: at nu = 0.49 its small-strain stiffness is
 scikit-fem's P2 within 0.1 %, where degree 2 on 11 x 11 x 8 is 2.3 % too stiff
@@ -117,9 +122,11 @@ def named_contact(held: np.ndarray, entry: dict, unit: tuple) -> str:
     return "bonded" if difference.mean() > 0 else "sliding"
 
 
-def recipe_row(folder: Path, curves: dict, windows=None) -> dict:
+def recipe_row(folder: Path, curves: dict, windows=None, checks=None) -> dict:
     """The fits and predictions of one recipe (every window of ``windows``, default
-    ``WINDOWS``, whose unit-E curves ``curves`` holds; both contact models)."""
+    ``WINDOWS``, whose unit-E curves ``curves`` holds; both contact models). ``checks``:
+    the unit-E curves of the second discretisation (``CHECK_SHAPE``) by window."""
+    checks = checks or {}
     recipe, tests = read_recipe(folder)
     json_path = folder.parent / "hyperelastic_parameters.json"
     published = json.loads(json_path.read_text())["engineering"].get(recipe, {})
@@ -143,6 +150,18 @@ def recipe_row(folder: Path, curves: dict, windows=None) -> dict:
                 "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
             }
         entry["named"] = named_contact(force[~series_a], entry, curves[window])
+        if window in checks:  # the same choice on the second discretisation, or neither
+            check = {}
+            for contact, unit in zip(("bonded", "sliding"), checks[window]):
+                young = LinearFit.of(np.tile(unit, series_a.sum()), force[series_a].ravel())
+                check[contact] = {"E_kPa": young.young_kpa}
+            entry["named_check"] = named_contact(force[~series_a], check, checks[window])
+            if entry["named_check"] != entry["named"]:
+                entry["named"] = "neither"
+        gain = abs(entry["bonded"]["b_prediction_rms_n"] - entry["sliding"]["b_prediction_rms_n"])
+        entry["force_noise_n"] = float(data.force_noise_n)
+        if gain < data.force_noise_n:  # below what the load cell resolves in one sample
+            entry["named"] = "neither"
         row[window] = entry
     return row
 
@@ -155,18 +174,24 @@ def run(out: Path, recipes=None, log=print) -> dict:
         folders = [f for f in folders if f.name in recipes]
     _, first = read_recipe(folders[0])
     radius, height = first[0].diameter_mm / 2.0, first[0].height_mm
-    curves = {}
+    curves, checks = {}, {}
     for window, (strain, samples) in WINDOWS.items():
         travel = np.linspace(0.02, 1.0, samples) * strain * height
         log(f"unit-E curves, {window}: {samples} travels to {strain * height:g} mm")
         curves[window] = unit_curves(travel, radius, height)
+        checks[window] = unit_curves(travel, radius, height, CHECK_SHAPE, CHECK_DEGREE)
     rows = []
     for folder in folders:
-        rows.append(recipe_row(folder, curves))
+        rows.append(recipe_row(folder, curves, checks=checks))
         log(f"{folder.name}: done")
     document = {
         "schema": "dvs-phantoms/1",
-        "model": {"shape": list(SHAPE), "degree": DEGREE, "windows": WINDOWS},
+        "model": {
+            "shape": list(SHAPE),
+            "degree": DEGREE,
+            "check": {"shape": list(CHECK_SHAPE), "degree": CHECK_DEGREE},
+            "windows": WINDOWS,
+        },
         "recipes": rows,
         "wall_time_s": time.perf_counter() - begin,
     }
