@@ -43,7 +43,7 @@ from experiments.truthcube.cubemodel import (
     plate_displacement,
     plate_points,
 )
-from solvers.forward.equilibrium import EquilibriumSolver, NewtonSettings
+from solvers.forward.equilibrium import EquilibriumError, EquilibriumSolver, NewtonSettings
 
 NU_BOUNDS = (0.3, 0.4999)
 """The range of Poisson's ratio searched [1]."""
@@ -133,7 +133,7 @@ class CubeSolver:
         start = self._starts.get(key)
         try:
             solution = self.solver.solve(force, [nu], prescribed, start=start)
-        except Exception:  # a poor start: from rest by load continuation
+        except EquilibriumError:  # a poor start: from rest by load continuation
             solution = self.solver.solve_by_continuation(force, [nu], prescribed)
         if key is not None:
             self._starts[key] = solution.state
