@@ -69,8 +69,8 @@ def report_text(result: dict) -> str:
     loop = result["loop"]
     lines += [
         "",
-        f"## The loop (linear base, {loop['contact']} plate; sigma {loop['sigma_mm']:.3f} mm, "
-        "estimated)",
+        f"## The loop ({loop['energy']} base, {loop['contact']} plate; "
+        f"sigma {loop['sigma_mm']:.3f} mm, estimated)",
         "",
         _row(["model", "nu", *[f"RMS {s} [mm]" for s in states], "RMS all [mm]"]),
         _row(["---"] * (3 + len(states))),
