@@ -40,6 +40,7 @@ DIRECTORY_OUTPUT = {
     "realskin fit": [],
     "study realcheck": ["--data", "{tmp}"],
     "study phantoms": ["--recipes", "EF10_0T"],
+    "study truth-cube": [],
     "study continuum": [],
     "image": ["{data}"],
     "bench image": [],
@@ -66,6 +67,7 @@ NO_OUTPUT = {"realskin data", "bench board", "study imageweights"}
 
 EXPENSIVE = (
     "study phantoms",
+    "study truth-cube",
     "demo",
     "study compare",
     "study diagnosis",
@@ -209,6 +211,7 @@ OUT_OF_RANGE = [
     (["reconstruct", "{tmp}", "--out", "x.txt"], ".npz"),
     (["import truth-cube", str(TRUTH_CUBE), "--out", "x.txt"], ".npz"),
     (["study phantoms", "--recipes", "EF99_0T", "--out", "o"], "--recipes"),
+    (["study truth-cube", "--loop-energy", "magic", "--out", "o"], "--loop-energy"),
     (["import compression", str(RECIPE), "--samples", "0", "--out", "x.npz"], "--samples"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
 ]

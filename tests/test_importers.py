@@ -106,8 +106,9 @@ def test_the_disc_grid_covers_the_disc():
 def test_a_folder_without_tests_and_a_strain_beyond_the_record_exit_2(
     recipe_folder, tmp_path, capsys
 ):
-    err = _one_line(["import", "compression", str(tmp_path), "--out", str(tmp_path / "x")], capsys)
-    assert "no" in err and not (tmp_path / "x").exists()
+    out = tmp_path / "x.npz"
+    err = _one_line(["import", "compression", str(tmp_path), "--out", str(out)], capsys)
+    assert "no" in err and "test files" in err and not out.exists()
     err = _one_line(
         ["import", "compression", str(recipe_folder), "--strain", "0.9", "--out", "x.npz"], capsys
     )

@@ -84,6 +84,10 @@ GROUPS = {
             "imageadaptive": ("experiments.imaging.adaptive", "adaptive imaging at random places"),
             "render": ("experiments.stereo.render", "synthetic images of the forehead experiment"),
             "realcheck": ("experiments.stereo.realcheck", "the stereo pipeline on real images"),
+            "truth-cube": (
+                "experiments.truthcube.cubestudy",
+                "the Truth Cube: nu, the plate, each state predicted",
+            ),
             "phantoms": (
                 "experiments.phantoms.phantomstudy",
                 "silicone phantoms: E, the B series predicted",
@@ -94,9 +98,9 @@ GROUPS = {
     "import": (
         "measured experiments to the dataset format: truth-cube, compression",
         {
-            "truth-cube": ("experiments.data.truthcube", "the Truth Cube's bead file"),
+            "truth-cube": ("experiments.truthcube.cubeimport", "the Truth Cube's bead file"),
             "compression": (
-                "experiments.data.compression",
+                "experiments.phantoms.phantomimport",
                 "one recipe's phantom compression tests",
             ),
         },

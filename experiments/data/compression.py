@@ -1,4 +1,5 @@
-"""``dvs import compression``: a recipe's silicone-phantom compression tests as a dataset.
+"""A recipe's silicone-phantom compression tests as a dataset (``dvs import compression``,
+``experiments.phantoms.phantomimport``).
 
 The phantoms (Ecoflex cylinders, 50 mm across and 30 mm high; Queen Mary University of
 London, "A database of silicone phantom materials for modeling human tissue mechanics
@@ -21,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.command.options import Command, check_output_file, make_parser, path_argument
-from experiments.data.dataset import Dataset, save_dataset
+from experiments.data.dataset import Dataset
 from experiments.data.dataseterror import DatasetError
 
 GRID = 9
@@ -172,40 +172,3 @@ def compression_dataset(
             "source": np.array(f"phantom-compression {recipe}"),
         },
     )
-
-
-def build_parser(prog: str = "python -m experiments.data.compression"):
-    """The options of ``dvs import compression``."""
-    parser = make_parser(prog, __doc__.splitlines()[0])
-    parser.add_argument("folder", type=Path, help="one recipe's folder, e.g. .../data/EF10_0T")
-    parser.add_argument(
-        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
-    )
-    parser.add_argument("--samples", type=int, default=15, help="points per curve (default 15)")
-    parser.add_argument(
-        "--strain", type=float, default=0.5, help="largest compression / height (default 0.5)"
-    )
-    return parser
-
-
-def work(args) -> int:
-    """Read the folder, sample its curves, write the dataset."""
-    check_output_file(args.out, ".npz")
-    if args.samples < 1 or not 0.0 < args.strain < 1.0:
-        raise DatasetError("--samples must be >= 1 and --strain in (0, 1)")
-    recipe, tests = read_recipe(args.folder)
-    dataset = compression_dataset(recipe, tests, args.samples, args.strain)
-    save_dataset(args.out, dataset)
-    print(
-        f"{args.out}: {recipe}, {len(tests)} tests x {args.samples} points "
-        f"(compression to {args.strain:g} x {tests[0].height_mm:g} mm); force noise "
-        f"{dataset.force_noise_n:.3g} N"
-    )
-    return 0
-
-
-main = Command("experiments.data.compression", build_parser, work).main
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -11,7 +11,8 @@ the plate pushes towards +z. No force is recorded. The file comes from OpenSurgS
 File layout: seven header lines, then one line per bead: ``i,j,k`` (1-based bead
 index) and ``x, y, z`` [mm] for each of the four states, rest first.
 
-``dvs import truth-cube FILE --out X.npz`` writes it as a dataset (docs/formats.md,
+``truth_cube_dataset`` poses it as a dataset (``dvs import truth-cube FILE --out X.npz``,
+``experiments.truthcube.cubeimport``) (docs/formats.md,
 "Measured experiments"): the beads as ``markers_rest``/``markers_loaded``, the plate's
 nominal travel as ``plate_motion``, no force (``forces`` NaN), and the cube's faces
 placed from the bead lattice (``cube_faces``).
@@ -25,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.command.options import Command, check_output_file, make_parser, path_argument
-from experiments.data.dataset import Dataset, save_dataset
+from experiments.data.dataset import Dataset
 from experiments.data.dataseterror import DatasetError
 
 NOMINAL_COMPRESSION = (0.05, 0.125, 0.1825)
@@ -162,34 +162,3 @@ def truth_cube_dataset(cube: TruthCube) -> Dataset:
         markers_loaded=cube.loaded,
         extra={"source": np.array("truth-cube uniaxial_positions.csv (Kerdok et al. 2003)")},
     )
-
-
-def build_parser(prog: str = "python -m experiments.data.truthcube"):
-    """The options of ``dvs import truth-cube``."""
-    parser = make_parser(prog, "The Truth Cube's bead file as a dataset.")
-    parser.add_argument("file", type=Path, help="uniaxial_positions.csv")
-    parser.add_argument(
-        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
-    )
-    return parser
-
-
-def work(args) -> int:
-    """Read the bead file and write the dataset."""
-    check_output_file(args.out, ".npz")
-    cube = read_truth_cube(args.file)
-    save_dataset(args.out, truth_cube_dataset(cube))
-    located = int(np.isfinite(cube.loaded).all(axis=-1).sum())
-    print(
-        f"{args.out}: {cube.n_beads} beads, {cube.loaded.shape[0]} compressed states "
-        f"({located} bead positions located), plate travel "
-        f"{', '.join(f'{t:g}' for t in cube.plate_travel_mm())} mm"
-    )
-    return 0
-
-
-main = Command("experiments.data.truthcube", build_parser, work).main
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

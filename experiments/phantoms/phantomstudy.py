@@ -59,7 +59,7 @@ PUBLISHED_E_KPA = {
     "EF30_50T": (31.85, 0.62),
 }
 """E [kPa], mean and standard deviation, as published by the dataset's authors (Dawood
-et al. 2026; the table of ``app/inverse_design_app.py`` in
+et al. 2026; the table of the inverse-design app in
 github.com/abubakardawood/tissue-phantom-material-database, MIT)."""
 CHECK_SHAPE, CHECK_DEGREE = (9, 9, 6), 2
 """A second discretisation of the bonded model: a contact is named only if both name it

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.command.options import Command, check_output_dir, make_parser
 from experiments.output.atomic import atomic_write_json, atomic_write_text
 from experiments.truthcube.cubefit import (
     CubeSolver,
@@ -198,13 +199,9 @@ def run_study(
     return result
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m experiments.truthcube --out DIR [--checks]``."""
-    import argparse
-
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.truthcube", description=__doc__.splitlines()[0]
-    )
+def build_parser(prog: str = "python -m experiments.truthcube"):
+    """The options of ``dvs study truth-cube``."""
+    parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument(
         "--loop-energy",
@@ -215,7 +212,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--checks", action="store_true", help="also the scikit-fem comparison and nu by grid"
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def work(args) -> int:
+    """Run the study into ``--out``."""
+    check_output_dir(args.out)
     run_study(
         args.out,
         checks=args.checks,
@@ -223,3 +225,6 @@ def main(argv: list[str] | None = None) -> int:
         log=lambda line: print(line, flush=True),
     )
     return 0
+
+
+main = Command("experiments.truthcube", build_parser, work).main

@@ -1,0 +1,43 @@
+"""``dvs import truth-cube FILE --out X.npz``: the Truth Cube's bead file as a dataset
+(docs/formats.md, "Measured experiments"; the reader is ``experiments.data.truthcube``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from experiments.command.options import Command, check_output_file, make_parser, path_argument
+from experiments.data.dataset import save_dataset
+from experiments.data.truthcube import read_truth_cube, truth_cube_dataset
+
+
+def build_parser(prog: str = "python -m experiments.truthcube.cubeimport"):
+    """The options of ``dvs import truth-cube``."""
+    parser = make_parser(prog, "The Truth Cube's bead file as a dataset.")
+    parser.add_argument("file", type=Path, help="uniaxial_positions.csv")
+    parser.add_argument(
+        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
+    )
+    return parser
+
+
+def work(args) -> int:
+    """Read the bead file and write the dataset."""
+    check_output_file(args.out, ".npz")
+    cube = read_truth_cube(args.file)
+    save_dataset(args.out, truth_cube_dataset(cube))
+    located = int(np.isfinite(cube.loaded).all(axis=-1).sum())
+    print(
+        f"{args.out}: {cube.n_beads} beads, {cube.loaded.shape[0]} compressed states "
+        f"({located} bead positions located), plate travel "
+        f"{', '.join(f'{t:g}' for t in cube.plate_travel_mm())} mm"
+    )
+    return 0
+
+
+main = Command("experiments.truthcube.cubeimport", build_parser, work).main
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
