@@ -16,7 +16,7 @@ from experiments.data.dataset import (
     save_dataset,
     to_arrays,
 )
-from experiments.data.truthcube import read_truth_cube, truth_cube_dataset
+from experiments.data.truthcube import cube_from_dataset, read_truth_cube, truth_cube_dataset
 
 
 def _one_line(argv, capsys, expected=2) -> str:
@@ -148,12 +148,27 @@ def test_a_load_case_that_observes_nothing_is_refused(cube_arrays):
         from_arrays(arrays)
 
 
-def test_indentation_commands_refuse_a_plate_dataset(cube_file, tmp_path, capsys):
+def test_indentation_commands_refuse_a_plate_dataset(cube_file, recipe_folder, tmp_path, capsys):
+    """fit and image model a probe: they refuse the cube; diagnose refuses a plate
+    experiment it has no set-up for (the phantoms' curves), one line, nothing written."""
     path = tmp_path / "cube.npz"
     save_dataset(path, truth_cube_dataset(read_truth_cube(cube_file)))
-    for command in ("fit", "diagnose", "image"):
+    for command in ("fit", "image"):
         err = _one_line([command, str(path), "--out", str(tmp_path / command)], capsys)
         assert "plate load" in err and not (tmp_path / command).exists()
+    recipe, tests = read_recipe(recipe_folder)
+    curves = tmp_path / "curves.npz"
+    save_dataset(curves, compression_dataset(recipe, tests))
+    err = _one_line(["diagnose", str(curves), "--out", str(tmp_path / "d")], capsys)
+    assert "plate load" in err and not (tmp_path / "d").exists()
+
+
+def test_a_cube_dataset_gives_back_its_beads(cube_file):
+    cube = read_truth_cube(cube_file)
+    again = cube_from_dataset(from_arrays(to_arrays(truth_cube_dataset(cube))))
+    np.testing.assert_array_equal(again.index, cube.index)
+    np.testing.assert_array_equal(again.loaded, cube.loaded)
+    np.testing.assert_allclose(again.plate_travel_mm(), cube.plate_travel_mm())
 
 
 def test_the_phantom_curves_fit_the_load_limit(recipe_folder):

@@ -160,5 +160,29 @@ def truth_cube_dataset(cube: TruthCube) -> Dataset:
         plate_motion=np.column_stack([np.zeros(k_count), np.zeros(k_count), travel]),
         markers_rest=cube.rest,
         markers_loaded=cube.loaded,
-        extra={"source": np.array("truth-cube uniaxial_positions.csv (Kerdok et al. 2003)")},
+        extra={
+            "source": np.array("truth-cube uniaxial_positions.csv (Kerdok et al. 2003)"),
+            "bead_index": cube.index,
+        },
+    )
+
+
+def cube_from_dataset(dataset: Dataset) -> TruthCube:
+    """The beads of a dataset written by ``truth_cube_dataset`` (its ``bead_index`` extra,
+    markers and plate motion); a one-line DatasetError for any other dataset."""
+    index = dataset.extra.get("bead_index")
+    if dataset.markers_rest is None or dataset.plate_motion is None or index is None:
+        raise DatasetError(
+            "not a Truth Cube dataset (needs markers_rest, plate_motion and bead_index); "
+            "write it with dvs import truth-cube"
+        )
+    index = np.asarray(index)
+    if index.shape != dataset.markers_rest.shape or index.dtype.kind not in "iu":
+        raise DatasetError("bead_index: must be whole numbers of the markers' shape (N, 3)")
+    compression = tuple(float(c) for c in dataset.plate_motion[:, 2] / CUBE_EDGE_MM)
+    return TruthCube(
+        index=index.astype(int),
+        rest=np.asarray(dataset.markers_rest, dtype=float),
+        loaded=np.asarray(dataset.markers_loaded, dtype=float),
+        compression=compression,
     )

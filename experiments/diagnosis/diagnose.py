@@ -120,6 +120,21 @@ def run(
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
+    if "bead_index" in dataset.extra:  # the Truth Cube: its own set-up (docs/experiments.md)
+        from experiments.command.options import UsageError
+        from experiments.data.truthcube import cube_from_dataset
+        from experiments.truthcube.cubestudy import run_study
+        from solvers.diagnosis.record import DiagnosisSettings
+
+        given = settings not in (None, DiagnosisSettings()) or grid is not None
+        if given or base != AUTO or not check_refinement:
+            raise UsageError(
+                "a Truth Cube dataset runs the cube's own set-up (docs/experiments.md); "
+                "give only --out"
+            )
+
+        result = run_study(Path(out), cube=cube_from_dataset(dataset), log=log)
+        return result["diagnosis"]
     require_indentation(dataset, "dvs diagnose")
     if base == AUTO and grid is not None:
         base = base_settings(grid)

@@ -155,14 +155,16 @@ def run_study(
     checks: bool = False,
     loop_energy: str = "linear",
     log=print,
+    cube=None,
 ):
     """The whole study (module docstring); writes its files when ``out`` is given.
+    ``cube`` is the ``TruthCube`` to study (default: the shared data's bead file).
 
     ``loop_energy`` is the loop's base: "linear" (the default, within the two-minute
     budget) or "neo-hookean" (its loop alone took 107 s)."""
     begin = time.perf_counter()
     settings = settings or CubeSettings((7, 7, 7), 3, 12)
-    cube = load_truth_cube()
+    cube = load_truth_cube() if cube is None else cube
     data = CubeData.of(cube)
     result = {
         "settings": asdict(settings),
@@ -196,6 +198,7 @@ def run_study(
         atomic_write_json(out / "diagnosis.json", diagnosis.document())
         atomic_write_text(out / "report.md", report_text(result))
     log(f"study: {result['seconds']:.0f} s")
+    result["diagnosis"] = diagnosis.document()
     return result
 
 
