@@ -119,12 +119,10 @@ def read_truth_cube(path: str | os.PathLike) -> TruthCube:
     return TruthCube(index=index, rest=positions[0].copy(), loaded=loaded)
 
 
-def lattice_centre(cube: TruthCube) -> np.ndarray:
-    """The rest lattice's centre [mm]: an affine map of the bead index fitted to the rest
-    positions, evaluated at the middle index (4, 4, 4)."""
-    design = np.column_stack([cube.index, np.ones(cube.n_beads)])
-    coefficients = np.linalg.lstsq(design, cube.rest, rcond=None)[0]
-    return np.array([4.0, 4.0, 4.0, 1.0]) @ coefficients
+def lattice_centre(rest: np.ndarray) -> np.ndarray:
+    """The bead lattice's centre [mm]: the mean rest position (for the full 7 x 7 x 7
+    lattice, also an affine map of the bead index evaluated at (4, 4, 4))."""
+    return np.asarray(rest, dtype=float).mean(axis=0)
 
 
 def cube_faces(cube: TruthCube, points: int = FACE_GRID) -> tuple[np.ndarray, np.ndarray]:
@@ -135,7 +133,7 @@ def cube_faces(cube: TruthCube, points: int = FACE_GRID) -> tuple[np.ndarray, np
     gives no face. The base (bonded to the acrylic) is at the larger z, the plate's
     face 80 mm above it (the file's -z is up).
     """
-    centre = lattice_centre(cube)
+    centre = lattice_centre(cube.rest)
     half = CUBE_EDGE_MM / 2.0
     axis = np.linspace(-half, half, points)
     x, y = np.meshgrid(centre[0] + axis, centre[1] + axis, indexing="ij")

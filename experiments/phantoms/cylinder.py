@@ -23,11 +23,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import brentq
 
-from solvers.inverse.problem import LoadCase
+from solvers.diagnosis.extended import ExtendedProblem
+from solvers.inverse.problem import InverseProblem, LoadCase
+from solvers.inverse.space import ParameterSpace
 from symbolic.constraints import BoundaryConditions
 from symbolic.continuum import box_volume, lame
 from symbolic.continuum_model import NeoHookeanModel
-from symbolic.loads import PrescribedDisplacement
+from symbolic.loads import FrameLoad, PrescribedDisplacement
 from symbolic.volume import VolumeSpline
 
 POISSON = 0.49
@@ -61,13 +63,20 @@ def plate_uv(points: int) -> np.ndarray:
 
 
 def cylinder_model(
-    radius: float, height: float, young_kpa: float, shape=(7, 7, 5), degree: int = 2
-) -> NeoHookeanModel:
-    """The bonded 3D model (module docstring), E = ``young_kpa``, nu = ``POISSON``."""
+    radius: float,
+    height: float,
+    young_kpa: float,
+    shape=(7, 7, 5),
+    degree: int = 2,
+    energy=NeoHookeanModel,
+    nu: float = POISSON,
+):
+    """The bonded 3D model (module docstring), E = ``young_kpa``; ``energy`` is the model
+    class (``NeoHookeanModel``, or ``ContinuumModel`` for linear elasticity)."""
     volume = cylinder_volume(radius, height, shape, (degree,) * 3)
-    return NeoHookeanModel(
+    return energy(
         volume,
-        {"E": young_kpa, "nu": POISSON},
+        {"E": young_kpa, "nu": nu},
         BoundaryConditions(fix_inner=True),
         prescribed=PrescribedDisplacement(plate_uv(max(shape[:2]) + 2)),
     )
@@ -105,6 +114,19 @@ def load_cases(model: NeoHookeanModel, travel_mm: np.ndarray, force_n: np.ndarra
             )
         )
     return cases
+
+
+def plate_forces(model, travel_mm: np.ndarray) -> np.ndarray:
+    """The bonded model's compressive force [N] (> 0) at each travel, at the model's own
+    E: every case solved by the shared solver (``solvers.diagnosis.extended``)."""
+    labels = [f"{t:.3f} mm" for t in travel_mm]
+    cases = load_cases(model, travel_mm, -np.ones(len(labels)), labels)
+    young = float(model.parameters["E"])
+    space = ParameterSpace.create(("E",), {"E": young}, {"E": (1e-3, 1e4)})
+    problem = InverseProblem(model, cases, space, noise_mm=1.0)
+    extended = ExtendedProblem(problem, [FrameLoad(label) for label in labels], [])
+    residual = extended.evaluate(np.array([young]))[0]  # F_model - F_target, F_target = -1
+    return -(residual - 1.0)
 
 
 def uniform_force(

@@ -18,14 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.phantom.fe import require_skfem
-from experiments.phantoms.cylinder import cylinder_volume, disc_map, load_cases, plate_uv
-from solvers.diagnosis.extended import ExtendedProblem
-from solvers.inverse.problem import InverseProblem
-from solvers.inverse.space import ParameterSpace
-from symbolic.constraints import BoundaryConditions
+from experiments.phantoms.cylinder import cylinder_model, disc_map, plate_forces
 from symbolic.continuum import lame
 from symbolic.continuum_model import ContinuumModel
-from symbolic.loads import FrameLoad, PrescribedDisplacement
 
 RADIUS, HEIGHT, TRAVEL = 25.0, 30.0, 0.3
 """The phantom's cylinder [mm] and the check's travel (1 % of the height) [mm]."""
@@ -33,18 +28,8 @@ RADIUS, HEIGHT, TRAVEL = 25.0, 30.0, 0.3
 
 def spline_ratio(nu: float, shape=(9, 9, 6), degree: int = 2) -> float:
     """F H / (E A delta) of the bonded spline cylinder (linear elasticity, E = 1 kPa)."""
-    volume = cylinder_volume(RADIUS, HEIGHT, shape, (degree,) * 3)
-    model = ContinuumModel(
-        volume,
-        {"E": 1.0, "nu": nu},
-        BoundaryConditions(fix_inner=True),
-        prescribed=PrescribedDisplacement(plate_uv(max(shape[:2]) + 2)),
-    )
-    cases = load_cases(model, np.array([TRAVEL]), np.array([-1.0]), ["check"])
-    space = ParameterSpace.create(("E",), {"E": 1.0}, {"E": (1e-3, 1e4)})
-    problem = ExtendedProblem(InverseProblem(model, cases, space), [FrameLoad("check")], [])
-    force = -(problem.evaluate(np.array([1.0]))[0][0] - 1.0)
-    return float(force / _uniform(1.0))
+    model = cylinder_model(RADIUS, HEIGHT, 1.0, shape, degree, ContinuumModel, nu)
+    return float(plate_forces(model, np.array([TRAVEL]))[0] / _uniform(1.0))
 
 
 def reference_ratio(nu: float, cells: int = 8) -> float:

@@ -34,11 +34,7 @@ from experiments.command.options import Command, check_output_dir, make_parser
 from experiments.data.compression import compression_dataset, read_recipe
 from experiments.data.paths import shared_data_dir
 from experiments.output.atomic import atomic_write_json, atomic_write_text
-from experiments.phantoms.cylinder import cylinder_model, load_cases, uniform_force
-from solvers.diagnosis.extended import ExtendedProblem
-from solvers.inverse.problem import InverseProblem
-from solvers.inverse.space import ParameterSpace
-from symbolic.loads import FrameLoad
+from experiments.phantoms.cylinder import cylinder_model, plate_forces, uniform_force
 
 WINDOWS = {"small strain": (0.10, 8), "curve": (0.30, 10)}
 """Name -> (largest compression / height, samples per test)."""
@@ -78,14 +74,7 @@ def data_folder() -> Path:
 def unit_curves(travel: np.ndarray, radius: float, height: float, shape=SHAPE, degree=DEGREE):
     """Forces [N] (> 0) at E = 1 kPa: (bonded 3D, sliding uniform), each (K,)."""
     model = cylinder_model(radius, height, 1.0, shape, degree)
-    labels = [f"{t:.3f} mm" for t in travel]
-    cases = load_cases(model, travel, -np.ones(len(travel)), labels)
-    space = ParameterSpace.create(("E",), {"E": 1.0}, {"E": (1e-3, 1e4)})
-    problem = InverseProblem(model, cases, space, noise_mm=1.0)
-    extended = ExtendedProblem(problem, [FrameLoad(label) for label in labels], [])
-    residual = extended.evaluate(np.array([1.0]))[0]  # r = F_model - F_target, F_target = -1
-    bonded = -(residual - 1.0)
-    return bonded, uniform_force(travel, height, radius, 1.0)
+    return plate_forces(model, travel), uniform_force(travel, height, radius, 1.0)
 
 
 @dataclass(frozen=True)

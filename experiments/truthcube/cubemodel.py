@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from experiments.data.paths import shared_data_dir
-from experiments.data.truthcube import CUBE_EDGE_MM, TruthCube, read_truth_cube
+from experiments.data.truthcube import CUBE_EDGE_MM, TruthCube, lattice_centre, read_truth_cube
 from solvers.inverse.problem import LoadCase
 from symbolic.constraints import BoundaryConditions
 from symbolic.continuum import box_volume
@@ -74,7 +74,7 @@ class CubeFrame:
     @classmethod
     def from_lattice(cls, rest: np.ndarray, edge: float = CUBE_EDGE_MM) -> CubeFrame:
         """The cube centred on the bead lattice's centre, base at the large-z end."""
-        centre = np.asarray(rest, dtype=float).mean(axis=0)
+        centre = lattice_centre(rest)
         return cls(np.array([centre[0], centre[1], centre[2] + 0.5 * edge]), float(edge))
 
     def to_model(self, points: np.ndarray) -> np.ndarray:
