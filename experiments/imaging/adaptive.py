@@ -293,9 +293,10 @@ def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
 
 def work(args) -> int:
     """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
-    from experiments.imaging.imagecommand import parse_field
+    from experiments.imaging.imageoptions import parse_field
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
+    out = check_output_dir(args.out)
     seeds = [check_seed(s) for s in parse_numbers(args.seeds, "--seeds", int)]
     if not seeds:
         raise UsageError("--seeds takes a comma list of seeds, e.g. 17,18")
@@ -303,7 +304,6 @@ def work(args) -> int:
         raise UsageError(f"--draws must be at least 0, got {args.draws}")
     grid = check_grid(parse_grid(args.grid), (3, 3, 2), args.grid)
     shape = parse_field(args.field, "surface")
-    out = check_output_dir(args.out)
     results = []
     for seed in seeds:
         results.append(

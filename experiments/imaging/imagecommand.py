@@ -8,56 +8,13 @@ Writes image.json, map.png, std.png and map.vtu (ParaView) into ``--out``
 
 from __future__ import annotations
 
-import math
-
 from experiments.command.options import Command
+from experiments.imaging.imageoptions import parse_field, parse_weight
 from experiments.imaging.mapping import REGULARIZERS
 from solvers.imaging.estimate import SOLVERS
 
-MAX_FIELD_SIZE = 2000
-"""Largest number of field coefficients ``dvs image`` accepts."""
-
 DEGREES = (3, 3, 1)
 """Degrees of ``--energy linear-elastic`` without ``--degrees`` (those of ``dvs fit``)."""
-
-
-def parse_field(text: str, over: str) -> tuple[int, ...]:
-    """'5x5' (surface) or '5x5x3' (layers, volume): nodes per direction, at least 2 along u, v."""
-    from experiments.command.options import UsageError
-
-    wanted = 2 if over == "surface" else 3
-    try:
-        shape = tuple(int(part) for part in text.lower().split("x"))
-    except ValueError:
-        shape = ()
-    least = (2, 2, 2 if over == "volume" else 1)
-    if len(shape) != wanted or any(n < m for n, m in zip(shape, least)):
-        example = "5x5" if wanted == 2 else "5x5x2"
-        raise UsageError(
-            f"--field must look like {example} for --over {over} "
-            f"(at least {'x'.join(map(str, least[:wanted]))} nodes), got {text!r}"
-        )
-    size = math.prod(shape)
-    if size > MAX_FIELD_SIZE:
-        raise UsageError(f"--field {text}: at most {MAX_FIELD_SIZE} coefficients, got {size}")
-    return shape
-
-
-def parse_weight(text: str) -> str | float:
-    """'morozov', 'gcv', 'lcurve' or a positive beta [mm^2]."""
-    from experiments.command.options import UsageError
-
-    if text in ("morozov", "gcv", "lcurve"):
-        return text
-    try:
-        beta = float(text)
-    except ValueError:
-        beta = float("nan")
-    if not beta > 0 or beta == float("inf"):
-        raise UsageError(
-            f"--weight must be morozov, gcv, lcurve or a positive number [mm^2], got {text!r}"
-        )
-    return beta
 
 
 def build_parser(prog: str = "python -m experiments.imaging.imagecommand"):
