@@ -149,8 +149,8 @@ def test_a_load_case_that_observes_nothing_is_refused(cube_arrays):
 
 
 def test_indentation_commands_refuse_a_plate_dataset(cube_file, recipe_folder, tmp_path, capsys):
-    """fit and image model a probe: they refuse the cube; diagnose refuses a plate
-    experiment it has no set-up for (the phantoms' curves), one line, nothing written."""
+    """fit and image model a probe: they refuse the cube; diagnose runs the phantoms'
+    own set-up and refuses model options for it, one line, nothing written."""
     path = tmp_path / "cube.npz"
     save_dataset(path, truth_cube_dataset(read_truth_cube(cube_file)))
     for command in ("fit", "image"):
@@ -159,8 +159,9 @@ def test_indentation_commands_refuse_a_plate_dataset(cube_file, recipe_folder, t
     recipe, tests = read_recipe(recipe_folder)
     curves = tmp_path / "curves.npz"
     save_dataset(curves, compression_dataset(recipe, tests))
-    err = _one_line(["diagnose", str(curves), "--out", str(tmp_path / "d")], capsys)
-    assert "plate load" in err and not (tmp_path / "d").exists()
+    argv = ["diagnose", str(curves), "--energy", "neo-hookean", "--out", str(tmp_path / "d")]
+    err = _one_line(argv, capsys)
+    assert "give only --out" in err and not (tmp_path / "d").exists()
 
 
 def test_a_cube_dataset_gives_back_its_beads(cube_file):

@@ -3,9 +3,14 @@ recovered from a synthetic twin, one recipe on real data, the full table (slow).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
+from experiments.command.options import UsageError
+from experiments.data.compression import compression_dataset, read_recipe
+from experiments.phantoms import phantomdiagnosis
 from experiments.phantoms.cylinder import uniform_force
 from experiments.phantoms.cylindercheck import reference_ratio, spline_ratio
 from experiments.phantoms.phantomstudy import (
@@ -75,6 +80,37 @@ def test_one_recipe_on_real_data_predicts_its_b_series_within_the_scatter(shared
         assert small[contact]["b_prediction_rms_n"] < 1.5 * small["b_scatter_n"]
 
 
+def test_diagnose_on_a_recipe_fits_the_a_series_and_predicts_the_b_series(
+    shared_data, tmp_path, monkeypatch
+):
+    """``dvs diagnose`` on imported curves (coarse 3D grids here): the base E under
+    uniform stress near the published E, bonded plates added only if they predict the
+    B series better, the files written; a dataset without a B series is refused."""
+
+    def coarse(travel, radius, height, shape=None, degree=None):
+        return unit_curves(travel, radius, height, (7, 7, 5) if shape is None else (6, 6, 4), 2)
+
+    monkeypatch.setattr(phantomdiagnosis, "unit_curves", coarse)
+    recipe, tests = read_recipe(shared_data / "phantom-compression" / "data" / "EF10_100T")
+    dataset = compression_dataset(recipe, tests, 8, 0.3)
+    document = phantomdiagnosis.diagnose_compression(dataset, tmp_path / "d", log=print)
+    assert document["schema"] == "dvs-diagnosis/1" and document["recipe"] == "EF10_100T"
+    assert set(document["selected"]) <= {"bonded_plates"}
+    named = document["windows"]["curve"]["named"]
+    assert (document["final_model"] == "bonded") == (named == "bonded")
+    if document["final_model"] == "sliding":
+        published = PUBLISHED_E_KPA["EF10_100T"][0]
+        assert document["young_kpa"] == pytest.approx(published, rel=0.15)
+    assert document["b_prediction_rms_n"] <= 2.0 * document["b_scatter_n"]
+    assert {"diagnosis.json", "phantom.json", "report.md"} <= {
+        p.name for p in (tmp_path / "d").iterdir()
+    }
+    only_a = compression_dataset(recipe, [t for t in tests if t.name.startswith("A")], 8, 0.3)
+    with pytest.raises(UsageError, match="A and non-A"):
+        phantomdiagnosis.diagnose_compression(only_a, tmp_path / "e")
+    assert not (tmp_path / "e").exists()
+
+
 @pytest.mark.slow
 def test_every_recipe(tmp_path):
     """The table of docs/experiments.md: every recipe's sliding E within 15 % of the
@@ -101,3 +137,25 @@ def test_a_scikit_fem_twin_with_bonded_plates_gives_back_e_and_the_sliding_bias(
     sliding = LinearFit.of(np.full(5, unit), measured)
     assert bonded.young_kpa == pytest.approx(planted, rel=0.015)
     assert sliding.young_kpa / planted == pytest.approx(1.39, rel=0.02)
+
+
+@pytest.mark.slow
+def test_dvs_import_then_diagnose_on_one_recipe(shared_data, tmp_path):
+    """The user's path on one recipe (the model's own grids; the time is printed, not
+    asserted): E under uniform stress within 15 % of the published E, or the bonded
+    model named; the B series predicted within 2 x its scatter."""
+    import time
+
+    from experiments.command.cli import main
+
+    folder = shared_data / "phantom-compression" / "data" / "EF30_25T"
+    data = tmp_path / "ef30.npz"
+    assert main(["import", "compression", str(folder), "--out", str(data)]) == 0
+    begin = time.perf_counter()
+    assert main(["diagnose", str(data), "--out", str(tmp_path / "d")]) == 0
+    print(f"dvs diagnose on EF30_25T: {time.perf_counter() - begin:.0f} s")
+    document = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    if document["final_model"] == "sliding":
+        published = PUBLISHED_E_KPA["EF30_25T"][0]
+        assert document["young_kpa"] == pytest.approx(published, rel=0.15)
+    assert document["b_prediction_rms_n"] <= 2.0 * document["b_scatter_n"]

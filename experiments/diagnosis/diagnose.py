@@ -99,6 +99,16 @@ def diagnose_dataset(dataset: Dataset, settings=None, log=None, grid=None, base=
     return diagnose(problem, loads, settings, log, refine=refine)
 
 
+def _only_out(settings, grid, base, check_refinement, what: str) -> None:
+    """Refuse model options on a measured experiment with its own set-up."""
+    from experiments.command.options import UsageError
+    from solvers.diagnosis.record import DiagnosisSettings
+
+    given = settings not in (None, DiagnosisSettings()) or grid is not None
+    if given or base != AUTO or not check_refinement:
+        raise UsageError(f"{what} runs its own set-up (docs/experiments.md); give only --out")
+
+
 def run(
     dataset_or_path,
     out: Path,
@@ -121,20 +131,27 @@ def run(
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
     if "bead_index" in dataset.extra:  # the Truth Cube: its own set-up (docs/experiments.md)
-        from experiments.command.options import UsageError
         from experiments.data.truthcube import cube_from_dataset
         from experiments.truthcube.cubestudy import run_study
-        from solvers.diagnosis.record import DiagnosisSettings
 
-        given = settings not in (None, DiagnosisSettings()) or grid is not None
-        if given or base != AUTO or not check_refinement:
-            raise UsageError(
-                "a Truth Cube dataset runs the cube's own set-up (docs/experiments.md); "
-                "give only --out"
-            )
+        _only_out(settings, grid, base, check_refinement, "a Truth Cube dataset")
 
         result = run_study(Path(out), cube=cube_from_dataset(dataset), log=log)
         return result["diagnosis"]
+    if dataset.kind == "extensometer":  # the skin extensometer: the real-skin study's set-up
+        from experiments.realskin.setup import RealSkinSettings
+        from experiments.realskin.skindataset import case_from_dataset
+        from experiments.realskin.skinfit import run_case
+
+        _only_out(settings, grid, base, check_refinement, "an extensometer dataset")
+        case = case_from_dataset(dataset)
+        return run_case(case.name, RealSkinSettings(), Path(out), log, case, Path(out))
+    if dataset.kind == "plate" and dataset.markers_rest is None:
+        # compression curves: the phantom study's models and rule (docs/experiments.md)
+        from experiments.phantoms.phantomdiagnosis import diagnose_compression
+
+        _only_out(settings, grid, base, check_refinement, "a compression dataset")
+        return diagnose_compression(dataset, Path(out), log=log)
     require_indentation(dataset, "dvs diagnose")
     if base == AUTO and grid is not None:
         base = base_settings(grid)

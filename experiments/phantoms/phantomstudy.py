@@ -115,50 +115,88 @@ def named_contact(held: np.ndarray, entry: dict, unit: tuple) -> str:
     return "bonded" if difference.mean() > 0 else "sliding"
 
 
+def window_entry(
+    travel: np.ndarray,
+    force: np.ndarray,
+    series_a: np.ndarray,
+    noise_n: float,
+    unit: tuple,
+    check: tuple | None = None,
+) -> dict:
+    """One window of one recipe: E of both contact models fitted to the A series, their
+    prediction of the B series, and the contact named.
+
+    Parameters
+    ----------
+    travel : (K,) ndarray
+        The plate's compression at the samples [mm].
+    force : (S, K) ndarray
+        Every test's compressive force at those samples [N] (> 0).
+    series_a : (S,) bool ndarray
+        The tests fitted (the A series); the others are predicted.
+    noise_n : float
+        The load cell's noise in one sample [N] (``force_noise_n``).
+    unit : (bonded, sliding)
+        The models' forces at E = 1 kPa at ``travel`` [N].
+    check : (bonded, sliding), optional
+        The same on the second discretisation (``CHECK_SHAPE``): a contact is named only
+        if both name it.
+    """
+    mean_a = force[series_a].mean(axis=0)
+    scatter = float(np.sqrt(np.mean((force[~series_a] - mean_a) ** 2)))
+    entry = {"travel_mm": travel.tolist(), "b_scatter_n": scatter}
+    for contact, curve in zip(("bonded", "sliding"), unit):
+        fitted = LinearFit.of(np.tile(curve, series_a.sum()), force[series_a].ravel())
+        error = force[~series_a] - fitted.young_kpa * curve
+        each = [LinearFit.of(curve, f).young_kpa for f in force[series_a]]
+        entry[contact] = {
+            "E_kPa": fitted.young_kpa,
+            "E_std_kPa": float(np.std(each, ddof=1) / np.sqrt(len(each))),
+            "E_residual_std_kPa": fitted.std_kpa,
+            "E_specimen_spread_kPa": float(np.std(each, ddof=1)),
+            "fit_rms_n": fitted.rms_n,
+            "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
+        }
+    entry["named"] = named_contact(force[~series_a], entry, unit)
+    if check is not None:  # the same choice on the second discretisation, or neither
+        second = {}
+        for contact, curve in zip(("bonded", "sliding"), check):
+            young = LinearFit.of(np.tile(curve, series_a.sum()), force[series_a].ravel())
+            second[contact] = {"E_kPa": young.young_kpa}
+        entry["named_check"] = named_contact(force[~series_a], second, check)
+        if entry["named_check"] != entry["named"]:
+            entry["named"] = "neither"
+    gain = abs(entry["bonded"]["b_prediction_rms_n"] - entry["sliding"]["b_prediction_rms_n"])
+    entry["force_noise_n"] = float(noise_n)
+    if gain < noise_n:  # below what the load cell resolves in one sample
+        entry["named"] = "neither"
+    return entry
+
+
+def published_row(recipe: str, folder: Path) -> dict:
+    """The published E and AIC-best form of a recipe (``hyperelastic_parameters.json`` in
+    ``folder``; the E table ``PUBLISHED_E_KPA``); None where the recipe is not listed."""
+    path = folder / "hyperelastic_parameters.json"
+    published = json.loads(path.read_text())["engineering"].get(recipe, {}) if path.exists() else {}
+    best = min(published, key=lambda k: published[k]["AIC"]) if published else None
+    return {"recipe": recipe, "published_E_kPa": PUBLISHED_E_KPA.get(recipe), "aic_best": best}
+
+
 def recipe_row(folder: Path, curves: dict, windows=None, checks=None) -> dict:
     """The fits and predictions of one recipe (every window of ``windows``, default
     ``WINDOWS``, whose unit-E curves ``curves`` holds; both contact models). ``checks``:
     the unit-E curves of the second discretisation (``CHECK_SHAPE``) by window."""
     checks = checks or {}
     recipe, tests = read_recipe(folder)
-    json_path = folder.parent / "hyperelastic_parameters.json"
-    published = json.loads(json_path.read_text())["engineering"].get(recipe, {})
-    best = min(published, key=lambda k: published[k]["AIC"]) if published else None
-    row = {"recipe": recipe, "published_E_kPa": PUBLISHED_E_KPA.get(recipe), "aic_best": best}
+    row = published_row(recipe, folder.parent)
+    series_a = np.array([t.name.startswith("A") for t in tests])
     for window, (strain, samples) in (windows or WINDOWS).items():
         data = compression_dataset(recipe, tests, samples, strain)
         travel = -data.plate_motion[:samples, 2]
         force = -data.forces[:, 2].reshape(len(tests), samples)
-        series_a = np.array([t.name.startswith("A") for t in tests])
-        mean_a = force[series_a].mean(axis=0)
-        scatter = float(np.sqrt(np.mean((force[~series_a] - mean_a) ** 2)))
-        entry = {"travel_mm": travel.tolist(), "b_scatter_n": scatter}
-        for contact, unit in zip(("bonded", "sliding"), curves[window]):
-            fitted = LinearFit.of(np.tile(unit, series_a.sum()), force[series_a].ravel())
-            error = force[~series_a] - fitted.young_kpa * unit
-            each = [LinearFit.of(unit, f).young_kpa for f in force[series_a]]
-            entry[contact] = {
-                "E_kPa": fitted.young_kpa,
-                "E_std_kPa": float(np.std(each, ddof=1) / np.sqrt(len(each))),
-                "E_residual_std_kPa": fitted.std_kpa,
-                "E_specimen_spread_kPa": float(np.std(each, ddof=1)),
-                "fit_rms_n": fitted.rms_n,
-                "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
-            }
-        entry["named"] = named_contact(force[~series_a], entry, curves[window])
-        if window in checks:  # the same choice on the second discretisation, or neither
-            check = {}
-            for contact, unit in zip(("bonded", "sliding"), checks[window]):
-                young = LinearFit.of(np.tile(unit, series_a.sum()), force[series_a].ravel())
-                check[contact] = {"E_kPa": young.young_kpa}
-            entry["named_check"] = named_contact(force[~series_a], check, checks[window])
-            if entry["named_check"] != entry["named"]:
-                entry["named"] = "neither"
-        gain = abs(entry["bonded"]["b_prediction_rms_n"] - entry["sliding"]["b_prediction_rms_n"])
-        entry["force_noise_n"] = float(data.force_noise_n)
-        if gain < data.force_noise_n:  # below what the load cell resolves in one sample
-            entry["named"] = "neither"
-        row[window] = entry
+        row[window] = window_entry(
+            travel, force, series_a, data.force_noise_n, curves[window], checks.get(window)
+        )
     return row
 
 

@@ -1,0 +1,226 @@
+"""``dvs diagnose`` on one recipe's compression curves (a ``dvs import compression``
+dataset): the phantom study's models and rule on the dataset's own samples.
+
+The base model is the published fits' assumption: sliding plates, uniform uniaxial
+stress. The one candidate effect is the plates' hold on the ends, **bonded plates**
+(the cylinder barrels: the 3D volume spline). Both are fitted to the A series
+(E by linear least squares over unit-E curves, ``experiments.phantoms.phantomstudy``)
+and predict the B series; bonded plates are added only if they predict the B series
+better than chance, on both discretisations, by more than the load cell's noise
+(docs/experiments.md, "Silicone phantoms"). Writes ``diagnosis.json`` (docs/formats.md,
+"diagnosis.json of a compression dataset"), ``phantom.json`` (the study's row) and
+``report.md``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from experiments.command.options import UsageError
+from experiments.data.dataset import Dataset
+from experiments.output.atomic import atomic_write_json, atomic_write_text
+from experiments.phantoms.phantomstudy import (
+    CHECK_DEGREE,
+    CHECK_SHAPE,
+    WINDOWS,
+    data_folder,
+    published_row,
+    table,
+    unit_curves,
+    window_entry,
+)
+
+EFFECT = "bonded_plates"
+"""The candidate's name: the plates hold the ends (no slip), so the cylinder barrels."""
+
+
+def is_compression(dataset: Dataset) -> bool:
+    """A plate pressing specimens whose force is measured (``dvs import compression``),
+    with no markers inside."""
+    return (
+        dataset.plate_motion is not None
+        and dataset.markers_rest is None
+        and dataset.specimen is not None
+    )
+
+
+def curves_of(dataset: Dataset) -> dict:
+    """The dataset's curves as arrays.
+
+    Returns
+    -------
+    dict
+        ``recipe``, ``radius_mm``, ``height_mm``, ``travel_mm`` (K,), ``force_n`` (S, K)
+        (compressive > 0), ``series_a`` (S,) bool, ``names`` (S,), ``noise_n``.
+
+    Raises
+    ------
+    UsageError
+        When the specimens were not sampled at the same travels, a force is missing, or
+        there is no A or no B series to fit and predict.
+    """
+    specimen = np.asarray(dataset.specimen)
+    count = int(specimen.max()) + 1
+    travel = -np.asarray(dataset.plate_motion)[specimen == 0, 2]
+    force = np.full((count, len(travel)), np.nan)
+    for number in range(count):
+        mine = specimen == number
+        if not np.allclose(-np.asarray(dataset.plate_motion)[mine, 2], travel):
+            raise UsageError("every specimen must be sampled at the same plate travels")
+        force[number] = -np.asarray(dataset.forces)[mine, 2]
+    if not np.isfinite(force).all():
+        raise UsageError("a compression dataset needs every plate force measured (no NaN)")
+    names = [str(n) for n in dataset.extra.get("specimen_names", [])]
+    series_a = np.array([n.startswith("A") for n in names], dtype=bool)
+    if len(names) != count or series_a.all() or not series_a.any():
+        raise UsageError(
+            "dvs diagnose fits the A series and predicts the others: the dataset needs "
+            "specimen_names with A and non-A specimens (dvs import compression writes them)"
+        )
+    source = str(dataset.extra.get("source", "compression"))
+    rest = np.asarray(dataset.outer_rest)
+    centre = rest.reshape(-1, 3).mean(axis=0)
+    radius = float(np.max(np.hypot(rest[..., 0] - centre[0], rest[..., 1] - centre[1])))
+    height = float(rest[..., 2].mean() - np.asarray(dataset.inner_rest)[..., 2].mean())
+    return {
+        "recipe": source.split()[-1],
+        "radius_mm": radius,
+        "height_mm": height,
+        "travel_mm": travel,
+        "force_n": force,
+        "series_a": series_a,
+        "names": names,
+        "noise_n": float(dataset.force_noise_n or 0.0),
+    }
+
+
+def window_samples(travel: np.ndarray, height: float) -> dict:
+    """Window name -> the samples within its compression (``WINDOWS``), at least two."""
+    chosen = {}
+    for window, (strain, _) in WINDOWS.items():
+        inside = np.flatnonzero(travel <= strain * height * (1.0 + 1e-9))
+        if len(inside) < 2:
+            raise UsageError(
+                f"the curves have {len(inside)} sample(s) within {strain:.0%} compression, "
+                "the window of the E fit needs 2: import with more --samples or a "
+                "smaller --strain"
+            )
+        chosen[window] = inside
+    return chosen
+
+
+def diagnosis_document(row: dict, curves: dict, seconds: float) -> dict:
+    """diagnosis.json: the base (sliding), the candidate (bonded), the verdict per window;
+    the final model is the one the largest window names."""
+    final_window = list(WINDOWS)[-1]
+    entry = row[final_window]
+    named = entry["named"]
+    final = "bonded" if named == "bonded" else "sliding"
+    prediction = entry[final]["b_prediction_rms_n"]
+    steps = [
+        {"model": "sliding plates (uniform stress)", **entry["sliding"]},
+    ]
+    rejected = []
+    if named == "bonded":
+        steps.append({"model": "bonded plates (3D volume spline)", **entry["bonded"]})
+    else:
+        reason = (
+            "sliding plates predict the B series better"
+            if named == "sliding"
+            else "does not predict the B series better than chance, on both "
+            "discretisations, by more than the load cell's noise"
+        )
+        rejected.append({"effect": EFFECT, "reason": reason, "stand_in": False})
+    return {
+        "schema": "dvs-diagnosis/1",
+        "experiment": "compression",
+        "recipe": row["recipe"],
+        "success": True,
+        "observations": {
+            "specimens": curves["names"],
+            "fitted": [n for n, a in zip(curves["names"], curves["series_a"]) if a],
+            "predicted": [n for n, a in zip(curves["names"], curves["series_a"]) if not a],
+            "travel_mm": curves["travel_mm"].tolist(),
+            "force_noise_n": curves["noise_n"],
+            "radius_mm": curves["radius_mm"],
+            "height_mm": curves["height_mm"],
+        },
+        "windows": {w: row[w] for w in WINDOWS},
+        "steps": steps,
+        "selected": [EFFECT] if named == "bonded" else [],
+        "rejected": rejected,
+        "final_model": final,
+        "young_kpa": row[list(WINDOWS)[0]][final]["E_kPa"],
+        "young_std_kpa": row[list(WINDOWS)[0]][final]["E_std_kPa"],
+        "published_E_kPa": row["published_E_kPa"],
+        "aic_best": row["aic_best"],
+        "rms_before_n": entry["sliding"]["fit_rms_n"],
+        "rms_after_n": entry[final]["fit_rms_n"],
+        "b_prediction_rms_n": prediction,
+        "b_scatter_n": entry["b_scatter_n"],
+        "model_error_n": float(np.sqrt(max(prediction**2 - entry["b_scatter_n"] ** 2, 0.0))),
+        "unexplained": bool(prediction > entry["b_scatter_n"]),
+        "wall_time_s": seconds,
+    }
+
+
+def diagnose_compression(dataset: Dataset, out: Path, log=print) -> dict:
+    """Fit the A series with both contact models, predict the B series, name the contact;
+    write diagnosis.json, phantom.json and report.md into ``out``.
+
+    Returns
+    -------
+    dict
+        The diagnosis.json document.
+    """
+    begin = time.perf_counter()
+    curves = curves_of(dataset)
+    travel, height = curves["travel_mm"], curves["height_mm"]
+    chosen = window_samples(travel, height)
+    widest = np.unique(np.concatenate(list(chosen.values())))
+    log(
+        f"{curves['recipe']}: {len(curves['names'])} specimens x {len(travel)} samples; "
+        f"unit-E curves at {len(widest)} travels to {travel[widest].max():.3g} mm"
+    )
+    unit = unit_curves(travel[widest], curves["radius_mm"], height)
+    check = unit_curves(travel[widest], curves["radius_mm"], height, CHECK_SHAPE, CHECK_DEGREE)
+    row = published_row(curves["recipe"], data_folder())  # AIC-best: None without the data
+    for window, samples in chosen.items():
+        where = np.searchsorted(widest, samples)
+        row[window] = window_entry(
+            travel[samples],
+            curves["force_n"][:, samples],
+            curves["series_a"],
+            curves["noise_n"],
+            tuple(c[where] for c in unit),
+            tuple(c[where] for c in check),
+        )
+        log(f"  {window}: named {row[window]['named']}")
+    document = diagnosis_document(row, curves, time.perf_counter() - begin)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "phantom.json", row)
+    atomic_write_json(out / "diagnosis.json", document)
+    atomic_write_text(out / "report.md", report(document, row))
+    return document
+
+
+def report(document: dict, row: dict) -> str:
+    """report.md: the verdict in one paragraph and the study's table row."""
+    published = document["published_E_kPa"]
+    against = f" (published {published[0]:.1f} +- {published[1]:.1f} kPa)" if published else ""
+    lines = [
+        f"# {document['recipe']}: compression of the A series, B series predicted",
+        "",
+        f"Final model: {document['final_model']} plates; E = {document['young_kpa']:.1f} +- "
+        f"{document['young_std_kpa']:.1f} kPa at small strain{against}.",
+        f"B series predicted with RMS {document['b_prediction_rms_n']:.3f} N against the "
+        f"A/B scatter {document['b_scatter_n']:.3f} N "
+        f"({'beyond' if document['unexplained'] else 'within'} it).",
+        "",
+        table([row]),
+    ]
+    return "\n".join(lines)
