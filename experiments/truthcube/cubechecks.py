@@ -31,8 +31,14 @@ FEM_CELLS = (6, 10)
 """Hexahedral cells per edge of the scikit-fem meshes (each cut into tetrahedra)."""
 
 
+FEM_CONTACTS = ("bonded", "frictionless")
+"""The plate contacts of ``FemCube``: every displacement component of the top face
+prescribed (bonded), or its vertical one alone (frictionless: the face slides freely)."""
+
+
 class FemCube:
-    """The cube by scikit-fem P2 tetrahedra: linear elasticity, bonded base and plate.
+    """The cube by scikit-fem P2 tetrahedra: linear elasticity, bonded base, and a plate
+    bonded to the top face or sliding on it without friction.
 
     Parameters
     ----------
@@ -42,9 +48,14 @@ class FemCube:
         Poisson's ratio [1] (E is irrelevant for the displacements; 1 kPa).
     edge : float
         The cube's edge [mm]; model frame: base z = 0, plate z = edge.
+    contact : {"bonded", "frictionless"}
+        The plate's contact (``FEM_CONTACTS``): with "frictionless" only the vertical
+        displacement of the top face is prescribed, its lateral traction is zero.
     """
 
-    def __init__(self, cells: int, nu: float, edge: float = 80.0):
+    def __init__(self, cells: int, nu: float, edge: float = 80.0, contact: str = "bonded"):
+        if contact not in FEM_CONTACTS:
+            raise ValueError(f"contact must be one of {FEM_CONTACTS}, got {contact!r}")
         skfem = require_skfem()
         from skfem.helpers import ddot, div, sym_grad
 
@@ -62,18 +73,22 @@ class FemCube:
             return 2.0 * mu_l * ddot(sym_grad(u), sym_grad(v)) + lam * div(u) * div(v)
 
         self.matrix = elasticity.assemble(self.basis).tocsr()
-        dofs = self.basis.get_dofs(lambda x: np.isclose(x[2], 0.0) | np.isclose(x[2], edge))
-        self.boundary = dofs.all()
-        self.plate = self.basis.get_dofs(lambda x: np.isclose(x[2], edge))
-        self.free = self.basis.complement_dofs(dofs)
+        base = self.basis.get_dofs(lambda x: np.isclose(x[2], 0.0)).all()
+        top = self.basis.get_dofs(lambda x: np.isclose(x[2], edge))
+        self.components = (0, 1, 2) if contact == "bonded" else (2,)
+        """The plate's prescribed displacement components."""
+        self.plate = {c: top.all(f"u^{c + 1}") for c in self.components}
+        self.boundary = np.unique(np.concatenate([base, *self.plate.values()]))
+        self.free = np.setdiff1d(np.arange(self.basis.N), self.boundary)
         block = self.matrix[self.free][:, self.free].tocsc()
         self.factor = factorised(block, symmetric_lu)
 
     def displacement(self, translation) -> np.ndarray:
-        """Nodal displacements [mm] with the plate moved by ``translation`` (3,) [mm]."""
+        """Nodal displacements [mm] with the plate moved by ``translation`` (3,) [mm]
+        (a frictionless plate: its vertical component alone)."""
         solution = np.zeros(self.basis.N)
-        for c, name in enumerate(("u^1", "u^2", "u^3")):
-            solution[self.plate.all(name)] = translation[c]  # vertex and edge dofs
+        for c, dofs in self.plate.items():
+            solution[dofs] = translation[c]  # vertex and edge dofs
         rhs = -(self.matrix @ solution)[self.free]
         solution[self.free] = self.factor.solve(rhs)
         return solution

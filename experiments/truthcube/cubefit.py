@@ -162,6 +162,7 @@ def fit_cube(
     nu0: float = 0.45,
     translations0: np.ndarray | None = None,
     fixed_nu: float | None = None,
+    beads: np.ndarray | None = None,
 ) -> CubeFit:
     """Fit nu and the plate translations of ``states`` to the beads (module docstring).
 
@@ -178,6 +179,9 @@ def fit_cube(
         travel along -z.
     fixed_nu : float, optional
         Hold nu at this value and fit the translations alone (a held-out state).
+    beads : numpy.ndarray, optional
+        (N,) bool: fit these beads alone (default every located bead); ``errors`` and
+        ``rms_mm`` are then theirs.
     """
     data = solver.data
     states = list(range(data.loaded.shape[0]) if states is None else states)
@@ -188,7 +192,8 @@ def fit_cube(
     if translations0.shape[1] < width:
         translations0 = np.column_stack([translations0, np.zeros(len(translations0))])
     translations0 = translations0[:, :width]
-    seen = [np.all(np.isfinite(data.loaded[k]), axis=1) for k in states]
+    chosen = np.ones(data.rest.shape[0], bool) if beads is None else np.asarray(beads, bool)
+    seen = [np.all(np.isfinite(data.loaded[k]), axis=1) & chosen for k in states]
     free_nu = fixed_nu is None
     cache: dict = {}
 

@@ -91,6 +91,9 @@ def report_text(result: dict) -> str:
             continue
         name = f"{fit['energy']}, {fit['contact']}"
         lines.append(_row([f"{name}, plate fitted", *_mm(f["rms_plate_fitted_mm"] for f in folds)]))
+        if folds[0].get("rms_plate_split_mm") is not None:
+            halves = _mm(f["rms_plate_split_mm"] for f in folds)
+            lines.append(_row([f"{name}, plate from the other half", *halves]))
         lines.append(
             _row(
                 [f"{name}, plate extrapolated", *_mm(f["rms_plate_extrapolated_mm"] for f in folds)]
@@ -98,6 +101,12 @@ def report_text(result: dict) -> str:
         )
         lines.append(_row([f"{name}, nu of the fold", *[f"{f['nu']:.4f}" for f in folds]]))
     lines.append(_row(["loop's final model", *_mm(loop["final_left_out_rms_mm"])]))
+    if "contact" in result:
+        lines += ["", "## The plate's contact, decided out of sample", ""]
+        lines += contact_lines(result["contact"], states)
+    if "twins" in result:
+        lines += ["", "## Synthetic twins (scikit-fem P2, planted nu and contact)", ""]
+        lines += twin_lines(result["twins"])
     if "fem_comparison" in result:
         lines += [
             "",
@@ -138,3 +147,65 @@ def report_text(result: dict) -> str:
                 )
             )
     return "\n".join(lines) + "\n"
+
+
+def contact_lines(decision: dict, states: list) -> list[str]:
+    """The contact decision: left-out RMS per contact and state, z, the contact named."""
+    lines = [
+        _row(["contact", *[f"{s} held out [mm]" for s in states], "all [mm]"]),
+        _row(["---"] * (2 + len(states))),
+    ]
+    for contact, rms in decision["left_out_rms"].items():
+        lines.append(_row([contact, *_mm(rms["states_mm"]), f"{rms['all_mm']:.3f}"]))
+    verdict = "beyond chance" if decision["distinguished"] else "within chance"
+    lines += [
+        "",
+        f"{decision['energy']} energy, plate from the other half of the held state's beads; "
+        f"bonded - slip squared distance {decision['difference_mm2']:.4f} +- "
+        f"{decision['difference_se_mm2']:.4f} mm^2 over {decision['beads']} beads, "
+        f"z = {decision['z']:.2f} ({verdict}): **{decision['named']}** named.",
+    ]
+    return lines
+
+
+def twin_lines(twins: list) -> list[str]:
+    """Per twin: the contact planted and named, nu +- SE of both contacts, left-out RMS
+    of both, the named contact's nu on the noise-free twin."""
+    lines = [
+        _row(
+            [
+                "planted",
+                "named",
+                "z",
+                "nu planted",
+                "nu bonded",
+                "nu slip",
+                "left-out bonded [mm]",
+                "left-out slip [mm]",
+                "nu noise-free (named)",
+            ]
+        ),
+        _row(["---"] * 9),
+    ]
+    for twin in twins:
+        decision, fits = twin["decision"], twin["fits"]
+        lines.append(
+            _row(
+                [
+                    twin["planted"],
+                    decision["named"],
+                    f"{decision['z']:.2f}",
+                    f"{twin['nu_planted']:.3f}",
+                    *[f"{fits[c]['nu']:.4f} +- {fits[c]['nu_se']:.4f}" for c in ("bonded", "slip")],
+                    *[f"{decision['left_out_rms'][c]['all_mm']:.3f}" for c in ("bonded", "slip")],
+                    f"{twin['nu_noise_free']:.4f}",
+                ]
+            )
+        )
+    noise = ", ".join(f"{v:.3f}" for v in twins[0]["noise_mm"])
+    lines += [
+        "",
+        f"Noise per component ({noise}) mm on rest and loaded beads; FE mesh "
+        f"{twins[0]['cells']}^3 cells; {twins[0]['energy']} energy.",
+    ]
+    return lines

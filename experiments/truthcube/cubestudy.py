@@ -12,14 +12,22 @@ control points, cubic; ``cubechecks`` gives the reasons):
 
 1. the fit of nu and the plate to all three states (``cubefit``), for a bonded plate
    (translation t per state) and a slipping one (t and the face's lateral stretch b);
-2. for the slipping plate, leave one state out: nu and the other states' plates fitted
-   to two states, the third predicted twice, with its plate fitted to its own beads
-   (four numbers) and with its plate extrapolated from the two fitted ones
-   (proportional to the nominal travel): the second is the prediction of the 18.25 %
-   state from the others;
+2. leave one state out: nu and the other states' plates fitted to two states, the third
+   predicted three times: with its plate fitted to its own beads, with its plate fitted
+   to one half of its beads predicting the other half (``bead_halves``, both ways round:
+   every bead predicted once, by a plate it did not fit), and with its plate
+   extrapolated from the two fitted ones (proportional to the nominal travel). With the
+   linear energy both contacts are left out, and the contact is **decided out of
+   sample** (``cubefolds.decide_contact``): over every held-out bead of the three
+   folds, the mean paired difference bonded - slip of the split prediction's squared
+   distance over its standard error, z; slip is named when z > ``cubefolds.DECISION_Z``,
+   else the bonded plate (fewer parameters; also when it predicts better). The
+   neo-Hookean energy fits both contacts and leaves out the named one;
 3. the loop (``cubeloop``) on the linear base (``--loop-energy neo-hookean``: the
-   neo-Hookean one) with the slipping plate's fitted d, and its final model's left-out
+   neo-Hookean one) with the named contact's fitted d, and its final model's left-out
    predictions.
+
+``--twins`` adds the same decision on the scikit-fem twins of ``cubetwin``.
 """
 
 from __future__ import annotations
@@ -32,13 +40,7 @@ import numpy as np
 
 from experiments.command.options import Command, check_output_dir, make_parser
 from experiments.output.atomic import atomic_write_json, atomic_write_text
-from experiments.truthcube.cubefit import (
-    CubeSolver,
-    extrapolated_translation,
-    fit_cube,
-    layer_bulge,
-    predict_state,
-)
+from experiments.truthcube.cubefolds import CONTACTS, contact_study, energy_study
 from experiments.truthcube.cubeloop import final_left_out, run_loop, step_table
 from experiments.truthcube.cubemodel import (
     CubeData,
@@ -66,68 +68,9 @@ def noise_record(cube) -> dict:
     }
 
 
-CONTACTS = {"bonded": False, "slip": True}
-"""The plate's contact: bonded (the face moves with the plate) or slipping (the face also
-stretches laterally by b, ``cubemodel.plate_displacement``)."""
-
-
-def leave_one_out(solver: CubeSolver, full, data: CubeData, name: str, log=print) -> list[dict]:
-    """Each state predicted from the other two (module docstring, 2)."""
-    folds = []
-    states = list(range(data.loaded.shape[0]))
-    for held in states:
-        train = [k for k in states if k != held]
-        fitted = fit_cube(solver, train, full.nu, full.translations)
-        plate = fit_cube(solver, [held], translations0=full.translations, fixed_nu=fitted.nu)
-        guessed = extrapolated_translation(fitted, data.nominal_travel, held)
-        _, extrapolated = predict_state(solver, fitted.nu, guessed, held)
-        folds.append(
-            {
-                "held_out": data.labels[held],
-                "nu": fitted.nu,
-                "nu_se": fitted.nu_se,
-                "rms_plate_fitted_mm": plate.rms_mm[0],
-                "rms_plate_extrapolated_mm": extrapolated,
-                "plate_fitted": plate.translations[0].tolist(),
-                "plate_extrapolated": guessed.tolist(),
-            }
-        )
-        log(
-            f"  {name}, {data.labels[held]} left out: nu {fitted.nu:.4f}, RMS "
-            f"{plate.rms_mm[0]:.3f} mm (plate fitted), {extrapolated:.3f} mm (extrapolated)"
-        )
-    return folds
-
-
-def energy_study(
-    settings: CubeSettings, energy: str, contact: str, data: CubeData, folds=True, log=print
-) -> dict:
-    """Fit all states with one energy and plate contact, and (``folds``) leave each state
-    out (module docstring, 1-2)."""
-    begin = time.perf_counter()
-    solver = CubeSolver(cube_model(settings, energy), data, slip=CONTACTS[contact])
-    full = fit_cube(solver, nu0=0.49)
-    name = f"{energy}, {contact}"
-    log(f"{name}: nu {full.nu:.4f} +- {full.nu_se:.4f}, RMS {np.round(full.rms_mm, 3)} mm")
-    last = data.loaded.shape[0] - 1
-    seen = np.all(np.isfinite(data.loaded[last]), axis=1)
-    layer = np.round(data.params[:, 2] * 8).astype(int)  # bead layers 1..7 from the base
-    model_positions = data.loaded[last][seen] + full.errors[-1]
-    return {
-        "energy": energy,
-        "contact": contact,
-        "nu": full.nu,
-        "nu_se": full.nu_se,
-        "rms_mm": full.rms_mm,
-        "plate": full.translations.tolist(),
-        "plate_se": full.translation_se.tolist(),
-        "bulge_measured": layer_bulge(
-            data.rest[seen], data.loaded[last][seen], layer[seen]
-        ).tolist(),
-        "bulge_model": layer_bulge(data.rest[seen], model_positions, layer[seen]).tolist(),
-        "leave_one_out": leave_one_out(solver, full, data, name, log) if folds else None,
-        "seconds": time.perf_counter() - begin,
-    }
+DECISION_ENERGY = "linear"
+"""The energy whose left-out predictions name the plate's contact (``contact_study``;
+the other energy's folds would break the two-minute budget)."""
 
 
 def loop_study(settings: CubeSettings, data: CubeData, base: dict, log=print):
@@ -156,12 +99,14 @@ def run_study(
     loop_energy: str = "linear",
     log=print,
     cube=None,
+    twins: bool = False,
 ):
     """The whole study (module docstring); writes its files when ``out`` is given.
     ``cube`` is the ``TruthCube`` to study (default: the shared data's bead file).
 
     ``loop_energy`` is the loop's base: "linear" (the default, within the two-minute
-    budget) or "neo-hookean" (its loop alone took 107 s)."""
+    budget) or "neo-hookean" (its loop alone took 107 s). ``twins`` adds the contact
+    decision on the synthetic twins (``experiments.truthcube.cubetwin``, about 40 s)."""
     begin = time.perf_counter()
     settings = settings or CubeSettings((7, 7, 7), 3, 12)
     cube = load_truth_cube() if cube is None else cube
@@ -174,12 +119,19 @@ def run_study(
         "states": data.labels,
     }
     with one_thread():
-        # the bonded plate's fits show the contact; the slipping plate, which the data
-        # prefer, is left out state by state and is the loop's base
-        fits = [energy_study(settings, e, "bonded", data, False, log) for e in ENERGIES]
-        fits += [energy_study(settings, e, "slip", data, True, log) for e in ENERGIES]
+        # both contacts left out state by state with the linear energy name the contact;
+        # the neo-Hookean energy fits both and leaves out the named one (the budget)
+        fits, decision = contact_study(settings, DECISION_ENERGY, data, log)
+        for energy in ENERGIES:
+            if energy != DECISION_ENERGY:
+                for contact in CONTACTS:
+                    folds = contact == decision["named"]
+                    fits.append(energy_study(settings, energy, contact, data, folds, log))
+                    fits[-1].pop("squared")
         result["fits"] = fits
-        base = next(f for f in fits[2:] if f["energy"] == loop_energy)
+        result["contact"] = decision
+        named = decision["named"]
+        base = next(f for f in fits if f["energy"] == loop_energy and f["contact"] == named)
         result["loop"], diagnosis = loop_study(settings, data, base, log)
         result["seconds"] = time.perf_counter() - begin
         if checks:
@@ -189,6 +141,12 @@ def run_study(
             result["fem_comparison"] = fem_comparison(data, log)
             result["grid_study"] = grid_study(data, log=log)
             result["checks_seconds"] = time.perf_counter() - started
+        if twins:
+            from experiments.truthcube.cubetwin import twin_study
+
+            started = time.perf_counter()
+            result["twins"] = twin_study(cube, settings, log=log)
+            result["twins_seconds"] = time.perf_counter() - started
     if out is not None:
         from experiments.truthcube.cubereport import report_text
 
@@ -215,6 +173,11 @@ def build_parser(prog: str = "python -m experiments.truthcube"):
     parser.add_argument(
         "--checks", action="store_true", help="also the scikit-fem comparison and nu by grid"
     )
+    parser.add_argument(
+        "--twins",
+        action="store_true",
+        help="also the contact decision on the scikit-fem twins (bonded, frictionless plate)",
+    )
     return parser
 
 
@@ -224,6 +187,7 @@ def work(args) -> int:
     run_study(
         args.out,
         checks=args.checks,
+        twins=args.twins,
         loop_energy=args.loop_energy,
         log=lambda line: print(line, flush=True),
     )
