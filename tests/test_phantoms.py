@@ -16,6 +16,7 @@ from experiments.phantoms.cylindercheck import reference_ratio, spline_ratio
 from experiments.phantoms.phantomstudy import (
     PUBLISHED_E_KPA,
     LinearFit,
+    energy_entry,
     named_contact,
     recipe_row,
     run,
@@ -97,8 +98,9 @@ def test_diagnose_on_a_recipe_fits_the_a_series_and_predicts_the_b_series(
     assert document["schema"] == "dvs-diagnosis/1" and document["recipe"] == "EF10_100T"
     assert set(document["selected"]) <= {"bonded_plates"}
     named = document["windows"]["curve"]["named"]
-    assert (document["final_model"] == "bonded") == (named == "bonded")
-    if document["final_model"] == "sliding":
+    contact = document["final_model"].split(" + ")[0]
+    assert contact == ("bonded" if named == "bonded" else "sliding")
+    if contact == "sliding":
         published = PUBLISHED_E_KPA["EF10_100T"][0]
         assert document["young_kpa"] == pytest.approx(published, rel=0.15)
     assert document["b_prediction_rms_n"] <= 2.0 * document["b_scatter_n"]
@@ -155,7 +157,85 @@ def test_dvs_import_then_diagnose_on_one_recipe(shared_data, tmp_path):
     assert main(["diagnose", str(data), "--out", str(tmp_path / "d")]) == 0
     print(f"dvs diagnose on EF30_25T: {time.perf_counter() - begin:.0f} s")
     document = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
-    if document["final_model"] == "sliding":
+    if document["final_model"].startswith("sliding"):
         published = PUBLISHED_E_KPA["EF30_25T"][0]
         assert document["young_kpa"] == pytest.approx(published, rel=0.15)
     assert document["b_prediction_rms_n"] <= 2.0 * document["b_scatter_n"]
+
+
+@pytest.mark.parametrize("keyword, ratio", [("yeoh", -0.02), ("stiffening", 0.3)])
+def test_the_uniform_force_is_the_derivative_of_the_energy_at_free_lateral_stretch(keyword, ratio):
+    """-F / (pi r^2) = dw / dlambda, w(lambda) = min over a of W(diag(a, a, lambda)) with
+    W of eq. (C6) plus eq. (C10)'s or Yeoh's term, by central differences of a numerical
+    minimum (not the stress the code writes)."""
+    from scipy.optimize import minimize_scalar
+
+    from symbolic.continuum import lame
+
+    young, nu, height, radius = 10.0, 0.49, 30.0, 25.0
+    mu, lam = lame(young, nu)
+    scale = 2.0 * (1.0 + nu) * mu * ratio  # k1 or c2 [N/mm^2]
+
+    def energy(a, stretch):
+        jacobian = a * a * stretch
+        invariant = 2.0 * a * a + stretch * stretch
+        s = jacobian ** (-2.0 / 3.0) * invariant - 3.0
+        neo = mu / 2 * (invariant - 3) - mu * np.log(jacobian) + lam / 2 * np.log(jacobian) ** 2
+        extra = scale / 20.0 * (np.exp(10.0 * s * s) - 1.0) if keyword == "stiffening" else 0.0
+        return neo + extra + (scale * s * s if keyword == "yeoh" else 0.0)
+
+    def reduced(stretch):
+        found = minimize_scalar(
+            lambda a: energy(a, stretch),
+            bounds=(0.8, 1.5),
+            method="bounded",
+            options={"xatol": 1e-12},
+        )
+        return found.fun
+
+    for travel in (3.0, 7.5):
+        stretch, step = 1.0 - travel / height, 1e-4
+        slope = (reduced(stretch + step) - reduced(stretch - step)) / (2 * step)
+        force = uniform_force(np.array([travel]), height, radius, young, nu, **{keyword: ratio})
+        assert force[0] == pytest.approx(-slope * np.pi * radius**2, rel=1e-5)
+
+
+def _incompressible_yeoh_force(travel, height, radius, c10, c20, c30):
+    """Uniaxial compression of an incompressible Yeoh solid [N] (another generator than
+    the study's compressible model): P = 2 (lambda - lambda^-2) dW/dI1."""
+    stretch = 1.0 - travel / height
+    i1 = stretch**2 + 2.0 / stretch
+    slope = c10 + 2 * c20 * (i1 - 3) + 3 * c30 * (i1 - 3) ** 2
+    return -2e-3 * (stretch - stretch**-2) * slope * np.pi * radius**2
+
+
+@pytest.mark.parametrize("planted", ["softening", "none"])
+def test_an_energy_twin_names_the_planted_softening_and_nothing_on_a_neo_hookean_twin(planted):
+    """Ten specimens of an incompressible Yeoh solid (c10 = 8 kPa; c20 = -1 kPa, the
+    softening the measured curves show, c2 / E about -0.02, or neo-Hookean with c20 = 0),
+    3 % specimen-to-specimen stiffness and 0.01 N noise, to 30 % compression: fitted on
+    A1-A5 and judged on B1-B5 with the compressible model (nu = 0.49), the Yeoh term is
+    named with c2 / E within 50 % of the planted -1 / 48 on the softening twin and
+    stiffening is not; on the neo-Hookean twin neither is named."""
+    rng = np.random.default_rng(3)
+    height, radius = 30.0, 25.0
+    travel = np.linspace(0.02, 1.0, 10) * 0.3 * height
+    c20, c30 = (-1.0, 0.0) if planted == "softening" else (0.0, 0.0)
+    force = np.array(
+        [
+            _incompressible_yeoh_force(travel, height, radius, 8.0 * f, c20 * f, c30 * f)
+            for f in 1.0 + 0.03 * rng.standard_normal(10)
+        ]
+    )
+    force += 0.01 * rng.standard_normal(force.shape)
+    series_a = np.arange(10) < 5
+    entries = {
+        name: energy_entry(travel, force, series_a, 0.01, (height, radius), name)
+        for name in ("nonlinear_stiffening", "yeoh_term")
+    }
+    assert not entries["nonlinear_stiffening"]["named"]
+    if planted == "softening":
+        assert entries["yeoh_term"]["named"]
+        assert entries["yeoh_term"]["ratio"] == pytest.approx(-1.0 / 48.0, rel=0.5)
+    else:
+        assert not entries["yeoh_term"]["named"], entries["yeoh_term"]

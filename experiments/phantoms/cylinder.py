@@ -30,6 +30,7 @@ from symbolic.constraints import BoundaryConditions
 from symbolic.continuum import box_volume, lame
 from symbolic.continuum_model import NeoHookeanModel
 from symbolic.loads import FrameLoad, PrescribedDisplacement
+from symbolic.parameters import PARAMETERS
 from symbolic.volume import VolumeSpline
 
 POISSON = 0.49
@@ -130,25 +131,42 @@ def plate_forces(model, travel_mm: np.ndarray) -> np.ndarray:
 
 
 def uniform_force(
-    travel_mm: np.ndarray, height: float, radius: float, young_kpa: float, nu: float = POISSON
+    travel_mm: np.ndarray,
+    height: float,
+    radius: float,
+    young_kpa: float,
+    nu: float = POISSON,
+    stiffening: float = 0.0,
+    yeoh: float = 0.0,
 ) -> np.ndarray:
     """The compressive force [N] (> 0) of a homogeneous uniaxial compression (sliding
-    plates) of the eq. (C6) neo-Hookean cylinder, per travel.
+    plates) of the eq. (C6) neo-Hookean cylinder, per travel; with ``stiffening`` > 0
+    the eq. (C10) term is added, k1 = stiffening x E, at the default k2; with ``yeoh``
+    (either sign) Yeoh's second-order term c2 (Ibar1 - 3)^2, c2 = yeoh x E.
 
     With F = diag(a, a, lambda), lambda = 1 - travel / height and J = a^2 lambda, the
-    first Piola stress of eq. (C7) is P_ii = mu F_ii + (Lambda ln J - mu) / F_ii; a
-    solves P_11 = 0 and the force is -P_33 pi radius^2.
+    first Piola stress of eq. (C7) is P_ii = mu F_ii + (Lambda ln J - mu) / F_ii, and
+    eq. (C10)'s term and Yeoh's add (k1 s exp(k2 s^2) + 2 c2 s) (2 J^(-2/3) F_ii -
+    2 Ibar1 / (3 F_ii)) with s = Ibar1 - 3; a solves P_11 = 0 and the force is
+    -P_33 pi radius^2. With k1 and c2 proportional to E the force stays E times the
+    force at E = 1.
     """
     mu, lam = lame(young_kpa, nu)
+    k1 = stiffening * 2.0 * (1.0 + nu) * mu  # stiffening x E [N/mm^2]
+    c2 = yeoh * 2.0 * (1.0 + nu) * mu
+    k2 = PARAMETERS["k2"].default
+
+    def piola(f_ii, a, stretch):
+        jacobian = a * a * stretch
+        invariant = jacobian ** (-2.0 / 3.0) * (2.0 * a * a + stretch * stretch)
+        s = invariant - 3.0
+        extra = k1 * s * np.exp(k2 * s * s) + 2.0 * c2 * s
+        extra *= 2.0 * jacobian ** (-2.0 / 3.0) * f_ii - 2.0 * invariant / (3.0 * f_ii)
+        return mu * f_ii + (lam * np.log(jacobian) - mu) / f_ii + extra
+
     forces = []
     for travel in np.atleast_1d(travel_mm):
         stretch = 1.0 - float(travel) / height
-
-        def lateral(a, s=stretch):
-            return mu * a + (lam * np.log(a * a * s) - mu) / a
-
-        a = brentq(lateral, 1e-3, 1e3)
-        jacobian = a * a * stretch
-        axial = mu * stretch + (lam * np.log(jacobian) - mu) / stretch
-        forces.append(-axial * np.pi * radius**2)
+        a = brentq(lambda x, s=stretch: piola(x, x, s), 0.5, 4.0)
+        forces.append(-piola(stretch, a, stretch) * np.pi * radius**2)
     return np.array(forces)

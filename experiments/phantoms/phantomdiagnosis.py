@@ -113,27 +113,42 @@ def window_samples(travel: np.ndarray, height: float) -> dict:
 
 
 def diagnosis_document(row: dict, curves: dict, seconds: float) -> dict:
-    """diagnosis.json: the base (sliding), the candidate (bonded), the verdict per window;
-    the final model is the one the largest window names."""
-    final_window = list(WINDOWS)[-1]
-    entry = row[final_window]
-    named = entry["named"]
-    final = "bonded" if named == "bonded" else "sliding"
-    prediction = entry[final]["b_prediction_rms_n"]
-    steps = [
-        {"model": "sliding plates (uniform stress)", **entry["sliding"]},
-    ]
-    rejected = []
-    if named == "bonded":
+    """diagnosis.json: the base (sliding plates), the contact candidate (bonded plates),
+    then on a sliding final contact the energy candidates (``ENERGY_CANDIDATES``), all
+    judged in the widest window; the named energy candidate that predicts the B series
+    best is added."""
+    entry = row[list(WINDOWS)[-1]]
+    contact = "bonded" if entry["named"] == "bonded" else "sliding"
+    steps = [{"model": "sliding plates (uniform stress)", **entry["sliding"]}]
+    rejected, selected = [], []
+    if contact == "bonded":
         steps.append({"model": "bonded plates (3D volume spline)", **entry["bonded"]})
+        selected.append(EFFECT)
     else:
         reason = (
             "sliding plates predict the B series better"
-            if named == "sliding"
+            if entry["named"] == "sliding"
             else "does not predict the B series better than chance, on both "
             "discretisations, by more than the load cell's noise"
         )
         rejected.append({"effect": EFFECT, "reason": reason, "stand_in": False})
+    # the energy candidates are fitted on the uniform-stress model only
+    energy = entry.get("energy", {}) if contact == "sliding" else {}
+    named = [n for n in energy if energy[n]["named"]]
+    chosen = min(named, key=lambda n: energy[n]["b_prediction_rms_n"]) if named else None
+    for name, candidate in energy.items():
+        if name == chosen:
+            steps.append({"model": f"sliding plates + {name}", **candidate})
+            selected.append(name)
+        else:
+            reason = candidate["reason"] if not candidate["named"] else "another predicts better"
+            rejected.append(
+                {"effect": name, "reason": reason, "stand_in": "bound" in candidate["reason"]}
+            )
+    # E: the energy effect's small-strain E (fitted to the widest window), or the
+    # contact's E in the small-strain window
+    final = energy[chosen] if chosen else row[list(WINDOWS)[0]][contact]
+    prediction = (energy[chosen] if chosen else entry[contact])["b_prediction_rms_n"]
     return {
         "schema": "dvs-diagnosis/1",
         "experiment": "compression",
@@ -150,15 +165,16 @@ def diagnosis_document(row: dict, curves: dict, seconds: float) -> dict:
         },
         "windows": {w: row[w] for w in WINDOWS},
         "steps": steps,
-        "selected": [EFFECT] if named == "bonded" else [],
+        "selected": selected,
         "rejected": rejected,
-        "final_model": final,
-        "young_kpa": row[list(WINDOWS)[0]][final]["E_kPa"],
-        "young_std_kpa": row[list(WINDOWS)[0]][final]["E_std_kPa"],
+        "final_model": f"{contact} + {chosen}" if chosen else contact,
+        "young_kpa": final["E_kPa"],
+        "young_std_kpa": final["E_std_kPa"],
         "published_E_kPa": row["published_E_kPa"],
         "aic_best": row["aic_best"],
         "rms_before_n": entry["sliding"]["fit_rms_n"],
-        "rms_after_n": entry[final]["fit_rms_n"],
+        "rms_after_n": steps[-1]["fit_rms_n"],
+        "b_prediction_before_n": entry["sliding"]["b_prediction_rms_n"],
         "b_prediction_rms_n": prediction,
         "b_scatter_n": entry["b_scatter_n"],
         "model_error_n": float(np.sqrt(max(prediction**2 - entry["b_scatter_n"] ** 2, 0.0))),
@@ -197,6 +213,7 @@ def diagnose_compression(dataset: Dataset, out: Path, log=print) -> dict:
             curves["noise_n"],
             tuple(c[where] for c in unit),
             tuple(c[where] for c in check),
+            (height, curves["radius_mm"]) if window == list(chosen)[-1] else None,
         )
         log(f"  {window}: named {row[window]['named']}")
     document = diagnosis_document(row, curves, time.perf_counter() - begin)
