@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 TRUTH_CUBE = shared_data_dir() / "truth-cube" / "uniaxial_positions.csv"
 RECIPE = shared_data_dir() / "phantom-compression" / "data" / "EF10_0T"
+SKIN_CASE = shared_data_dir() / "skin-extensometer" / "healthy"
 
 DIRECTORY_OUTPUT = {
     "demo": [],
@@ -59,6 +60,7 @@ FILE_OUTPUT = {
     "bench sidebyside": ("--json", ".json", ["--other", "{tmp}", "A"]),
     "import truth-cube": ("--out", ".npz", [str(TRUTH_CUBE)]),
     "import compression": ("--out", ".npz", [str(RECIPE)]),
+    "import extensometer": ("--out", ".npz", [str(SKIN_CASE)]),
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
@@ -213,6 +215,7 @@ OUT_OF_RANGE = [
     (["study phantoms", "--recipes", "EF99_0T", "--out", "o"], "--recipes"),
     (["study truth-cube", "--loop-energy", "magic", "--out", "o"], "--loop-energy"),
     (["import compression", str(RECIPE), "--samples", "0", "--out", "x.npz"], "--samples"),
+    (["import extensometer", str(SKIN_CASE), "--out", "x.txt"], ".npz"),
     (["reconstruct", "{tmp}", "--intrinsics", "{tmp}/none.json", "--out", "x.npz"], "intrinsics"),
 ]
 

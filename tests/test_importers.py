@@ -3,6 +3,10 @@ experiments"), their round trip, the rules of the keys they add, and bad input."
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import time
+
 import numpy as np
 import pytest
 from conftest import exit_code_and_stderr
@@ -17,6 +21,8 @@ from experiments.data.dataset import (
     to_arrays,
 )
 from experiments.data.truthcube import cube_from_dataset, read_truth_cube, truth_cube_dataset
+from experiments.realskin.data import load_case, read_case
+from experiments.realskin.skindataset import SKIN_THICKNESS_MM, case_from_dataset, skin_dataset
 
 
 def _one_line(argv, capsys, expected=2) -> str:
@@ -176,3 +182,185 @@ def test_the_phantom_curves_fit_the_load_limit(recipe_folder):
     recipe, tests = read_recipe(recipe_folder)
     with pytest.raises(DatasetError, match="at most 200 load cases"):
         compression_dataset(recipe, tests, samples=25)
+
+
+# ------------------------------------------------------------ skin extensometer
+SKIN_CASES = ("healthy", "keloid")
+
+
+@pytest.fixture(scope="module")
+def skin_folders(shared_data):
+    return {name: shared_data / "skin-extensometer" / name for name in SKIN_CASES}
+
+
+def _same_case(again, case) -> None:
+    """Two ``SkinCase``s equal field for field, array for array (NaN equal to NaN)."""
+    for field in dataclasses.fields(case):
+        mine, theirs = getattr(again, field.name), getattr(case, field.name)
+        if isinstance(theirs, np.ndarray):
+            assert mine.dtype == theirs.dtype and mine.shape == theirs.shape, field.name
+            np.testing.assert_array_equal(mine, theirs, err_msg=field.name)
+        elif field.name == "geometry":
+            for part in ("region", "pad_moving", "pad_fixed", "variables"):
+                assert getattr(mine, part) == getattr(theirs, part), part
+            if theirs.keloid is None:
+                assert mine.keloid is None
+            else:
+                np.testing.assert_array_equal(mine.keloid, theirs.keloid)
+        else:
+            assert mine == theirs, field.name
+
+
+@pytest.mark.parametrize("name", SKIN_CASES)
+def test_an_extensometer_case_round_trips_to_its_skin_case(name, skin_folders, tmp_path):
+    """Import, load, rebuild: the case equals ``load_case`` array for array."""
+    out = tmp_path / f"{name}.npz"
+    assert main(["import", "extensometer", str(skin_folders[name]), "--out", str(out)]) == 0
+    data = load_dataset(out)
+    case = load_case(name)
+    assert data.kind == "extensometer" and data.n_loads == case.n_frames
+    np.testing.assert_array_equal(data.markers_axes, [1.0, 1.0, 0.0])
+    assert np.isnan(data.markers_loaded[..., 2]).all()
+    np.testing.assert_array_equal(data.markers_loaded[..., :2], case.dic_positions_mm)
+    # the moving pad's travel and its measured x force; NaN beyond the force record
+    np.testing.assert_array_equal(data.plate_motion[:, :2], case.pad_displacement_mm)
+    np.testing.assert_array_equal(data.forces[:, 0], case.force_at_frame_n)
+    assert np.isnan(data.forces[~case.force_valid]).all()
+    _same_case(case_from_dataset(data), case)
+
+
+def test_the_skin_slab_is_the_studys_thickness():
+    from experiments.realskin.setup import RealSkinSettings
+
+    assert SKIN_THICKNESS_MM == RealSkinSettings().thickness_mm
+
+
+def _linked_case(source, target):
+    """A writable copy of a case folder: its files linked, so one can be replaced."""
+    for path in sorted(source.rglob("*")):
+        if path.is_file():
+            (target / path.relative_to(source)).parent.mkdir(parents=True, exist_ok=True)
+            (target / path.relative_to(source)).symlink_to(path)
+    return target
+
+
+def _replace(folder, member: str, text: str) -> None:
+    (folder / member).unlink()
+    (folder / member).write_text(text)
+
+
+def test_a_folder_without_the_case_files_exits_2(skin_folders, tmp_path, capsys):
+    out = tmp_path / "x.npz"
+    err = _one_line(["import", "extensometer", str(tmp_path), "--out", str(out)], capsys)
+    assert "missing" in err and "xt_pad_mov.out" in err and not out.exists()
+    err = _one_line(["import", "extensometer", str(tmp_path / "nope"), "--out", str(out)], capsys)
+    assert "not a folder" in err and not out.exists()
+    err = _one_line(
+        ["import", "extensometer", str(skin_folders["healthy"]), "--out", "x.txt"], capsys
+    )
+    assert ".npz" in err
+
+
+@pytest.mark.parametrize(
+    "member, text, fragment",
+    [
+        ("reactionforce/fx_pad_mov.out", "-0.1\nabc\n", "not a table of numbers"),
+        ("reactionforce/ux_pad_mov.out", "", "0 rows"),
+        ("displacement/xt_dic_0003.out", "1 2 3\n4 5 6\n", "rows of 3 numbers"),
+        ("displacement/xt_pad_fix.out", "36.5 0.0\n", "do not match the frames"),
+        ("geometry.geo", "Point(1) = {0, 0, 0};\n", "geometry.geo"),
+    ],
+)
+def test_a_malformed_case_file_exits_2_naming_it(
+    member, text, fragment, skin_folders, tmp_path, capsys
+):
+    folder = _linked_case(skin_folders["healthy"], tmp_path / "healthy")
+    _replace(folder, member, text)
+    out = tmp_path / "x.npz"
+    err = _one_line(["import", "extensometer", str(folder), "--out", str(out)], capsys)
+    assert fragment in err and not out.exists(), err
+
+
+@pytest.fixture(scope="module")
+def skin_arrays(skin_folders):
+    return to_arrays(skin_dataset(read_case(skin_folders["keloid"])))
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        (lambda a: a.update(markers_axes=np.array([1.0, 1.0, 2.0])), "markers_axes"),
+        (lambda a: a.update(markers_axes=np.zeros(3)), "markers_axes"),
+        (lambda a: [a.pop("markers_rest"), a.pop("markers_loaded")], "markers_axes"),
+        (lambda a: a["markers_loaded"][..., 2].fill(0.0), "markers_loaded"),
+        (lambda a: a.pop("markers_axes"), "markers_loaded"),  # z NaN, x and y seen
+        (lambda a: a.update(fixed_plate=a["fixed_plate"] + 500.0), "fixed_plate"),
+        (lambda a: a.update(fixed_plate=a["fixed_plate"][:2]), "fixed_plate"),
+        (lambda a: a.update(plate_motion=a["plate_motion"] * 10.0), "plate_motion"),
+        (lambda a: a.update(plate_force_curve=a["plate_force_curve"][:, :1]), "plate_force_curve"),
+        (lambda a: a["plate_force_curve"].__setitem__((3, 1), np.nan), "plate_force_curve"),
+    ],
+)
+def test_the_extensometer_rule_names_its_key(skin_arrays, change, key):
+    """Rule 23 (docs/formats.md): each broken extensometer key is named."""
+    arrays = {k: np.array(v, copy=True) for k, v in skin_arrays.items()}
+    change(arrays)
+    with pytest.raises(DatasetError) as raised:
+        from_arrays(arrays)
+    assert raised.value.key == key, str(raised.value)
+
+
+def test_a_fixed_plate_needs_a_moving_one(skin_arrays):
+    arrays = {k: np.array(v, copy=True) for k, v in skin_arrays.items()}
+    arrays.pop("plate_motion")
+    arrays.pop("plate_force_curve")
+    arrays["forces"] = np.nan_to_num(arrays["forces"], nan=0.1)
+    with pytest.raises(DatasetError) as raised:
+        from_arrays(arrays)
+    assert raised.value.key == "fixed_plate", str(raised.value)
+
+
+def test_the_extensometer_travels_beyond_the_skins_thickness(skin_arrays):
+    """The keloid's pad travels 5 mm along the skin, more than the 2 mm slab: the bound
+    is the pads' distance (rule 23), not the thickness (rule 20)."""
+    data = from_arrays(skin_arrays)
+    assert np.linalg.norm(data.plate_motion, axis=1).max() > SKIN_THICKNESS_MM
+
+
+def test_probe_commands_refuse_an_extensometer_and_diagnose_takes_only_out(
+    skin_folders, tmp_path, capsys
+):
+    path = tmp_path / "skin.npz"
+    save_dataset(path, skin_dataset(read_case(skin_folders["healthy"])))
+    for argv in (["fit"], ["image"], ["design"], ["next", "--budget", "2"]):
+        out = tmp_path / argv[0]
+        err = _one_line([argv[0], str(path), *argv[1:], "--out", str(out)], capsys)
+        assert "two pads" in err and not out.exists(), err
+    out = tmp_path / "d"
+    err = _one_line(["diagnose", str(path), "--energy", "dnurbs", "--out", str(out)], capsys)
+    assert "give only --out" in err and not out.exists()
+
+
+def test_a_dataset_that_is_no_extensometer_is_not_a_skin_case(cube_arrays):
+    with pytest.raises(DatasetError, match="dvs import extensometer"):
+        case_from_dataset(from_arrays(cube_arrays))
+
+
+@pytest.mark.slow
+def test_import_and_diagnose_an_extensometer_case_end_to_end(skin_folders, tmp_path):
+    """``dvs import extensometer`` then the default ``dvs diagnose``: the real-skin
+    study's diagnosis.json, report and figures in --out (prints the times)."""
+    path, out = tmp_path / "healthy.npz", tmp_path / "d"
+    begin = time.perf_counter()
+    assert main(["import", "extensometer", str(skin_folders["healthy"]), "--out", str(path)]) == 0
+    imported = time.perf_counter() - begin
+    assert main(["diagnose", str(path), "--out", str(out)]) == 0
+    print(f"import {imported:.1f} s, diagnose {time.perf_counter() - begin - imported:.1f} s")
+    document = json.loads((out / "diagnosis.json").read_text())
+    assert document["schema"] == "dvs-diagnosis/1" and document["success"]
+    assert document["steps"][0]["effect"] is None
+    observed = document["observations"]
+    assert sum(label.startswith("frame ") for label in observed["frames"]) == 6
+    assert 0.005 < observed["dic_noise_mm"] < 0.05  # docs/realskin-data.md: 0.0118 mm
+    assert "region_verdict" in document and document["model_error_mm"] > 0.0
+    assert (out / "report.md").is_file() and (out / "force.png").is_file()

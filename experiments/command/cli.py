@@ -96,12 +96,16 @@ GROUPS = {
         "diagnosis",
     ),
     "import": (
-        "measured experiments to the dataset format: truth-cube, compression",
+        "measured experiments to the dataset format: truth-cube, compression, extensometer",
         {
             "truth-cube": ("experiments.truthcube.cubeimport", "the Truth Cube's bead file"),
             "compression": (
                 "experiments.phantoms.phantomimport",
                 "one recipe's phantom compression tests",
+            ),
+            "extensometer": (
+                "experiments.realskin.skinimport",
+                "one case of the skin extensometer (DIC, pads, force)",
             ),
         },
         "truth-cube",

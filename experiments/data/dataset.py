@@ -67,6 +67,12 @@ class Dataset:
     """(K,) which specimen (or series) each load case was measured on, integers from 0."""
     force_noise_n: float | None = None
     """Standard deviation of a measured force [N], if known."""
+    markers_axes: np.ndarray | None = None
+    """(3,) 1 for each coordinate x, y, z that ``markers_loaded`` measures, 0 for one it
+    does not (NaN there); None: all three (e.g. [1, 1, 0] for a 2-D DIC)."""
+    fixed_plate: np.ndarray | None = None
+    """(3,) rest reference point of a second plate glued to the outer surface and held
+    fixed [mm]: an extensometer, ``plate_motion`` moving the other along the surface."""
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     """Unknown keys of the file, kept as they are and written back on save."""
 
@@ -83,9 +89,12 @@ class Dataset:
 
     @property
     def kind(self) -> str:
-        """ "indentation" (forces at contacts, markers on the skin) or "plate" (a
-        displacement-controlled plate, ``plate_motion``)."""
-        return "indentation" if self.plate_motion is None else "plate"
+        """ "indentation" (forces at contacts, markers on the skin), "plate" (a
+        displacement-controlled plate, ``plate_motion``) or "extensometer" (that plate
+        pulled along the skin against a fixed one, ``fixed_plate``)."""
+        if self.plate_motion is None:
+            return "indentation"
+        return "plate" if self.fixed_plate is None else "extensometer"
 
     @property
     def observed_mask(self) -> np.ndarray:
@@ -175,11 +184,10 @@ def require_indentation(dataset: Dataset, command: str) -> Dataset:
     experiment without a word.
     """
     if dataset.plate_motion is not None or dataset.markers_rest is not None:
-        what = (
-            "a plate load (plate_motion)"
-            if dataset.plate_motion is not None
-            else ("markers inside the volume (markers_rest)")
-        )
+        what = {
+            "plate": "a plate load (plate_motion)",
+            "extensometer": "two pads pulling along the skin (plate_motion, fixed_plate)",
+        }.get(dataset.kind, "markers inside the volume (markers_rest)")
         raise DatasetError(
             f"the dataset has {what}, which {command} does not model (it models probe "
             "indentation); run that experiment's study (docs/experiments.md)"

@@ -18,7 +18,9 @@ from experiments.data.experimentkeys import (
     EXPERIMENT_KEYS,
     MAX_PLATE_FORCE_N,
     check_experiment_keys,
+    check_force_curve,
     has_other_observations,
+    measured_axes,
 )
 
 REQUIRED_KEYS = ("outer_rest", "inner_rest", "forces", "contacts", "outer_loaded")
@@ -76,11 +78,13 @@ def validate(dataset) -> None:
     check_experiment_keys(arrays, spacing)
     if "plate_motion" not in arrays:
         _check_forces(arrays["forces"])
+    if "markers_loaded" in arrays:  # the measured coordinates (rule 23)
+        axes = measured_axes(arrays)
+        loaded, rest = arrays["markers_loaded"][..., axes], arrays["markers_rest"][..., axes]
+        _check_markers("markers_loaded", loaded, per_load=False)
+        _check_displacements(loaded, rest, "markers_loaded")
     _check_markers("outer_loaded", arrays["outer_loaded"], per_load=True, others=arrays)
     _check_displacements(arrays["outer_loaded"], arrays["outer_rest"])
-    if "markers_loaded" in arrays:
-        _check_markers("markers_loaded", arrays["markers_loaded"], per_load=False)
-        _check_displacements(arrays["markers_loaded"], arrays["markers_rest"], "markers_loaded")
     _check_optional_values(arrays)
 
 
@@ -206,6 +210,7 @@ def _check_ranges(arrays: dict[str, np.ndarray]) -> None:
         "markers_rest": (MAX_COORDINATE_MM, "mm"),
         "markers_loaded": (MAX_COORDINATE_MM, "mm"),
         "plate_motion": (MAX_COORDINATE_MM, "mm"),
+        "fixed_plate": (MAX_COORDINATE_MM, "mm"),
         "forces": (MAX_PLATE_FORCE_N if "plate_motion" in arrays else MAX_FORCE_N, "N"),
         "noise_mm": (MAX_NOISE_MM, "mm"),
         "probe_radius": (MAX_PROBE_RADIUS_MM, "mm"),
@@ -221,7 +226,9 @@ def _check_ranges(arrays: dict[str, np.ndarray]) -> None:
 
 
 def _check_known_extras(extra: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
-    """The documented extra keys: ``load_ramp_s`` and ``marker_std_mm``."""
+    """The documented extra keys: ``load_ramp_s``, ``marker_std_mm`` and
+    ``plate_force_curve`` (``experimentkeys.check_force_curve``)."""
+    check_force_curve(extra, arrays)
     if "load_ramp_s" in extra:
         ramp = np.asarray(extra["load_ramp_s"])
         if ramp.shape != () or ramp.dtype.kind not in _NUMERIC_KINDS:
@@ -319,7 +326,8 @@ def _check_markers(key: str, markers: np.ndarray, per_load: bool, others=None) -
     if partial.any():
         index = tuple(int(i) for i in np.argwhere(partial)[0])
         raise DatasetError(
-            f"marker {index} is NaN in some coordinates only; set all three to NaN if not seen",
+            f"marker {index} is NaN in some coordinates only; set every coordinate to NaN "
+            "if not seen",
             key,
         )
     if per_load:

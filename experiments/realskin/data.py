@@ -16,12 +16,14 @@ Frames (units mm, N):
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from experiments.command.options import Command
+from experiments.data.dataseterror import DatasetError, one_line
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.dicnoise import (
     _MAD,
@@ -104,6 +106,8 @@ class SkinCase:
         Offset mapping DIC to model coordinates; see :func:`dic_to_model_offset`.
     spurious : ndarray (P,) of bool
         Points discarded by :func:`spurious_points`.
+    geometry_text : str
+        The text of ``geometry.geo`` that ``geometry`` was read from ("" if not given).
     """
 
     name: str
@@ -116,6 +120,7 @@ class SkinCase:
     geometry: SkinGeometry
     dic_to_model_mm: np.ndarray
     spurious: np.ndarray
+    geometry_text: str = ""
 
     @property
     def n_frames(self) -> int:
@@ -208,15 +213,107 @@ _FILES = (
     "reactionforce/fx_pad_mov.out",
     "geometry.geo",
 )
+_DIC = "displacement/xt_dic_*.out"
+
+
+def _missing(base: Path) -> list[str]:
+    """The files of a case folder that are not there (``_FILES`` and the DIC frames)."""
+    missing = [f for f in _FILES if not (base / f).is_file()]
+    return missing + ([] if any(base.glob(_DIC)) else [_DIC])
+
+
+def _table(path: Path, columns: int) -> np.ndarray:
+    """A whitespace-separated table of numbers with ``columns`` columns, (rows, columns).
+
+    Raises
+    ------
+    DatasetError
+        One line naming the file: not text, not numbers, no rows or other columns.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: refused below
+            values = np.loadtxt(path, ndmin=2)
+    except (ValueError, OSError) as error:
+        raise DatasetError(f"{path}: not a table of numbers ({one_line(error)})") from None
+    if values.shape[0] < 1 or values.shape[1] != columns:
+        raise DatasetError(
+            f"{path}: {values.shape[0]} rows of {values.shape[1]} numbers; expected rows of "
+            f"{columns} (docs/realskin-data.md)"
+        )
+    return values
+
+
+def read_case(folder: str | Path, name: str | None = None) -> SkinCase:
+    """One extensometer case from its folder (``dvs import extensometer DIR``).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The case's folder: ``displacement/``, ``reactionforce/`` and ``geometry.geo``
+        (docs/realskin-data.md, "Files as found").
+    name : str, optional
+        The case's name; default the folder's name.
+
+    Returns
+    -------
+    SkinCase
+
+    Raises
+    ------
+    DatasetError
+        One line naming the folder or file: a missing file, DIC frames not numbered
+        0..F-1, a file that is not a table of numbers of the right width, counts that
+        do not match, non-finite pad or force values, a geometry that cannot be read.
+    """
+    base = Path(folder)
+    if not base.is_dir():
+        raise DatasetError(f"{base}: not a folder; give one case's folder, e.g. .../healthy")
+    missing = _missing(base)
+    if missing:
+        raise DatasetError(f"{base}: missing {', '.join(missing)} (docs/realskin-data.md)")
+    dic_files = sorted(base.glob(_DIC))
+    numbers = [f.stem.rsplit("_", 1)[1] for f in dic_files]
+    if numbers != [f"{n:04d}" for n in range(len(dic_files))]:
+        raise DatasetError(f"{base}: DIC frames are not numbered 0000..F-1; restore the files")
+    frames = [_table(f, 2) for f in dic_files]
+    if len({f.shape for f in frames}) != 1:
+        raise DatasetError(f"{base}: the DIC frames hold different numbers of points")
+    positions = np.stack(frames)
+    pad_mov, pad_fix = (_table(base / f, 2) for f in _FILES[:2])
+    ux, fx = (_table(base / f, 1)[:, 0] for f in _FILES[2:4])
+    if not len(pad_mov) == len(pad_fix) == len(positions) or len(ux) != len(fx):
+        raise DatasetError(f"{base}: pad or force files do not match the frames; restore them")
+    if not all(np.isfinite(a).all() for a in (pad_mov, pad_fix, ux, fx)):
+        raise DatasetError(f"{base}: a pad position or force sample is NaN or infinite")
+    geo = base / "geometry.geo"
+    try:
+        text = geo.read_text(encoding="utf-8")
+        geometry = geometry_from_geo(text)
+    except (ValueError, KeyError, IndexError, TypeError, SyntaxError, OSError) as error:
+        raise DatasetError(f"{geo}: not the region and pads in gmsh ({one_line(error)})") from None
+    return SkinCase(
+        name=base.name if name is None else name,
+        dic_positions_mm=positions,
+        pad_moving_mm=pad_mov,
+        pad_fixed_mm=pad_fix,
+        force_ux_mm=ux,
+        force_fx_n=fx,
+        force_at_frame_n=force_at_travel(ux, fx, pad_mov[:, 0] - pad_mov[0, 0]),
+        geometry=geometry,
+        dic_to_model_mm=dic_to_model_offset(pad_mov[0], pad_fix[0], geometry),
+        spurious=spurious_points(positions[0], positions - positions[0]),
+        geometry_text=text,
+    )
 
 
 def load_case(name: str, root: Path | None = None) -> SkinCase:
-    """Load one extensometer case.
+    """Load one extensometer case of the shared data sets.
 
     Parameters
     ----------
     name : {"healthy", "keloid"}
-        The case; files are read from ``root/skin-extensometer/<name>``.
+        The case; files are read from ``root/skin-extensometer/<name>`` (``read_case``).
     root : Path, optional
         Directory of the shared data sets; default ``shared_data_dir()``.
 
@@ -232,33 +329,13 @@ def load_case(name: str, root: Path | None = None) -> SkinCase:
     if name not in CASES:
         raise ValueError(f"unknown case {name!r}; use one of {', '.join(CASES)}")
     base = Path(root if root is not None else shared_data_dir()) / "skin-extensometer" / name
-    dic_files = sorted((base / "displacement").glob("xt_dic_*.out"))
-    missing = [f for f in _FILES if not (base / f).is_file()]
-    missing += [] if dic_files else ["displacement/xt_dic_*.out"]
+    missing = _missing(base)
     if missing:
         raise ValueError(
             f"missing {', '.join(missing)} in {base}; set DVS_SHARED_DATA (or pass "
             "root=) to the directory that holds skin-extensometer/"
         )
-    if [int(f.stem.rsplit("_", 1)[1]) for f in dic_files] != list(range(len(dic_files))):
-        raise ValueError(f"DIC frames in {base} are not numbered 0..F-1; restore the files")
-    positions = np.stack([np.loadtxt(f, ndmin=2) for f in dic_files])
-    pad_mov, pad_fix, ux, fx = (np.loadtxt(base / f, ndmin=1) for f in _FILES[:4])
-    if not len(pad_mov) == len(pad_fix) == len(positions) or len(ux) != len(fx):
-        raise ValueError(f"pad or force files in {base} do not match the frames; restore them")
-    geometry = geometry_from_geo((base / "geometry.geo").read_text())
-    return SkinCase(
-        name=name,
-        dic_positions_mm=positions,
-        pad_moving_mm=pad_mov,
-        pad_fixed_mm=pad_fix,
-        force_ux_mm=ux,
-        force_fx_n=fx,
-        force_at_frame_n=force_at_travel(ux, fx, pad_mov[:, 0] - pad_mov[0, 0]),
-        geometry=geometry,
-        dic_to_model_mm=dic_to_model_offset(pad_mov[0], pad_fix[0], geometry),
-        spurious=spurious_points(positions[0], positions - positions[0]),
-    )
+    return read_case(base, name)
 
 
 def summary(case: SkinCase) -> str:

@@ -105,11 +105,13 @@ class Setup:
     noise_mm: float
 
 
-def build(name: str, settings: RealSkinSettings) -> Setup:
-    """The slab model, pads, frames, load cases and base problem of one case."""
+def build(name: str, settings: RealSkinSettings, case: SkinCase | None = None) -> Setup:
+    """The slab model, pads, frames, load cases and base problem of one case: ``case``
+    (e.g. rebuilt from a dataset, ``skindataset.case_from_dataset``), or else the shared
+    data's case ``name`` (``load_case``)."""
     if settings.boundary not in ("inner", "lateral"):
         raise ValueError(f"boundary must be 'inner' or 'lateral', got {settings.boundary!r}")
-    case = load_case(name)
+    case = load_case(name) if case is None else case
     region = case.geometry.region
     rects = pad_rects(case)
     inner = settings.boundary == "inner"

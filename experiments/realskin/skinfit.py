@@ -96,10 +96,28 @@ def region_verdict(record: dict | None) -> str:
     return f"no stiffer region is named; the best rectangle ({where}) is not: {why}"
 
 
-def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dict:
-    """Diagnose one case; write its diagnosis.json, report.md and figures."""
+def run_case(
+    name: str, settings: RealSkinSettings, out: Path, log=print, case=None, folder=None
+) -> dict:
+    """Diagnose one case; write its diagnosis.json, report.md and figures.
+
+    Parameters
+    ----------
+    name : str
+        The case's name (the shared data's case when ``case`` is None).
+    settings : RealSkinSettings
+        The study's choices.
+    out : Path
+        Output folder; the case writes into ``out / name`` unless ``folder`` is given.
+    log : callable
+        Receives the progress lines.
+    case : SkinCase, optional
+        The measurement (``dvs diagnose`` on an imported case); default ``load_case(name)``.
+    folder : Path, optional
+        Where the case's files go (``dvs diagnose``: its ``--out``).
+    """
     begin = time.perf_counter()
-    setup = build(name, settings)
+    setup = build(name, settings, case)
     dic = sum(d is not None for d in setup.data.displacement_mm)
     log(
         f"{name}: {len(setup.loads)} frames ({dic} with DIC), DIC noise "
@@ -123,7 +141,7 @@ def run_case(name: str, settings: RealSkinSettings, out: Path, log=print) -> dic
     document["region_iou"] = region["iou"] if region and region["named"] else None
     document["region_verdict"] = region_verdict(region)
     document["wall_time_s"] = time.perf_counter() - begin
-    folder = out / name
+    folder = out / name if folder is None else Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     figures = case_figures(setup, diagnosis, region, folder)
     atomic_write_json(folder / "diagnosis.json", document)

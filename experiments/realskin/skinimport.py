@@ -1,0 +1,48 @@
+"""``dvs import extensometer DIR --out X.npz``: one case of the skin extensometer as a
+dataset (docs/formats.md, "Measured experiments", rule 23; the reader is
+``experiments.realskin.data.read_case``, the mapping ``experiments.realskin.skindataset``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from experiments.command.options import Command, check_output_file, make_parser, path_argument
+from experiments.data.dataset import save_dataset
+
+
+def build_parser(prog: str = "python -m experiments.realskin.skinimport"):
+    """The options of ``dvs import extensometer``."""
+    parser = make_parser(prog, "One case of the skin extensometer as a dataset.")
+    parser.add_argument(
+        "folder", type=Path, help="one case's folder, e.g. .../skin-extensometer/healthy"
+    )
+    parser.add_argument(
+        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
+    )
+    return parser
+
+
+def work(args) -> int:
+    """Read the case's folder and write the dataset."""
+    check_output_file(args.out, ".npz")
+    from experiments.realskin.data import read_case
+    from experiments.realskin.skindataset import skin_dataset
+
+    case = read_case(args.folder)
+    save_dataset(args.out, skin_dataset(case))
+    forced = int(np.isfinite(case.force_at_frame_n).sum())
+    print(
+        f"{args.out}: {case.name}, {case.n_frames} DIC frames x {case.n_points} points "
+        f"(x, y), pad travel {-case.pad_displacement_mm[-1, 0]:.3g} mm, force at "
+        f"{forced} frames, force record {len(case.force_ux_mm)} samples"
+    )
+    return 0
+
+
+main = Command("experiments.realskin.skinimport", build_parser, work).main
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
