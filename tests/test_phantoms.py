@@ -116,13 +116,21 @@ def test_diagnose_on_a_recipe_fits_the_a_series_and_predicts_the_b_series(
 @pytest.mark.slow
 def test_every_recipe(tmp_path):
     """The table of docs/experiments.md: every recipe's sliding E within 15 % of the
-    published E at small strain; the B series within 1.5 x its scatter at small strain."""
+    published E at small strain; the B series within 1.5 x its scatter at small strain,
+    and to 30 % within 1.2 x once a named softening is in."""
     document = run(tmp_path)
     assert len(document["recipes"]) == 14
     for row in document["recipes"]:
         small = row["small strain"]
         assert small["sliding"]["E_kPa"] == pytest.approx(row["published_E_kPa"][0], rel=0.15)
         assert small["sliding"]["b_prediction_rms_n"] < 1.5 * small["b_scatter_n"]
+        # to 30 %: stiffening is never asked for; where Yeoh's softening is named, the
+        # B series comes within 1.2 x its scatter
+        energy, curve = row["curve"]["energy"], row["curve"]
+        assert not energy["nonlinear_stiffening"]["named"]
+        if energy["yeoh_term"]["named"]:
+            assert energy["yeoh_term"]["ratio"] < 0
+            assert energy["yeoh_term"]["b_prediction_rms_n"] < 1.2 * curve["b_scatter_n"]
 
 
 def test_a_scikit_fem_twin_with_bonded_plates_gives_back_e_and_the_sliding_bias():

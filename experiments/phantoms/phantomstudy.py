@@ -157,7 +157,11 @@ def window_entry(
     """
     mean_a = force[series_a].mean(axis=0)
     scatter = float(np.sqrt(np.mean((force[~series_a] - mean_a) ** 2)))
-    entry = {"travel_mm": travel.tolist(), "b_scatter_n": scatter}
+    entry = {
+        "travel_mm": travel.tolist(),
+        "b_scatter_n": scatter,
+        "b_scatter_sse": np.sum((force[~series_a] - mean_a) ** 2, axis=1).tolist(),
+    }
     for contact, curve in zip(("bonded", "sliding"), unit):
         fitted = LinearFit.of(np.tile(curve, series_a.sum()), force[series_a].ravel())
         error = force[~series_a] - fitted.young_kpa * curve
@@ -169,6 +173,7 @@ def window_entry(
             "E_specimen_spread_kPa": float(np.std(each, ddof=1)),
             "fit_rms_n": fitted.rms_n,
             "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
+            "b_sse": np.sum(error**2, axis=1).tolist(),
         }
     entry["named"] = named_contact(force[~series_a], entry, unit)
     if check is not None:  # the same choice on the second discretisation, or neither
@@ -264,6 +269,7 @@ def energy_entry(
         "E_std_kPa": float(np.std(each, ddof=1) / np.sqrt(len(each))),
         "fit_rms_n": fits["candidate"].rms_n,
         "b_prediction_rms_n": float(np.sqrt(errors["candidate"].sum() / count)),
+        "b_sse": errors["candidate"].tolist(),
         "named": named,
         "reason": reason,
     }
