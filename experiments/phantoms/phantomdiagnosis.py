@@ -207,21 +207,33 @@ def diagnose_compression(dataset: Dataset, out: Path, log=print) -> dict:
         f"unit-E curves at {len(widest)} travels to {travel[widest].max():.3g} mm"
     )
     unit = unit_curves(travel[widest], curves["radius_mm"], height)
-    check = unit_curves(travel[widest], curves["radius_mm"], height, CHECK_SHAPE, CHECK_DEGREE)
     row = published_row(curves["recipe"], data_folder())  # AIC-best: None without the data
-    for window, samples in chosen.items():
-        where = np.searchsorted(widest, samples)
-        row[window] = window_entry(
-            travel[samples],
-            curves["force_n"][:, samples],
-            curves["series_a"],
-            curves["noise_n"],
-            tuple(c[where] for c in unit),
-            tuple(c[where] for c in check),
-            (height, curves["radius_mm"]) if window == list(chosen)[-1] else None,
-        )
-        log(f"  {window}: contact named {row[window]['named']}")
-        for name, candidate in row[window].get("energy", {}).items():
+
+    def judged(check):
+        entries = {}
+        for window, samples in chosen.items():
+            where = np.searchsorted(widest, samples)
+            entries[window] = window_entry(
+                travel[samples],
+                curves["force_n"][:, samples],
+                curves["series_a"],
+                curves["noise_n"],
+                tuple(c[where] for c in unit),
+                None if check is None else tuple(c[where] for c in check),
+                (height, curves["radius_mm"]) if window == list(chosen)[-1] else None,
+            )
+        return entries
+
+    entries = judged(None)
+    if any(entry["named"] != "neither" for entry in entries.values()):
+        # the second discretisation can only take a named contact back: computed when needed
+        log("  a contact is named: checking it on the second discretisation")
+        radius = curves["radius_mm"]
+        entries = judged(unit_curves(travel[widest], radius, height, CHECK_SHAPE, CHECK_DEGREE))
+    for window, entry in entries.items():
+        row[window] = entry
+        log(f"  {window}: contact named {entry['named']}")
+        for name, candidate in entry.get("energy", {}).items():
             verdict = "named" if candidate["named"] else "not named"
             log(f"  {window}: {name} {verdict} (r = {candidate['ratio']:+.4f})")
     document = diagnosis_document(row, curves, time.perf_counter() - begin)
