@@ -151,6 +151,19 @@ def test_docstrings_cite_the_repository():
     assert not cited, f"documents outside the repository cited: {cited}"
 
 
+TRACKER = re.compile(r"\bissue [0-9]", re.IGNORECASE)
+"""A tracker issue's number: not in the repository, so not cited by the code."""
+
+
+def test_the_code_cites_no_tracker_issue():
+    """The packages say what the code does and cite docs/, never a tracker issue's
+    number; the checker itself sees one."""
+    assert TRACKER.search("(issue 40)") and not TRACKER.search("tissue 40x40")
+    files = [f for p in PACKAGES for f in (ROOT / p).rglob("*.py")]
+    cited = [f"{f.relative_to(ROOT)}" for f in files if TRACKER.search(f.read_text())]
+    assert not cited, f"tracker issues cited: {cited}"
+
+
 def _folder(name: str) -> str:
     """The folder a module belongs to, two levels deep (``experiments.design``); a
     loose module of a layer stands for itself."""

@@ -23,7 +23,7 @@ from solvers.diagnosis.stats import residual_test
 
 MARGINS_MM = (2.5, 5.0, 10.0)
 """Widths of tissue beyond the markers tried [mm]. A wider band costs a larger grid
-at the same spans; on FE tissue 20 mm beyond the markers, the 10 mm free band fits
+at the same spans; on FE tissue reaching 20 mm beyond the markers, the 10 mm free band fits
 as well (docs/continuum.md, "Step 0"), so 10 mm stands for "10 mm or more"."""
 
 SUPPORTS = ("free", "clamped")

@@ -20,7 +20,7 @@ from experiments.command.options import Command
 from experiments.design.plan import DesignSettings, plan
 
 SPEED_TARGET_S = 30.0
-"""Issue 21: a design over at least 100 candidates at 9x9x2 within 30 s."""
+"""The target: a design over at least 100 candidates at 9x9x2 within 30 s."""
 
 
 def bench_dataset(seed: int = 1):

@@ -31,7 +31,7 @@ class FieldTarget:
     Attributes
     ----------
     diameter_mm, ratio : float
-        The inclusion's size [mm] and stiffness ratio (the issue's 8 mm, 2x).
+        The inclusion's size [mm] and stiffness ratio (the imaging benchmark's 8 mm, 2x).
     shape : tuple of int
         Nodes of the surface field (``symbolic.field.StiffnessField``).
     contacts : int

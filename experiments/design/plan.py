@@ -31,7 +31,7 @@ from solvers.design.search import search
 from solvers.diagnosis.stats import needed_noncentrality
 
 POWER_GOAL = 0.9
-"""The power a design for an effect should reach (issue 21)."""
+"""The power a design for an effect should reach (docs/design.md)."""
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ class SequentialSettings:
     Attributes
     ----------
     budget : int
-        Presses in all, the starting design's included (the issue's 10).
+        Presses in all, the starting design's included (10 in docs/design.md).
     start : str
         The starting design (``experiments.phantom.fe.design_cases``: ``paper``).
     energy : str

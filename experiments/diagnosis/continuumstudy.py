@@ -33,7 +33,7 @@ SCENARIOS = {
 }
 """name -> (slab changes, load or measurement departure, the effect that names it).
 
-Magnitudes: E x 0.4..1.6 across the patch (the issue's gradient); a foundation of
+Magnitudes: E x 0.4..1.6 across the patch (the study's gradient); a foundation of
 0.01 N/mm^3 (5 mm of 50 kPa muscle); the library's realistic 2 mm offset, a probe
 patch twice the declared radius, 0.3 tangential force per unit force and 0.1 mm
 rigid motion per capture (``symbolic.effects``)."""

@@ -1,4 +1,4 @@
-"""Default ``dvs diagnose`` on tissue the model was not tuned on: issue 40's table.
+"""Default ``dvs diagnose`` on tissue the model was not tuned on: docs/continuum.md's table.
 
 The datasets come from ``experiments.phantom.tissue`` (Q2 hexahedra, another generator
 than the model was tuned on): eight patches (``ROWS``) that differ in how far the
@@ -179,7 +179,7 @@ HEADER = (
 )
 
 TARGET_S = 120.0
-"""Issue 40's time per dataset on the two-core machine [s]."""
+"""The time target per dataset on the two-core machine [s] (docs/continuum.md)."""
 
 
 def defaults_benchmark(rows=("A", "G"), log=print) -> list[dict]:

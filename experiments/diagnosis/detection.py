@@ -1,6 +1,6 @@
 """Detection limits: how large must each effect be before the diagnosis meets its criteria?
 
-The acceptance criteria of the diagnosis (issue "close the loop") are, for one
+The acceptance criteria of the diagnosis (docs/diagnosis.md) are, for one
 undeclared effect in synthetic data with noise 0.02 mm:
 
 1. the diagnosis selects that effect first;

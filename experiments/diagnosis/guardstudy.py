@@ -8,7 +8,7 @@ check decided by the exact refits and its linearised and refined twins computed 
 it, and lists the three: the margins must exceed what the steps can miss by near zero.
 
 The datasets: the scikit-fem slabs of ``experiments.diagnosis.continuumstudy`` (its
-scenarios, seeds other than the benchmark's 1, three slab geometries: tissue 5, 10 and
+scenarios, seeds other than the benchmark's 1, three slab geometries: tissue reaching 5, 10 and
 15 mm beyond the markers, free or clamped, and probe radii of 3-5 mm) and the Q2 tissue
 patches of ``experiments.diagnosis.defaults`` (rows A-H, and row A with each injected
 departure). The table of docs/diagnosis.md ("the loop and its stopping rules") came

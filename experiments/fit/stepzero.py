@@ -1,5 +1,5 @@
 """Step 0 in the commands beyond ``dvs fit`` and ``dvs diagnose``: ``dvs image`` and
-``dvs design`` (issue 40, "the same defaults everywhere").
+``dvs design`` (the same defaults everywhere, docs/continuum.md).
 
 With no model option each command runs step 0 (``experiments.basemodel.choose_base``)
 on the dataset as fit and diagnose do, prints its choice in the same one line and

@@ -16,7 +16,7 @@ The loop (``adaptive_run``): map the presses so far (H1, the GCV weight: the rul
 weight study chose, over the study's 33 weights, nu profiled); the posterior of the
 inclusion's place (eq. I12); stop when it is localised within 3 mm, or "no inclusion",
 with probability ``GOAL`` (eq. I14), or when ``BUDGET`` presses were added; else press
-the candidate of eq. (I13) and map again. Each map is scored by the issue's criteria
+the candidate of eq. (I13) and map again. Each map is scored by docs/imaging.md's criteria
 (peak within 3 mm, contrast 2 +- 30 %, 90 % of the nodes over the markers within 2 std)
 and, on the disc-free data, by the strongest departure (no node beyond 2 std).
 
@@ -63,7 +63,7 @@ CANDIDATE_SPAN_MM = 15.0
 CANDIDATE_FORCE_N = 0.25
 """Every candidate presses along the normal with the paper's larger force [N]."""
 BUDGET = 4
-"""Adaptive presses at most (the issue's)."""
+"""Adaptive presses at most (docs/imaging.md)."""
 GOAL = 0.9
 """Posterior mass that stops the loop (eq. I14)."""
 PRECISION = 0.1
@@ -71,7 +71,7 @@ PRECISION = 0.1
 standard error lambda^-1/2, eq. I14) before the loop stops: the contrast criterion is
 +-30 %, log(1.3) = 0.38 of log 2, so 0.1 leaves most of that band to the map's bias."""
 LOCALISED_MM = 3.0
-"""The radius of eq. (I14): the issue's peak criterion."""
+"""The radius of eq. (I14): docs/imaging.md's peak criterion."""
 
 
 def candidate_contacts() -> np.ndarray:
@@ -142,7 +142,7 @@ def place_rows(seed: int, grid, log=print, shape=(16, 16)) -> dict:
 
 def image(rows: PressRows, presses, place: dict, data=None) -> dict:
     """The GCV map of ``presses`` (data ``data`` per press, default the stored) and the
-    issue's scores of it."""
+    the scores of docs/imaging.md."""
     J, y, q = rows.select(presses, data)
     study = LinearStudy(
         {"J": J, "nu": q, "d": y, "L": place["L"], "xy": place["xy"]}, place["centre"]

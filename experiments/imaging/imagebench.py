@@ -101,7 +101,7 @@ def run(grids, sizes, methods=METHODS, budget: float = 900.0, log=print) -> list
 
 
 IMAGING_GRID, IMAGING_DEGREES, IMAGING_FIELD = "27x27x4", "3x3x2", "16x16"
-"""The loop-speed issue's imaging case: ``dvs image --grid 27x27x4 --degrees 3x3x2
+"""The imaging benchmark case: ``dvs image --grid 27x27x4 --degrees 3x3x2
 --margin 10 --field 16x16`` (Morozov weight)."""
 
 

@@ -1,7 +1,7 @@
 """Which weight rule can see a small inclusion: a linearised Monte Carlo (docs/imaging.md,
 "Which weight").
 
-The acceptance inclusion of issue 15 (a disc twice as stiff, 8 mm across, centre drawn
+The benchmark inclusion of docs/imaging.md (a disc twice as stiff, 8 mm across, centre drawn
 by ``numpy.random.default_rng(seed)`` over |x|, |y| <= 15 mm) on the scikit-fem slab,
 10-load design, 0.02 mm noise, and the same slab and noise draw without the disc
 (``inclusion_datasets``). Their difference is the FE disc's exact whitened signal d
@@ -12,7 +12,7 @@ nu's column are formed once; each draw is then the linear problem
 
 solved in closed form on a grid of beta, so that every rule (Morozov, eq. I8's
 default; GCV, eq. I10; UPRE, |r|^2 + 2 k - n; the marginal likelihood of the
-Gaussian prior) and every fixed beta is scored on the same draws by the issue's
+Gaussian prior) and every fixed beta is scored on the same draws by docs/imaging.md's
 criteria: the peak within 3 mm, the contrast within 30 % of 2, and 90 % of the nodes
 over the markers within 2 std of the truth. Linear, without model error: a rule that
 fails here fails on the full problem too.
@@ -236,7 +236,7 @@ def study_regularizer(parts: dict, name: str):
 
 
 def passes(contrast, distance, coverage) -> bool:
-    """The issue's three criteria on one map."""
+    """The three criteria of docs/imaging.md on one map."""
     return 1.4 <= contrast <= 2.6 and distance <= 3.0 and coverage >= 0.9
 
 

@@ -1,4 +1,4 @@
-"""FE tissue patches the model was not tuned on (issue 40's acceptance data).
+"""FE tissue patches the model was not tuned on (the acceptance data of docs/continuum.md).
 
 A second reference generator beside ``experiments.phantom.fe``, built to differ from
 it wherever tissue may differ from the tuned slab:

@@ -16,7 +16,7 @@ classic detector where it fails, then an 11 x 11 ``cornerSubPix`` window), measu
 3. Rendered boards of the virtual rig (``experiments.stereo.render``), where the true
    corners are known: RMS and largest corner error [px] of each detector.
 
-Targets (issue 18): at most 5 s per 25 full-size images; corners not less accurate
+Targets: at most 5 s per 25 full-size images; corners not less accurate
 than the old detector's on the rendered boards; RMS < 0.5 px on OpenCV's sample.
 """
 
@@ -36,7 +36,7 @@ from .chessboard import board_points, find_corners
 from .dots import to_gray
 
 TARGET_SECONDS_PER_25 = 5.0
-"""Largest detection time per 25 full-size images (issue 18) [s]."""
+"""Largest detection time per 25 full-size images [s]."""
 
 
 def legacy_corners(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray:

@@ -23,7 +23,7 @@ _SUBPIX = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
 
 DETECT_SIZE = 1000
 """Longest side [px] of the image the board is found on; the corners are refined at
-full size. Exhaustive search at 2464 x 3280 took 98-166 s per 25 images (issue 18)."""
+full size. Exhaustive search at 2464 x 3280 took 98-166 s per 25 images."""
 
 MIN_PAIRS = 3
 """Fewest usable pairs a stereo calibration accepts."""
