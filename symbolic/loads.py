@@ -3,7 +3,7 @@
 - A point force f at the material point p: F_B = J(p)^T f, an (n, 3) array.
 - A probe of radius r: a surface traction f g(x) / integral g dA around the contact
   point, of one of two shapes (``PROBE_SHAPES``; **choice**, the data decide between
-  them in step 0 of the loop, docs/continuum.md):
+  them in step 0 of the loop, docs/stepzero.md):
   - "gauss": a Gaussian g of standard deviation r / 2 (about 86 % of the force lies
     within the radius);
   - "disc": a uniform pressure within r, its edge a logistic of scale 0.25 mm

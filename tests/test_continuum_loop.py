@@ -308,7 +308,8 @@ def test_the_loop_on_continuum_data_names_only_what_is_there(scenario):
     nothing else but the surrounding tissue, and the final RMS is at the noise level."""
     from experiments.diagnosis.continuumstudy import SCENARIOS, ContinuumStudy, run_scenario
 
-    # pinned to the grid these rows were verified on (docs/continuum.md, "Scenarios"):
+    # pinned to the grid these rows were verified on (docs/results/continuum-scenarios.md,
+    # "Paper design at 15x15x3"):
     # the new defaults (27x27x4, 10 mm margin) run out of memory on tilted_force here
     study = ContinuumStudy(design="paper", grid=(15, 15, 3), degrees=(3, 3, 2), margin=0.0)
     row = run_scenario(scenario, study)

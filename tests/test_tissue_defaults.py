@@ -4,7 +4,8 @@ The data are FE patches from the generator the model was not tuned on
 (``experiments.phantom.tissue``): the tissue goes on beyond the markers by an amount
 the dataset does not declare and is held there in ways it does not declare, the probe's
 radius is not in the file, the marker grid is not square. The rows are those of the
-table in docs/continuum.md ("Tissue the model was not tuned on").
+tables in docs/results/tissue-defaults.md (docs/stepzero.md, "Tissue the model was not
+tuned on", describes the data).
 
 They are the strong form the issue asks for: the named effect (or only physics the data
 have), never a stand-in at any step, and explained at <= 1.1x the noise level. Written

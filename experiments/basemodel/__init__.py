@@ -1,7 +1,7 @@
 """Step 0 of the loop: the base model, its surroundings and its resolution, from the data.
 
 ``choice`` decides (``choose_base``); ``family`` fits the continuum over the
-surroundings it searches. docs/continuum.md, "Step 0", gives the rules and numbers.
+surroundings it searches. docs/stepzero.md gives the rules and numbers.
 """
 
 from experiments.basemodel.choice import BaseChoice, choose_base

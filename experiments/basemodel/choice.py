@@ -1,7 +1,7 @@
 """Step 0 of the loop: the base model, its resolution and its surroundings, from the data.
 
 Before the loop looks for missing effects it decides what the data support as the
-base model (docs/continuum.md, "Step 0"):
+base model (docs/stepzero.md):
 
 1. **The paper's energy** (eq. 18, alpha_u, alpha_v, alpha_w) on the paper's volume:
    the auto grid up to 9x9x2, ending at the markers, the loads as declared.
@@ -75,7 +75,7 @@ MAX_REFINEMENTS = 2
 MAX_CHECK_POINTS = 20000
 """Largest volume (control points) the resolution check refits on: 53 x 42 x 7 takes
 about 20 s to build and factor once; the next step up costs 5x that. Rows D and E of
-docs/continuum.md stop below it (47 x 40 x 7, next 70 x 58 x 8); checked there with
+docs/results/tissue-defaults.md stop below it (47 x 40 x 7, next 70 x 58 x 8); checked there with
 40000 (2026-11-27) both are converged (chi^2 0.2 and 4.2, limit 6.6), but the check
 adds about 18 s, and D's gradient then ends at 123 s, over the two minutes."""
 

@@ -24,7 +24,7 @@ from solvers.diagnosis.stats import residual_test
 MARGINS_MM = (2.5, 5.0, 10.0)
 """Widths of tissue beyond the markers tried [mm]. A wider band costs a larger grid
 at the same spans; on FE tissue reaching 20 mm beyond the markers, the 10 mm free band fits
-as well (docs/continuum.md, "Step 0"), so 10 mm stands for "10 mm or more"."""
+as well (docs/results/continuum-fe-slab.md), so 10 mm stands for "10 mm or more"."""
 
 SUPPORTS = ("free", "clamped")
 """How the band's outer faces are held: free, or clamped (the lateral ring of control
@@ -37,7 +37,7 @@ RADII_MM = (1.5, 2.5, 3.5)
 DEGREES = (2, 2, 2)
 """Degrees of the continuum's volume: quadratic, as the Q2 bricks of FE codes; on the
 same spans the factorisation costs half the cubic's and the predicted markers agree
-as closely with a fine reference (docs/continuum.md, "Step 0")."""
+as closely with a fine reference (docs/stepzero.md, "What it compares")."""
 
 MIN_RADIUS_MM = 1.0
 """Smallest probe radius tried [mm]: a patch narrower than the finest knot span step 0
@@ -57,7 +57,7 @@ SPAN_OF_SPACING = 0.5
 SEARCH_SPAN_OF_SPACING = 2.0 / 3.0
 """Knot span of the volumes of the search over surroundings, in marker spacings: a third
 of the cost of ``SPAN_OF_SPACING`` per fit, and the same choices on the tissue data
-of docs/continuum.md ("Step 0")."""
+of docs/stepzero.md ("What it compares")."""
 
 TOLERANCE = 1e-6
 """Relative tolerance of the family's fits (chi^2 to well below 0.01)."""

@@ -5,7 +5,7 @@ the probe's radius on data that may hold an effect the base model lacks; the cho
 then absorbs what it can of that effect. On FE tissue with the contact 2 mm off the
 declared point, step 0 took a probe radius of 3.6 mm for a true 2.5 mm; once the loop
 added contact_offset, that radius was wrong, and a stand-in (layering) took up the
-rest (docs/continuum.md, "Injected effects").
+rest (docs/results/tissue-defaults.md, "Injected effects: the revisit").
 
 So after every effect the loop accepts (and for a candidate its overfitting guard
 rejects), the search of step 0 (``choice.search_surroundings``) runs again with the

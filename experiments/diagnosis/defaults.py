@@ -1,4 +1,4 @@
-"""Default ``dvs diagnose`` on tissue the model was not tuned on: docs/continuum.md's table.
+"""Default ``dvs diagnose`` on tissue the model was not tuned on: docs/results/tissue-defaults.md.
 
 The datasets come from ``experiments.phantom.tissue`` (Q2 hexahedra, another generator
 than the model was tuned on): eight patches (``ROWS``) that differ in how far the
@@ -7,9 +7,9 @@ marker grid, design (2, 8 or 10 loads), probe shape and radius (never declared),
 bilayer. ``injected_scenarios`` adds one departure to row A's patch. Each is diagnosed with the
 defaults (``--energy auto``: step 0 of ``experiments.basemodel``, then the loop).
 
-``print_table()`` prints the table of docs/continuum.md ("Tissue the model was not tuned
-on"), ``print_table(injected=True)`` its injected-effect rows; ``defaults_benchmark`` is its
-row in ``make bench`` (target: 2 minutes per dataset).
+``print_table()`` prints the table of docs/results/tissue-defaults.md ("The eight rows,
+no effect injected"), ``print_table(injected=True)`` its injected-effect rows;
+``defaults_benchmark`` is its row in ``make bench`` (target: 2 minutes per dataset).
 """
 
 from __future__ import annotations
@@ -179,7 +179,8 @@ HEADER = (
 )
 
 TARGET_S = 120.0
-"""The time target per dataset on the two-core machine [s] (docs/continuum.md)."""
+"""The time target per dataset on the two-core machine [s]
+(docs/results/tissue-defaults-speed.md)."""
 
 
 def defaults_benchmark(rows=("A", "G"), log=print) -> list[dict]:

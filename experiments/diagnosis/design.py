@@ -47,7 +47,7 @@ def design_summary(dataset: Dataset) -> dict:
 
 HIDDEN_FROM_THE_CONTINUUM_ON_ONE_CONTACT = ("heterogeneity", "base_compliance", "contact_patch")
 """Effects the continuum base model's E and nu absorb with loads at one contact along the
-normal (scikit-fem data, docs/continuum.md)."""
+normal (scikit-fem data, docs/results/continuum-scenarios.md)."""
 
 
 def design_note(dataset: Dataset, energy: str = "dnurbs") -> dict:
@@ -62,7 +62,7 @@ def design_note(dataset: Dataset, energy: str = "dnurbs") -> dict:
             f"with every load at one contact along the normal, E and nu absorb "
             f"{', '.join(hidden)}; press at several contacts and tilt a load (docs/continuum.md)"
             if one_contact
-            else "detection limits of the continuum base model: docs/continuum.md"
+            else "detection limits of the continuum base model: docs/results/continuum-scenarios.md"
         )
         return {**summary, "cannot_separate": list(hidden), "note": line}
     if one_contact:

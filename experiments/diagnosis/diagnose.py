@@ -303,7 +303,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
         BASE_ENERGIES,
         "base model: auto (step 0 chooses between the paper's energy and the "
         "linear-elastic continuum with the tissue beyond the markers and the probe size "
-        "estimated, docs/continuum.md), or dnurbs (eq. 18), linear-elastic or neo-hookean",
+        "estimated, docs/stepzero.md), or dnurbs (eq. 18), linear-elastic or neo-hookean",
         grid="up to 9x9x2, as the markers allow",
         degrees="3x3x1; e.g. 3x3x2",
     )

@@ -9,7 +9,7 @@ The ratio of CPU times is the figure to read (other jobs change it least)::
     dvs bench sidebyside --other /path/to/worktree A G A:rigid_motion
 
 Each argument is a row of ``experiments.diagnosis.defaults.ROWS``, with ``:effect`` for
-the row's design with that departure injected (docs/continuum.md, the effect tables).
+the row's design with that departure injected (docs/results/tissue-defaults.md).
 """
 
 from __future__ import annotations

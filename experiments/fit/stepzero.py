@@ -1,9 +1,9 @@
 """Step 0 in the commands beyond ``dvs fit`` and ``dvs diagnose``: ``dvs image`` and
-``dvs design`` (the same defaults everywhere, docs/continuum.md).
+``dvs design`` (the same defaults everywhere, docs/stepzero.md).
 
 With no model option each command runs step 0 (``experiments.basemodel.choose_base``)
 on the dataset as fit and diagnose do, prints its choice in the same one line and
-records it as ``base_choice`` (docs/continuum.md, "Step 0"). ``--grid``, ``--degrees``
+records it as ``base_choice`` (docs/stepzero.md). ``--grid``, ``--degrees``
 and ``--margin`` set the volume of a chosen ``--energy`` and are refused without one
 (``refuse_model_options``), the rule of fit and diagnose. The four options are declared
 alike in every such command (``add_model_arguments``) and read alike

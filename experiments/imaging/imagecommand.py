@@ -46,7 +46,7 @@ def build_parser(prog: str = "python -m experiments.imaging.imagecommand"):
         choices=("auto", "linear-elastic"),
         default="auto",
         help="the continuum imaged on: auto (step 0 of dvs fit and dvs diagnose chooses its "
-        "volume, the tissue beyond the markers and the probe radius, docs/continuum.md), or "
+        "volume, the tissue beyond the markers and the probe radius, docs/stepzero.md), or "
         "linear-elastic on the volume of --grid, --degrees and --margin",
     )
     parser.add_argument(

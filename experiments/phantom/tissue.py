@@ -1,4 +1,4 @@
-"""FE tissue patches the model was not tuned on (the acceptance data of docs/continuum.md).
+"""FE tissue patches the model was not tuned on (the acceptance data of docs/stepzero.md).
 
 A second reference generator beside ``experiments.phantom.fe``, built to differ from
 it wherever tissue may differ from the tuned slab:

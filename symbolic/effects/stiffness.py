@@ -160,7 +160,7 @@ class Heterogeneity(FieldStiffness, Effect):
 
     The field was bilinear (a third parameter h_uv with (2u-1)(2v-1)) until the twist
     proved not identifiable from contacts 8 mm around the centre: on FE tissue with a
-    gradient (E x 0.4-1.6 across the markers, docs/continuum.md) h_uv swung by +-0.27
+    gradient (E x 0.4-1.6 across the markers, docs/results/tissue-defaults.md) h_uv swung by +-0.27
     as each corner contact was left out, so the fit to four contacts predicted the
     fifth worse than no gradient (left-out chi^2 3066 -> 3197) and the guard rejected
     it; without h_uv the same fit lowers chi^2 as much (3339 -> 2695) and predicts the
@@ -220,7 +220,7 @@ class Layering(FieldStiffness, Effect):
     bands give the depth profile the data can see: s_1 is the ratio minus one of the
     skin's modulus to the fat's, and s_2 says whether the stiff layer goes on below
     1 mm (the interface depth). Markers on the surface weigh the top band most: on FE
-    data with a 1.5 mm skin 5x stiffer (docs/continuum.md, row G) the fit gives
+    data with a 1.5 mm skin 5x stiffer (docs/stepzero.md, row G) the fit gives
     s_1 = 4.4 +- 0.3 and s_2 = -0.2 +- 0.2. Both moduli scale together (nu unchanged).
     Linear in s, zero at s = 0; the continuum only (the paper's energy has no depth).
     Realistic magnitude 4: a skin 5x stiffer.
