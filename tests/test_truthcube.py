@@ -1,4 +1,4 @@
-"""The Truth Cube's model, fit and study (experiments/truthcube/, docs/experiments.md).
+"""The Truth Cube's model, fit and study (experiments/truthcube/, docs/truthcube.md).
 
 Fast: the frame puts the base at w = 0; the forward solution on a 3 x 3 x 3 subsample
 of inner beads behaves as a bonded compressed block must; a synthetic twin (the model's

@@ -6,7 +6,7 @@ silicone cast onto a rigid acrylic base, with 343 Teflon beads (7 x 7 x 7, nomin
 1 cm apart) located by CT at rest and at 5 %, 12.5 % and 18.25 % nominal compression
 by a flat plate. In the file's frame -z points up: the base is at the largest z and
 the plate pushes towards +z. No force is recorded. The file comes from OpenSurgSim
-(Apache-2.0, SimQuest Solutions); see docs/experiments.md.
+(Apache-2.0, SimQuest Solutions); see docs/truthcube.md.
 
 File layout: seven header lines, then one line per bead: ``i,j,k`` (1-based bead
 index) and ``x, y, z`` [mm] for each of the four states, rest first.

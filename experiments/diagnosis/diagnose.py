@@ -130,7 +130,7 @@ def run(
     dataset = dataset_or_path
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset_or_path)
-    if "bead_index" in dataset.extra:  # the Truth Cube: its own set-up (docs/experiments.md)
+    if "bead_index" in dataset.extra:  # the Truth Cube: its own set-up (docs/truthcube.md)
         from experiments.data.truthcube import cube_from_dataset
         from experiments.truthcube.cubestudy import run_study
 

@@ -3,5 +3,5 @@
 ``cubemodel`` (the cube as a volume spline, its frame and load cases), ``cubefit`` (nu
 and the plate's translations), ``cubeloop`` (the shared loop), ``cubechecks`` (the
 discretisation against scikit-fem), ``cubestudy`` (the study and its command) and
-``cubereport`` (its tables). docs/experiments.md, "Truth Cube".
+``cubereport`` (its tables). docs/truthcube.md.
 """

@@ -1,5 +1,5 @@
 """The Truth Cube's fits by contact, their leave-one-state-out folds, and the contact
-they name (docs/experiments.md, "Truth Cube": "How the contact is decided").
+they name (docs/truthcube.md, "Results": "How the contact is decided").
 
 ``energy_study`` fits nu and the plate to all states with one energy and one plate
 contact (``cubefit``) and leaves each state out: nu and the other states' plates fitted

@@ -1,4 +1,4 @@
-"""The Truth Cube study's tables as Markdown (``report.md``; docs/experiments.md)."""
+"""The Truth Cube study's tables as Markdown (``report.md``; docs/truthcube.md)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The Truth Cube study: nu, the bead errors, leave-one-state-out, and the loop.
 
 ``python -m experiments.truthcube --out DIR [--checks]`` (``main``) writes
-``DIR/cubestudy.json`` (every number of docs/experiments.md, "Truth Cube"),
+``DIR/cubestudy.json`` (every number of docs/truthcube.md),
 ``DIR/diagnosis.json`` (the loop's document, schema ``dvs-diagnosis/1``) and
 ``DIR/report.md`` (the tables). ``--checks`` adds the discretisation checks of
 ``experiments.truthcube.cubechecks`` (scikit-fem comparison and nu by grid; about two

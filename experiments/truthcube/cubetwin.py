@@ -1,7 +1,7 @@
 """A synthetic twin of the Truth Cube: scikit-fem beads at a known nu and plate contact.
 
-The twin is the cube experiment with everything known (docs/experiments.md, "Truth
-Cube", "Synthetic twin"): the same 80 mm cube in the model frame of the real data
+The twin is the cube experiment with everything known (docs/truthcube.md, "Results",
+"Synthetic twin"): the same 80 mm cube in the model frame of the real data
 (``cubemodel.CubeFrame``), bonded to its base, linear elasticity by scikit-fem's
 quadratic tetrahedra (``cubechecks.FemCube``: another discretisation than the spline's),
 Poisson's ratio ``TWIN_NU`` (not the value the real beads give), the plate moved straight
