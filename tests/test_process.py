@@ -57,8 +57,7 @@ print(json.dumps({i["prefix"]: i["num_threads"] for i in threadpool_info()
 
 
 def test_numpys_blas_runs_on_one_thread():
-    """After ``configure`` every BLAS loaded so far runs on one thread (CHOLMOD's
-    factorisation still takes ``cholmod.threads()``: tests/test_cholmod.py)."""
+    """After ``configure`` every BLAS loaded so far runs on one thread."""
     import json
 
     out = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True)

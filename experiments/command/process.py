@@ -14,10 +14,9 @@ threshold to glibc's largest (32 MiB) and the trim threshold to 256 MiB, so free
 blocks stay in the heap for reuse. Larger blocks, the Cholesky factor foremost, are
 reused by ``solvers.linalg.cholmod`` itself.
 
-**Threads.** CHOLMOD's OpenBLAS takes both cores inside a factorisation or a solve
-(``solvers.linalg.cholmod.threads``), and its worker then waits busily on the second
-core. numpy's own OpenBLAS on two threads competes with it for that core on every dense
-product of the fit. On one thread (``numpy_blas_on_one_thread``), the same ``dvs next``
+**Threads.** numpy's own OpenBLAS on two threads waits busily on the second core
+between the dense products of the fit, where the factorisations want it. On one
+thread (``numpy_blas_on_one_thread``), the same ``dvs next``
 on compliant_base took 62.9-64.6 s against 65.5-72.2 s, three runs each, interleaved
 (docs/design.md, "The next press in the lab").
 

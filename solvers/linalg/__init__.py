@@ -1,4 +1,4 @@
-"""Sparse linear algebra: ``cholmod`` (sparse Cholesky through the system's CHOLMOD,
+"""Sparse linear algebra: ``cholmod`` (sparse Cholesky through cvxopt's CHOLMOD,
 ``factorised`` choosing it or SuperLU) and ``blas`` (BLAS threads around thin solves)."""
 
 from solvers.linalg.blas import one_thread
