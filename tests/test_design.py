@@ -66,7 +66,7 @@ def test_predictions_hold_over_200_noisy_simulations():
     """Issue 21's acceptance: over 200 noisy simulations of the diagnosis design, the
     predicted standard errors match the spread of the estimates within 15 % and the
     predicted power matches the rejection rate within 0.1 (magnitudes where the power
-    is near 0.5; docs/design.md)."""
+    is near 0.5; docs/results/design-predictions.md)."""
     from experiments.design.predictions import calibrate
 
     out = calibrate(

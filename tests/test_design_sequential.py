@@ -189,8 +189,8 @@ def test_sequential_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, mess
 def test_the_sequential_loop_names_nothing_when_nothing_is_hidden(tmp_path):
     """``dvs design --sequential none`` on FE continuum data, from the paper's two loads:
     "explained" with nothing named within 3 presses, and the path written (about 4
-    minutes). The three hidden-effect scenarios are a study (docs/design.md), not a
-    test: they do not yet meet the issue's acceptance at the 15x15x3 loop grid."""
+    minutes). The three hidden-effect scenarios are a study (docs/results/sequential-loop.md),
+    not a test: they do not yet meet the issue's acceptance at the 15x15x3 loop grid."""
     import json
 
     out = tmp_path / "seq"

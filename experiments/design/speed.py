@@ -13,7 +13,7 @@ Targets: the search <= 60 s; a 10-press sequential run <= 15 minutes, i.e. about
 100 s for each of its 9 steps (from 2 presses to 10). A full run is too long for
 ``make bench``: the row is the first step (2 presses, nothing named yet; later
 steps diagnose more presses and refit named effects), and the 10-press run is
-measured once in docs/design.md.
+measured once in docs/results/sequential-loop.md.
 """
 
 from __future__ import annotations

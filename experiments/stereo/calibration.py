@@ -190,7 +190,7 @@ DISTORTION_MODELS = {
 #: by the spatial hold-out (``select_distortion_model``) on both MultiDIC views; the
 #: richer models fit the dots they saw better (0.38-0.61 against 0.66 px) but trade
 #: their decentring terms against the principal point, which then moves by 50-130 px
-#: (docs/stereo.md).
+#: (docs/results/stereo-distortion-models.md).
 OBJECT_FLAGS = DISTORTION_MODELS["k1 k2"]
 
 PRINCIPAL_POINT_STD_BOUND_PX = 25.0

@@ -1,5 +1,6 @@
 """Which dot is which marker: the rest capture's dots labelled on the marker lattice, then
-matched in the loaded captures and across cameras along epipolar lines (docs/stereo.md)."""
+matched in the loaded captures and across cameras along epipolar lines
+(docs/reconstruction.md)."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ the markers and the inner surface below them). ``experiment.json``::
      "thickness_mm": h (frame camera0 only),
      "loads": [{"force_N": [fx, fy, fz], "contact_mm": [x, y, z], "probe_radius_mm": r}]}
 
-Forces and contacts are given in the output frame (docs/stereo.md).
+Forces and contacts are given in the output frame (docs/reconstruction.md).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The folder's layout and ``experiment.json`` are described in ``experiments.stereo.experiment``.
 Forces and contacts are given in the output frame. The pipeline (calibration, dots with a
 clean surround, grid indexing, guided matching of the loaded dots, triangulation with
-verification) and the frames are described in ``docs/stereo.md``. In short, frame
+verification) and the frames are described in ``docs/reconstruction.md``. In short, frame
 ``"segmentation"`` registers the rest markers rigidly (Kabsch) onto the segmentation's
 ``outer`` and takes ``inner_rest`` from it, since no camera sees the inner surface; in the
 synthetic check that segmentation is the phantom itself. Frame ``"camera0"`` keeps camera 0's
@@ -254,7 +254,9 @@ def build_parser(prog: str = "python -m experiments.stereo.reconstruct"):
     from experiments.command.options import make_parser, path_argument
 
     parser = make_parser(prog, "Reconstruct a dataset from the images of an experiment.")
-    parser.add_argument("folder", type=path_argument, help="experiment folder (docs/stereo.md)")
+    parser.add_argument(
+        "folder", type=path_argument, help="experiment folder (docs/reconstruction.md)"
+    )
     parser.add_argument(
         "--out", type=path_argument, required=True, help="dataset file to write (.npz)"
     )

@@ -1,6 +1,6 @@
 """Synthetic images of the forehead experiment: dotted skin, probe and chessboard.
 
-One :class:`Renderer` per camera (the model is described in ``docs/stereo.md``):
+One :class:`Renderer` per camera (the model is described in ``docs/reconstruction.md``):
 
 - every pixel's ray comes from the camera's own lens model, so the images carry its
   distortion; sub-pixel samples (``s x s`` per pixel) use the local Jacobian of that map;
