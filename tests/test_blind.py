@@ -4,7 +4,7 @@ The score test's profiled information gives the power against an effect of any s
 without a new solve. Checked here: it is the linearisation of eq. (D2)'s solved signal
 (``effect_power``), converging as the size shrinks; the detectable size inverts the
 power; and on the phantom the measured blind spots are the ones the detection studies
-found (docs/diagnosis.md: base_compliance hides on every design; heterogeneity and
+found (docs/results/loop-rules.md: base_compliance hides on every design; heterogeneity and
 pre_tension also hide when every load presses one contact along the normal).
 """
 

@@ -17,8 +17,9 @@ Two experiment designs:
 
 Effects that cannot pass a criterion at a realistic magnitude are marked
 ``xfail(strict=True, raises=AssertionError)`` with the reason (a crash is no expected
-failure); docs/diagnosis.md gives the numbers. The phantom is the paper's energy, so its
-effects are the library on that energy: every one but layering (``PAPERS_LIBRARY``).
+failure); docs/results/diagnosis-phantom.md gives the numbers. The phantom is the paper's
+energy, so its effects are the library on that energy: every one but layering
+(``PAPERS_LIBRARY``).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ NOT_TWICE = (
 TWICE = {"rigid_motion", "measurement_scale"}
 PAPERS_LIBRARY = tuple(n for n in EFFECT_NAMES if n != "layering")
 """The library on the paper's energy, the phantom's: every effect but layering, which is
-"the continuum only (the paper's energy has no depth)" (docs/diagnosis.md, the effects)."""
+"the continuum only (the paper's energy has no depth)" (docs/effects.md, "The effects")."""
 
 
 @cache

@@ -49,7 +49,7 @@ def setting():
 
 def test_library_names_are_those_of_the_design():
     """The design's list, plus the continuum issue's shear term and surrounding tissue, and
-    issue 40's layering (skin over fat): together the effects of docs/diagnosis.md,
+    issue 40's layering (skin over fat): together the effects of docs/effects.md,
     "The effects"."""
     assert set(EFFECT_NAMES) == DESIGN_NAMES | {"shear_coupling", "surrounding_tissue", "layering"}
     for name in EFFECT_NAMES:

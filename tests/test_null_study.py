@@ -1,4 +1,5 @@
-"""False discoveries on null FE data (docs/diagnosis.md, "False discoveries, measured").
+"""False discoveries on null FE data (docs/results/null-study.md; docs/diagnosis.md, "False
+discoveries on null data from both generators").
 
 Fast: the study's datasets span what the selection rule must hold over (both FE
 generators, extent 2-20 mm, every support, curvature, nu 0.40-0.49, several marker grids,

@@ -81,7 +81,7 @@ magnitude slower for the same answer.
 
 - The phantom is made by the model itself: its tissue is exactly a D-NURBS volume. Real
   tissue is a continuum; on finite-element data made by another code the base model
-  leaves a residual above the noise (docs/diagnosis.md, "Out of library").
+  leaves a residual above the noise (docs/results/diagnosis-phantom.md, "Out of library").
 - The images are rendered, with a known camera model; real images are checked in
   docs/stereo.md.
 - mu and gamma need trajectories, not two static shapes (docs/dynamic.md).

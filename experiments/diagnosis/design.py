@@ -4,9 +4,9 @@ The diagnosis can only find what the experiment lets it see. On the paper's desi
 (loads at one contact, along the normal) the cases are nearly proportional and a
 refit of alpha absorbs four physical effects; on the diagnosis design (five contacts,
 a tilted load) only ``base_compliance`` stays hidden (docs/diagnosis.md, "The
-experiment design of the diagnosis" and "Measured results"; ``dvs study diagnosis --design
-paper`` and ``dvs study diagnosis``). ``design_note`` reads a dataset's contacts and force
-directions and says which of these limits applies.
+experiment design of the diagnosis"; docs/results/diagnosis-phantom.md; ``dvs study
+diagnosis --design paper`` and ``dvs study diagnosis``). ``design_note`` reads a
+dataset's contacts and force directions and says which of these limits applies.
 """
 
 from __future__ import annotations
@@ -76,6 +76,6 @@ def design_note(dataset: Dataset, energy: str = "dnurbs") -> dict:
         hidden = HIDDEN_ANYWHERE
         line = (
             f"{', '.join(hidden)} is absorbed by alpha_w on every design tried; the others "
-            "can be told apart when large enough (docs/diagnosis.md, detection limits)"
+            "can be told apart when large enough (docs/results/detection-limits.md)"
         )
     return {**summary, "cannot_separate": list(hidden), "note": line}

@@ -8,7 +8,7 @@ undeclared effect in synthetic data with noise 0.02 mm:
 3. the RMS before is at least twice the RMS after.
 
 At the effects' realistic magnitudes (``Effect.default_magnitude``) criterion 3
-holds only for the measurement effects (docs/diagnosis.md). This study multiplies
+holds only for the measurement effects (docs/results/diagnosis-phantom.md). This study multiplies
 each magnitude by growing factors, on the same design, seed and noise, and
 reports the smallest factor at which every criterion holds. A factor is tried
 only while the true parameters stay inside the effect's own bounds (the range

@@ -315,7 +315,7 @@ def build_parser(prog: str = "python -m experiments.diagnosis.diagnose"):
         "--candidates",
         default="default",
         help="comma list of effects to search, 'default' (every effect but the opt-in "
-        "stiffness_field) or 'default,stiffness_field' (docs/diagnosis.md)",
+        "stiffness_field) or 'default,stiffness_field' (docs/effects.md)",
     )
     parser.add_argument(
         "--no-refinement-check",

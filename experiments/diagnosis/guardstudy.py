@@ -11,7 +11,7 @@ The datasets: the scikit-fem slabs of ``experiments.diagnosis.continuumstudy`` (
 scenarios, seeds other than the benchmark's 1, three slab geometries: tissue reaching 5, 10 and
 15 mm beyond the markers, free or clamped, and probe radii of 3-5 mm) and the Q2 tissue
 patches of ``experiments.diagnosis.defaults`` (rows A-H, and row A with each injected
-departure). The table of docs/diagnosis.md ("the loop and its stopping rules") came
+departure). The tables of docs/results/left-out-fits.md came
 from ``python -c "from experiments.diagnosis.guardstudy import main; main()"`` (about
 40 minutes on 2 cores).
 """

@@ -3,7 +3,7 @@
 - ``study(seeds)`` hides each effect of the library at its realistic magnitude in
   synthetic data (and none, the negative control), runs the diagnosis and reports
   what it selected, the RMS before and after against the noise level, and the time
-  (docs/diagnosis.md, "Results").
+  (docs/results/diagnosis-phantom.md).
 - ``benchmark()`` measures the cost of the score tests in forward solves.
 """
 

@@ -18,8 +18,8 @@ over the markers within 2 std of the truth. Linear, without model error: a rule 
 fails here fails on the full problem too.
 
 Usage: ``dvs study imageweights --seed 7 --grid 23x23x4 --draws 200``; with a comma list of
-seeds (``--seed 7,8,9``) it ends with the places table (docs/imaging.md, "At a random
-place"), and ``--oracle-press MM`` adds one press near the disc.
+seeds (``--seed 7,8,9``) it ends with the places table (docs/results/imaging-weights.md,
+"At a random place"), and ``--oracle-press MM`` adds one press near the disc.
 """
 
 from __future__ import annotations
@@ -342,7 +342,7 @@ def place_row(seed: int, centre, result: dict, oracle_mm: float | None = None) -
 
 
 def places_table(rows: list[dict]) -> str:
-    """The places as a markdown table (docs/imaging.md, "At a random place")."""
+    """The places as a markdown table (docs/results/imaging-weights.md, "At a random place")."""
     rules = list(rows[0]["all_ok"])
     head = "| seed | disc (x, y) [mm] | nearest press [mm] | signal chi^2 | "
     head += " | ".join(rules) + " | best fixed weight [mm^2] |"

@@ -343,7 +343,7 @@ def build_parser(prog: str = "python -m experiments.phantom.simulate"):
         default=[],
         metavar="NAME[=VALUE]",
         help="an effect the dataset does not declare (repeatable; a bare NAME uses its "
-        "realistic magnitude, docs/diagnosis.md)",
+        "realistic magnitude, docs/effects.md)",
     )
     parser.add_argument(
         "--design",

@@ -27,7 +27,7 @@ STIFFENING = {"exponential": exponential_stiffening, "quadratic": quadratic_stif
 """s(eps) of eq. (1) by name."""
 
 CANDIDATES = ("nonlinear_stiffening", "volumetric_coupling", "anisotropy", "stiffer_region")
-"""The effects the loop may add to the slab (docs/diagnosis.md, "The effects"): strain
+"""The effects the loop may add to the slab (docs/effects.md, "The effects"): strain
 stiffening (k0 of eq. 1), the in-plane Poisson coupling, the anisotropy T_y / T_x and a
 stiffer rectangle of the skin."""
 

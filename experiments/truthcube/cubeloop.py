@@ -27,7 +27,7 @@ CANDIDATES = {
     "linear-elastic": ("rigid_motion", "measurement_scale", "heterogeneity", "base_compliance"),
     "neo-hookean": ("rigid_motion", "measurement_scale", "nonlinear_stiffening"),
 }
-"""The effects that apply to the cube, by base energy (docs/diagnosis.md, "The effects"):
+"""The effects that apply to the cube, by base energy (docs/effects.md, "The effects"):
 a registration error of each CT scan (rigid motion per state), a scale error of each
 scan, a stiffness gradient, a compliant base (the acrylic is rigid, so it should not
 be found) and, on the neo-Hookean base, strain stiffening. The contact and probe

@@ -37,7 +37,7 @@ in p. Where G lands within ``CLEAR_MARGIN`` of the boundary of (G3), the step is
 taken again from where it lands (``refined_left_out``: every case evaluated there, one
 factorisation of K(p) per fold), and where that is still within ``REFINED_MARGIN`` of
 the boundary, or within ``STEP_FACTOR`` times what the second step changed, the exact
-refits decide, started from the first step (docs/diagnosis.md gives the gaps measured
+refits decide, started from the first step (docs/results/left-out-fits.md gives the gaps measured
 between the three).
 """
 
@@ -59,7 +59,7 @@ REFINED_MARGIN = 2.0
 STEP_FACTOR = 2.0
 """So is a refined G within this many times the second step's change of it of the
 boundary: the steps converge slowly there (measured on 15 continuum checks: the refined
-improvement was within 0.56 times that change of the refits', docs/diagnosis.md)."""
+improvement was within 0.56 times that change of the refits', docs/results/left-out-fits.md)."""
 
 
 def _mapped(source_labels, source_p, target) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,6 @@
 """Where the material is stable: the parameters a diagnosis fit may evaluate.
 
-The stiffness fields (heterogeneity, layering, stiffness_field; docs/diagnosis.md,
+The stiffness fields (heterogeneity, layering, stiffness_field; docs/effects.md,
 "The extension machinery") scale the base's moduli by 1 + their sum, and their box
 bounds alone allow a negative modulus: heterogeneity at h = (-0.9, -0.9) leaves
 1 - 1.8 at a corner of the volume. There K(p) is indefinite and no equilibrium

@@ -41,7 +41,7 @@ class Effect:
     Class attributes
     ----------------
     name : str
-        Effect name (docs/diagnosis.md, "The effects").
+        Effect name (docs/effects.md, "The effects").
     parameters : tuple of Parameter
         theta's parameters (one case's block for a per-case effect): name, unit, scale
         and bounds. ``parameter_names``, ``units``, ``scales``, ``lower`` and ``upper``

@@ -1,4 +1,4 @@
-"""How an effect declares its parameters and its realistic magnitude (docs/diagnosis.md,
+"""How an effect declares its parameters and its realistic magnitude (docs/effects.md,
 "The effects"): one ``Parameter`` row per parameter, one ``Magnitude``."""
 
 from __future__ import annotations

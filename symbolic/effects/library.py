@@ -68,7 +68,7 @@ EFFECT_CLASSES: tuple[type[Effect], ...] = (
     Layering,
 )
 EFFECT_NAMES: tuple[str, ...] = tuple(dict.fromkeys(c.name for c in EFFECT_CLASSES))
-"""The default library: every effect name of docs/diagnosis.md ("The effects") but the
+"""The default library: every effect name of docs/effects.md ("The effects") but the
 opt-in ``stiffness_field``, ``stiffer_region`` and ``anisotropy``, in order. One name may
 have a class per base energy (``nonlinear_stiffening``: eq. 1 or eq. C10);
 ``make_effect`` picks by the energy."""

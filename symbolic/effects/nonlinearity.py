@@ -1,5 +1,5 @@
 """``nonlinear_stiffening``: strain stiffening, the one effect of that name for every base
-energy that can carry it (docs/diagnosis.md, "The effects").
+energy that can carry it (docs/effects.md, "The effects").
 
 - On the paper's energy (and the real skin's slab), k0 of eq. (1) (``NonlinearStiffening``).
 - On the large-strain continuum (``--energy neo-hookean``), k1 of the isochoric exponential

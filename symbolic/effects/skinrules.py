@@ -1,5 +1,5 @@
 """Geometry of the skin that effects integrate over: the surface frame at a contact and the
-quadrature rules on the model's faces and skin (docs/diagnosis.md, "The effects")."""
+quadrature rules on the model's faces and skin (docs/effects.md, "The effects")."""
 
 from __future__ import annotations
 
