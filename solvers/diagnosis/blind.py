@@ -13,9 +13,10 @@ magnitude (``Effect.default_magnitude``, in the library's standard pattern
 ``Effect.true_parameters``) stays below ``GOAL`` is a blind spot: the data do not rule
 it out, and the verdict names it with the smallest magnitude the design would detect.
 
-This is what point 5 of docs/diagnosis.md asks of a verdict on a weak design: on the
-paper's two loads at one contact, a stiffness gradient and a compliant base leave the
-residual at the noise, so "explained" must say that they were not tested with any power.
+This is what docs/diagnosis.md ("What the verdict does not rule out") asks of a verdict on
+a weak design: on the paper's two loads at one contact, a stiffness gradient and a
+compliant base leave the residual at the noise, so "explained" must say that they were
+not tested with any power.
 The linearisation holds while the effect's signal is linear in theta; it is checked
 against the nonlinear signal of ``solvers.design.information.effect_power`` in the tests.
 """
