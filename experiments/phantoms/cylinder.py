@@ -119,14 +119,26 @@ def load_cases(model: NeoHookeanModel, travel_mm: np.ndarray, force_n: np.ndarra
 
 def plate_forces(model, travel_mm: np.ndarray) -> np.ndarray:
     """The bonded model's compressive force [N] (> 0) at each travel, at the model's own
-    E: every case solved by the shared solver (``solvers.diagnosis.extended``)."""
+    E: every case solved by the shared solver (``solvers.diagnosis.extended``), in order
+    of travel, each Newton solve started from the last state scaled to the new travel
+    (from rest, Newton fails at the larger travels and the solver falls back to load
+    steps: the same forces to 1e-9, 5.7x slower on the 9 x 9 x 7 cubic cylinder to 30 %)."""
+    travel_mm = np.asarray(travel_mm, dtype=float)
     labels = [f"{t:.3f} mm" for t in travel_mm]
     cases = load_cases(model, travel_mm, -np.ones(len(labels)), labels)
     young = float(model.parameters["E"])
     space = ParameterSpace.create(("E",), {"E": young}, {"E": (1e-3, 1e4)})
     problem = InverseProblem(model, cases, space, noise_mm=1.0)
     extended = ExtendedProblem(problem, [FrameLoad(label) for label in labels], [])
-    residual = extended.evaluate(np.array([young]))[0]  # F_model - F_target, F_target = -1
+    p = np.array([young])
+    residual, state, last = np.zeros(len(labels)), None, None
+    for position in np.argsort(travel_mm):
+        start = None if state is None else state * (travel_mm[position] / travel_mm[last])
+        state, _ = extended.solve_state(int(position), p, start)
+        value = extended.numeric(int(position), "residual")(state, p)
+        value = value.toarray() if sp.issparse(value) else np.asarray(value)
+        residual[position] = float(np.ravel(value)[0])  # F_model - F_target, F_target = -1
+        last = position
     return -(residual - 1.0)
 
 
