@@ -64,7 +64,7 @@ FILE_OUTPUT = {
 }
 """Commands that write one file: (option, suffix, other arguments)."""
 
-NO_OUTPUT = {"realskin data", "bench board", "study imageweights"}
+NO_OUTPUT = {"realskin data", "bench board", "study imageweights", "bench factorisation"}
 """Commands that only print."""
 
 EXPENSIVE = (
@@ -188,6 +188,8 @@ OUT_OF_RANGE = [
     (["image", "{data}", "--field", "5x5", "--over", "layers", "--out", "o"], "--field"),
     (["image", "{data}", "--noise", "0", "--out", "o"], "--noise"),
     (["bench image", "--sizes", "15"], "--sizes"),
+    (["bench factorisation", "--grids", "2x2x2"], "--grids"),
+    (["bench factorisation", "--solvers", "magic"], "--solvers"),
     (["design", "{data}", "--budget", "0", "--out", "o"], "--budget"),
     (["design", "{data}", "--target", "gravity", "--out", "o"], "--target"),
     (["design", "{data}", "--force-range", "0.1", "2", "--out", "o"], "--force-range"),

@@ -37,7 +37,7 @@ VERBS = {
 
 GROUPS = {
     "bench": (
-        "speed and accuracy benchmarks: inverse, design, image, board, sidebyside",
+        "speed and accuracy benchmarks: inverse, design, image, factorisation, board, ...",
         {
             "inverse": (
                 "experiments.inverse.inversebench",
@@ -48,6 +48,10 @@ GROUPS = {
                 "design search: speed, gap, against by hand",
             ),
             "image": ("experiments.imaging.imagebench", "stiffness imaging: fit time against N"),
+            "factorisation": (
+                "experiments.inverse.factorisation",
+                "sparse direct solvers of K side by side",
+            ),
             "board": ("experiments.stereo.boardbench", "checkerboard detection: time, accuracy"),
             "sidebyside": (
                 "experiments.diagnosis.sidebyside",

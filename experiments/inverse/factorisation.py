@@ -16,13 +16,12 @@ on one thread and, where it can use more, on every core the process may use:
 The times are printed as ratios to SuperLU's (the shared machine moves every column
 alike). Solvers: SuperLU (scipy; ``solvers.linalg.cholmod.symmetric_lu``), the
 project's CHOLMOD (``solvers.linalg.cholmod``), and MKL's PARDISO (pypardiso) when it
-is installed. ``python -m experiments.inverse.factorisation``; part of ``make bench``
+is installed. ``dvs bench factorisation``; part of ``make bench``
 (``--diagnose``); docs/inverse.md, "Sparse factorisation".
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 import time
@@ -30,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+
+from experiments.command.options import Command
 
 GRIDS = ((27, 27, 4), (47, 40, 7))
 """Control grids of the benchmark: the loop-speed grid and a larger volume."""
@@ -264,20 +265,40 @@ def factorisation_benchmark(grids=GRIDS, solvers=tuple(SOLVERS), log=print) -> l
     return rows
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def build_parser(prog: str = "python -m experiments.inverse.factorisation"):
+    """The options of ``dvs bench factorisation``."""
+    from experiments.command.options import make_parser
+
+    parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument(
-        "--grids", default=",".join("x".join(map(str, g)) for g in GRIDS),
+        "--grids",
+        default=",".join("x".join(map(str, g)) for g in GRIDS),
         help="control grids MxNxL, comma-separated (27x27x4,47x40x7)",
-    )  # fmt: skip
+    )
     parser.add_argument(
         "--solvers", default=",".join(SOLVERS), help="of superlu,cholmod,pardiso (all)"
     )
-    args = parser.parse_args(argv)
-    grids = [tuple(int(v) for v in g.split("x")) for g in args.grids.split(",") if g]
+    return parser
+
+
+def work(args) -> int:
+    """Check the grids and solvers, then print the table (``factorisation_benchmark``)."""
+    from experiments.command.options import UsageError, check_grid, parse_grid
+
+    texts = [g for g in args.grids.split(",") if g]
+    if not texts:
+        raise UsageError("--grids takes a comma list of grids, e.g. 27x27x4")
+    grids = [check_grid(parse_grid(g, "--grids"), DEGREES, g, "--grids") for g in texts]
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
+    unknown = sorted(set(solvers) - set(SOLVERS))
+    if unknown or not solvers:
+        choices = ",".join(SOLVERS)
+        raise UsageError(f"--solvers takes a comma list of {choices}, got {args.solvers!r}")
     factorisation_benchmark(grids, solvers)
     return 0
+
+
+main = Command("experiments.inverse.factorisation", build_parser, work).main
 
 
 if __name__ == "__main__":
