@@ -17,6 +17,7 @@ from experiments.phantoms.phantomstudy import (
     PUBLISHED_E_KPA,
     LinearFit,
     energy_entry,
+    model_entry,
     named_contact,
     recipe_row,
     run,
@@ -60,8 +61,9 @@ def test_a_twin_with_known_e_and_noise_is_recovered_within_its_standard_error():
     fitted = LinearFit.of(np.tile(unit, 5), specimens.ravel())
     assert abs(fitted.young_kpa - 27.0) < 3 * fitted.std_kpa + 0.02 * 27.0
     # a "bonded" curve that is the sliding one times a constant predicts equally well
-    entry = {"sliding": {"E_kPa": fitted.young_kpa}, "bonded": {"E_kPa": fitted.young_kpa / 1.4}}
-    assert named_contact(specimens, entry, (1.4 * unit, unit)) == "neither"
+    sliding_sse = np.sum((specimens - fitted.young_kpa * unit) ** 2, axis=1)
+    bonded_sse = np.sum((specimens - (fitted.young_kpa / 1.4) * (1.4 * unit)) ** 2, axis=1)
+    assert named_contact(bonded_sse, sliding_sse) == "neither"
 
 
 def test_one_recipe_on_real_data_predicts_its_b_series_within_the_scatter(shared_data):
@@ -237,8 +239,9 @@ def test_an_energy_twin_names_the_planted_softening_and_nothing_on_a_neo_hookean
     )
     force += 0.01 * rng.standard_normal(force.shape)
     series_a = np.arange(10) < 5
+    base = model_entry(uniform_force(travel, height, radius, 1.0), force, series_a)
     entries = {
-        name: energy_entry(travel, force, series_a, 0.01, (height, radius), name)
+        name: energy_entry(travel, force, series_a, 0.01, (height, radius), name, base)
         for name in ("nonlinear_stiffening", "yeoh_term")
     }
     assert not entries["nonlinear_stiffening"]["named"]

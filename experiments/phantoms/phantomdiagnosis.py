@@ -27,6 +27,7 @@ from experiments.phantoms.phantomstudy import (
     CHECK_SHAPE,
     WINDOWS,
     data_folder,
+    paired_gain,
     published_row,
     table,
     unit_curves,
@@ -152,8 +153,8 @@ def diagnosis_document(row: dict, curves: dict, seconds: float) -> dict:
     prediction = predicting["b_prediction_rms_n"]
     # beyond the scatter: the B specimens' squared errors exceed those of the A series'
     # mean curve by more than twice their paired standard error
-    excess = np.subtract(predicting["b_sse"], entry["b_scatter_sse"])
-    unexplained = bool(excess.mean() > 2.0 * excess.std(ddof=1) / np.sqrt(len(excess)))
+    excess, spread = paired_gain(predicting["b_sse"], entry["b_scatter_sse"])
+    unexplained = excess > 2.0 * spread
     return {
         "schema": "dvs-diagnosis/1",
         "experiment": "compression",

@@ -109,19 +109,42 @@ class LinearFit:
         return cls(young, np.sqrt(scatter / gram), float(np.sqrt(np.mean(residual**2))))
 
 
-def named_contact(held: np.ndarray, entry: dict, unit: tuple) -> str:
-    """The contact model that predicts the held-out specimens better than chance, or
-    "neither": the paired difference of the two models' squared prediction errors,
-    one value per held-out specimen, must exceed twice its standard error (the loop's
-    rule, docs/diagnosis.md, with the specimens as the left-out folds)."""
-    errors = []
-    for contact, curve in zip(("bonded", "sliding"), unit):
-        errors.append(np.sum((held - entry[contact]["E_kPa"] * curve) ** 2, axis=1))
-    difference = errors[1] - errors[0]  # > 0: bonded predicts better
+def paired_gain(base_sse, candidate_sse) -> tuple[float, float]:
+    """Mean and standard error of base - candidate over the held-out specimens' squared
+    prediction errors [N^2] (> 0: the candidate predicts better). The loop's rule,
+    docs/diagnosis.md, with the specimens as the left-out folds: a model is better than
+    chance when the mean exceeds twice the standard error."""
+    difference = np.subtract(base_sse, candidate_sse)
     spread = difference.std(ddof=1) / np.sqrt(len(difference)) if len(difference) > 1 else 0.0
-    if abs(difference.mean()) <= 2.0 * spread:
+    return float(difference.mean()), float(spread)
+
+
+def named_contact(bonded_sse, sliding_sse) -> str:
+    """The contact model that predicts the held-out specimens better than chance
+    (``paired_gain``), or "neither"."""
+    mean, spread = paired_gain(sliding_sse, bonded_sse)  # > 0: bonded predicts better
+    if abs(mean) <= 2.0 * spread:
         return "neither"
-    return "bonded" if difference.mean() > 0 else "sliding"
+    return "bonded" if mean > 0 else "sliding"
+
+
+def model_entry(curve: np.ndarray, force: np.ndarray, series_a: np.ndarray) -> dict:
+    """A model F = E ``curve`` fitted to the A series and its prediction of the others:
+    ``E_kPa``, ``E_std_kPa`` (the A specimens' own E: spread over sqrt(n)),
+    ``E_residual_std_kPa``, ``E_specimen_spread_kPa``, ``fit_rms_n``,
+    ``b_prediction_rms_n`` and ``b_sse`` (per held-out specimen [N^2])."""
+    fitted = LinearFit.of(np.tile(curve, series_a.sum()), force[series_a].ravel())
+    error = force[~series_a] - fitted.young_kpa * curve
+    each = [LinearFit.of(curve, f).young_kpa for f in force[series_a]]
+    return {
+        "E_kPa": fitted.young_kpa,
+        "E_std_kPa": float(np.std(each, ddof=1) / np.sqrt(len(each))),
+        "E_residual_std_kPa": fitted.std_kpa,
+        "E_specimen_spread_kPa": float(np.std(each, ddof=1)),
+        "fit_rms_n": fitted.rms_n,
+        "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
+        "b_sse": np.sum(error**2, axis=1).tolist(),
+    }
 
 
 def window_entry(
@@ -163,25 +186,11 @@ def window_entry(
         "b_scatter_sse": np.sum((force[~series_a] - mean_a) ** 2, axis=1).tolist(),
     }
     for contact, curve in zip(("bonded", "sliding"), unit):
-        fitted = LinearFit.of(np.tile(curve, series_a.sum()), force[series_a].ravel())
-        error = force[~series_a] - fitted.young_kpa * curve
-        each = [LinearFit.of(curve, f).young_kpa for f in force[series_a]]
-        entry[contact] = {
-            "E_kPa": fitted.young_kpa,
-            "E_std_kPa": float(np.std(each, ddof=1) / np.sqrt(len(each))),
-            "E_residual_std_kPa": fitted.std_kpa,
-            "E_specimen_spread_kPa": float(np.std(each, ddof=1)),
-            "fit_rms_n": fitted.rms_n,
-            "b_prediction_rms_n": float(np.sqrt(np.mean(error**2))),
-            "b_sse": np.sum(error**2, axis=1).tolist(),
-        }
-    entry["named"] = named_contact(force[~series_a], entry, unit)
+        entry[contact] = model_entry(curve, force, series_a)
+    entry["named"] = named_contact(entry["bonded"]["b_sse"], entry["sliding"]["b_sse"])
     if check is not None:  # the same choice on the second discretisation, or neither
-        second = {}
-        for contact, curve in zip(("bonded", "sliding"), check):
-            young = LinearFit.of(np.tile(curve, series_a.sum()), force[series_a].ravel())
-            second[contact] = {"E_kPa": young.young_kpa}
-        entry["named_check"] = named_contact(force[~series_a], second, check)
+        second = [model_entry(curve, force, series_a)["b_sse"] for curve in check]
+        entry["named_check"] = named_contact(*second)
         if entry["named_check"] != entry["named"]:
             entry["named"] = "neither"
     gain = abs(entry["bonded"]["b_prediction_rms_n"] - entry["sliding"]["b_prediction_rms_n"])
@@ -190,7 +199,7 @@ def window_entry(
         entry["named"] = "neither"
     if geometry is not None:
         entry["energy"] = {
-            name: energy_entry(travel, force, series_a, noise_n, geometry, name)
+            name: energy_entry(travel, force, series_a, noise_n, geometry, name, entry["sliding"])
             for name in ENERGY_CANDIDATES
         }
     return entry
@@ -203,6 +212,7 @@ def energy_entry(
     noise_n: float,
     geometry: tuple[float, float],
     name: str,
+    base: dict,
 ) -> dict:
     """One energy candidate of ``ENERGY_CANDIDATES`` on the uniform-stress model, its
     parameter r a ratio to E (so the force stays E times the force at E = 1): fitted to
@@ -218,12 +228,13 @@ def energy_entry(
         The cylinder [mm].
     name : str
         The candidate.
+    base : dict
+        The uniform-stress model's ``model_entry`` on the same samples (r = 0).
 
     Returns
     -------
     dict
-        ``ratio`` (r), ``E_kPa``, ``E_std_kPa`` (the A specimens' spread over sqrt(n)),
-        ``fit_rms_n``, ``b_prediction_rms_n``, ``named`` (bool) and ``reason``.
+        ``ratio`` (r), the keys of ``model_entry``, ``named`` (bool) and ``reason``.
     """
     height, radius = geometry
     keyword, (low, high) = ENERGY_CANDIDATES[name]
@@ -243,36 +254,20 @@ def energy_entry(
     best = int(np.argmin([rms(r) for r in grid]))
     left, right = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
     ratio = float(minimize_scalar(rms, bounds=(left, right), method="bounded").x)
-    curves = {"base": unit(0.0), "candidate": unit(ratio)}
-    errors, fits = {}, {}
-    for key, curve in curves.items():
-        fits[key] = LinearFit.of(np.tile(curve, len(specimens)), specimens.ravel())
-        errors[key] = np.sum((force[~series_a] - fits[key].young_kpa * curve) ** 2, axis=1)
-    each = [LinearFit.of(curves["candidate"], f).young_kpa for f in specimens]
-    difference = errors["base"] - errors["candidate"]  # > 0: the candidate predicts better
-    spread = difference.std(ddof=1) / np.sqrt(len(difference)) if len(difference) > 1 else 0.0
-    count = force[~series_a].size
-    gain = np.sqrt(errors["base"].sum() / count) - np.sqrt(errors["candidate"].sum() / count)
+    candidate = model_entry(unit(ratio), force, series_a)
+    mean, spread = paired_gain(base["b_sse"], candidate["b_sse"])
+    gain = base["b_prediction_rms_n"] - candidate["b_prediction_rms_n"]
     if abs(ratio) < 1e-3 * (high - low):
         named, reason = False, "fits r about 0 (within 0.1 % of its range): none is asked"
     elif min(ratio - low, high - ratio) <= 0.01 * (high - low):
         named, reason = False, "ends at its bound (a stand-in)"
-    elif difference.mean() <= 2.0 * spread:
+    elif mean <= 2.0 * spread:
         named, reason = False, "does not predict the B series better than chance"
     elif gain < noise_n:
         named, reason = False, "its gain is below the load cell's noise"
     else:
         named, reason = True, "predicts the B series better than chance, above the noise"
-    return {
-        "ratio": ratio,
-        "E_kPa": fits["candidate"].young_kpa,
-        "E_std_kPa": float(np.std(each, ddof=1) / np.sqrt(len(each))),
-        "fit_rms_n": fits["candidate"].rms_n,
-        "b_prediction_rms_n": float(np.sqrt(errors["candidate"].sum() / count)),
-        "b_sse": errors["candidate"].tolist(),
-        "named": named,
-        "reason": reason,
-    }
+    return {"ratio": ratio, **candidate, "named": named, "reason": reason}
 
 
 def published_row(recipe: str, folder: Path) -> dict:
