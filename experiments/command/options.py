@@ -12,6 +12,7 @@ import argparse
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from experiments.data.dataset import DatasetError
 
@@ -216,6 +217,17 @@ def check_noise(noise: float, option: str = "--noise") -> float:
 
 MAX_MARGIN_MM = 100.0
 """Widest band of tissue beyond the markers (``--margin``) [mm]."""
+
+
+def importer_parser(prog: str, description: str, source: str, source_help: str):
+    """The options every ``dvs import`` command shares: the measured file or folder
+    ``source`` (a ``Path``) and ``--out``, the dataset file (.npz) to write."""
+    parser = make_parser(prog, description)
+    parser.add_argument(source, type=Path, help=source_help)
+    parser.add_argument(
+        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
+    )
+    return parser
 
 
 def add_margin_argument(parser, default: float = 0.0) -> None:

@@ -4,9 +4,7 @@ tests as a dataset (docs/formats.md, "Measured experiments"; the reader is
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from experiments.command.options import Command, check_output_file, make_parser, path_argument
+from experiments.command.options import Command, check_output_file, importer_parser
 from experiments.data.compression import compression_dataset, read_recipe
 from experiments.data.dataset import save_dataset
 from experiments.data.dataseterror import DatasetError
@@ -14,10 +12,11 @@ from experiments.data.dataseterror import DatasetError
 
 def build_parser(prog: str = "python -m experiments.phantoms.phantomimport"):
     """The options of ``dvs import compression``."""
-    parser = make_parser(prog, "One recipe's phantom compression tests as a dataset.")
-    parser.add_argument("folder", type=Path, help="one recipe's folder, e.g. .../data/EF10_0T")
-    parser.add_argument(
-        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
+    parser = importer_parser(
+        prog,
+        "One recipe's phantom compression tests as a dataset.",
+        "folder",
+        "one recipe's folder, e.g. .../data/EF10_0T",
     )
     parser.add_argument("--samples", type=int, default=15, help="points per curve (default 15)")
     parser.add_argument(

@@ -4,24 +4,20 @@ dataset (docs/formats.md, "Measured experiments", rule 23; the reader is
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from experiments.command.options import Command, check_output_file, make_parser, path_argument
+from experiments.command.options import Command, check_output_file, importer_parser
 from experiments.data.dataset import save_dataset
 
 
 def build_parser(prog: str = "python -m experiments.realskin.skinimport"):
     """The options of ``dvs import extensometer``."""
-    parser = make_parser(prog, "One case of the skin extensometer as a dataset.")
-    parser.add_argument(
-        "folder", type=Path, help="one case's folder, e.g. .../skin-extensometer/healthy"
+    return importer_parser(
+        prog,
+        "One case of the skin extensometer as a dataset.",
+        "folder",
+        "one case's folder, e.g. .../skin-extensometer/healthy",
     )
-    parser.add_argument(
-        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
-    )
-    return parser
 
 
 def work(args) -> int:

@@ -3,23 +3,18 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from experiments.command.options import Command, check_output_file, make_parser, path_argument
+from experiments.command.options import Command, check_output_file, importer_parser
 from experiments.data.dataset import save_dataset
 from experiments.data.truthcube import read_truth_cube, truth_cube_dataset
 
 
 def build_parser(prog: str = "python -m experiments.truthcube.cubeimport"):
     """The options of ``dvs import truth-cube``."""
-    parser = make_parser(prog, "The Truth Cube's bead file as a dataset.")
-    parser.add_argument("file", type=Path, help="uniaxial_positions.csv")
-    parser.add_argument(
-        "--out", type=path_argument, required=True, help="dataset file (.npz) to write"
+    return importer_parser(
+        prog, "The Truth Cube's bead file as a dataset.", "file", "uniaxial_positions.csv"
     )
-    return parser
 
 
 def work(args) -> int:
