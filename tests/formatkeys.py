@@ -1,10 +1,31 @@
-"""Keys of a JSON output and which of them docs/formats.md does not name (for the tests)."""
+"""Keys of a JSON output and which of them the format reference (docs/formats.md and its
+companion pages, docs/formats-*.md) does not name (for the tests)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-FORMATS = Path(__file__).resolve().parents[1] / "docs" / "formats.md"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+
+def format_pages() -> list[Path]:
+    """docs/formats.md, then every docs/formats-*.md in name order."""
+    return [DOCS / "formats.md", *sorted(DOCS.glob("formats-*.md"))]
+
+
+def format_reference() -> str:
+    """The text of every page of the format reference, one after the other."""
+    return "\n".join(page.read_text() for page in format_pages())
+
+
+class _Reference:
+    """The format reference as one text, read the way a page is (``FORMATS.read_text()``)."""
+
+    def read_text(self) -> str:
+        return format_reference()
+
+
+FORMATS = _Reference()
 """The format reference every key of every written output must appear in."""
 
 

@@ -1,7 +1,8 @@
 """The docs cover every CLI command and option, and every key of every output format.
 
 Keys are collected from files the commands really write, so a key added to the
-code without a line in docs/formats.md fails here.
+code without a line in the format reference (docs/formats.md and docs/formats-*.md)
+fails here. The CLI reference is docs/cli.md with docs/cli-*.md.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from formatkeys import format_reference
 from formatkeys import json_keys as _keys
 from formatkeys import undocumented as _undocumented
 
@@ -32,9 +34,11 @@ def written(tmp_path_factory):
     return root
 
 
-def _sections(text: str) -> dict[str, str]:
-    """'### `dvs NAME [SUBCOMMAND]`' headings of docs/cli.md -> the text of each section."""
-    sections: dict[str, str] = {}
+def _sections(text: str, sections: dict[str, str] | None = None) -> dict[str, str]:
+    """'### `dvs NAME [SUBCOMMAND]`' headings of one page -> the text of each section, added
+    to ``sections``. A section ends at the next such heading or at its page's end, so a
+    page's last section never takes in the next page's text."""
+    sections = {} if sections is None else sections
     for part in text.split("\n### `dvs ")[1:]:
         words = part.split("`", 1)[0].split()
         name = " ".join(itertools.takewhile(lambda w: re.fullmatch(r"[a-z][a-z-]*", w), words))
@@ -42,9 +46,20 @@ def _sections(text: str) -> dict[str, str]:
     return sections
 
 
+def _cli_pages() -> list[Path]:
+    """The CLI reference: docs/cli.md (exit codes, workflow verbs, groups) and its
+    companion pages docs/cli-*.md (the groups' commands in detail)."""
+    pages = [DOCS / "cli.md", *sorted(DOCS.glob("cli-*.md"))]
+    assert len(pages) > 1, pages
+    return pages
+
+
 def test_every_command_and_option_is_in_the_cli_reference():
-    """Each command has a section of docs/cli.md that names every option it takes."""
-    sections = _sections((DOCS / "cli.md").read_text())
+    """Each command has a section of docs/cli.md or docs/cli-*.md that names every
+    option it takes."""
+    sections: dict[str, str] = {}
+    for page in _cli_pages():
+        _sections(page.read_text(), sections)
     missing = []
     for name in COMMANDS:
         if name not in sections:
@@ -54,7 +69,7 @@ def test_every_command_and_option_is_in_the_cli_reference():
             for option in action.option_strings:
                 if option.startswith("--") and option != "--help" and option not in sections[name]:
                     missing.append(f"dvs {name} {option}")
-    assert not missing, f"not in docs/cli.md: {missing}"
+    assert not missing, f"not in docs/cli.md or docs/cli-*.md: {missing}"
 
 
 def test_every_script_is_a_dvs_command():
@@ -78,14 +93,14 @@ def test_every_script_is_a_dvs_command():
 
 
 def test_every_dataset_key_is_in_the_format_reference(written):
-    text = (DOCS / "formats.md").read_text()
+    text = format_reference()
     with np.load(written / "data.npz") as data:
         keys = set(data.files)
     assert not _undocumented(keys, text)
 
 
 def test_every_result_key_is_in_the_format_reference(written):
-    text = (DOCS / "formats.md").read_text()
+    text = format_reference()
     document = json.loads((written / "fit" / "result.json").read_text())
     parameter_names = set(document["parameters"])
     labels = set(document["per_load_rms_mm"])
@@ -95,7 +110,7 @@ def test_every_result_key_is_in_the_format_reference(written):
 
 
 def test_every_diagnosis_key_is_in_the_format_reference(written):
-    text = (DOCS / "formats.md").read_text()
+    text = format_reference()
     document = json.loads((written / "diagnosis" / "diagnosis.json").read_text())
     names = set()  # the labels of fitted parameters (steps and stand-ins) are data
     for record in [*document["steps"], *document.get("stand_ins", [])]:
