@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+TEST_WORKERS ?= 2
 
 .PHONY: demo test slow bench lint clean
 
@@ -20,7 +21,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check symbolic solvers experiments tests
 	$(BIN)/ruff format --check symbolic solvers experiments tests
-	MPLBACKEND=Agg $(BIN)/python -m pytest
+	MPLBACKEND=Agg $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 slow: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -m slow

@@ -16,7 +16,15 @@ from pathlib import Path
 
 import pytest
 
-from experiments.command.cli import COMMANDS, FORMER, GROUPS, VERBS, build_parser, resolve
+from experiments.command.cli import (
+    COMMANDS,
+    FORMER,
+    GROUPS,
+    VERBS,
+    build_parser,
+    main,
+    resolve,
+)
 from experiments.data.paths import shared_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -263,27 +271,49 @@ def test_every_former_name_runs_its_command_in_a_group():
         assert resolve([group]) is None and resolve([group, "--help"]) is None
 
 
-def test_bad_output_paths_exit_2_with_one_line_and_write_nothing(places):
+def _run_here(argv: list[str], capsys) -> tuple[int, str]:
+    """Exit code and stderr of ``dvs argv`` run in this process."""
+    capsys.readouterr()
+    try:
+        code = main(argv)
+    except SystemExit as stop:
+        code = stop.code
+    return code, capsys.readouterr().err
+
+
+def test_bad_output_paths_exit_2_with_one_line_and_write_nothing(places, capsys):
+    """Each command's first bad path in a fresh process (the console's contract), its
+    other two in this one (the same ``main``, without a process start per case)."""
     tmp, data, locked = places
     cases = _bad_path_cases(tmp, data, locked)
+    fresh = [case for case in cases if case[0].endswith(("existing file", "a directory"))]
+    assert len(fresh) == len(DIRECTORY_OUTPUT) + len(FILE_OUTPUT)
     before = _listing(tmp)
     with ThreadPoolExecutor(max_workers=4) as pool:
-        results = list(pool.map(lambda case: _run(case[1], tmp), cases))
-    for (label, argv), (code, err, _) in zip(cases, results):
+        results = dict(zip(map(id, fresh), pool.map(lambda case: _run(case[1], tmp), fresh)))
+    for case in cases:
+        label, argv = case
+        code, err = results[id(case)][:2] if id(case) in results else _run_here(argv, capsys)
         _assert_contract(label, code, err, before, _listing(tmp))
         assert any(part in err for part in (argv[-1], Path(argv[-1]).name)), f"{label}: {err}"
 
 
-def test_out_of_range_options_exit_2_naming_the_option(places):
+def test_out_of_range_options_exit_2_naming_the_option(places, capsys):
     tmp, data, _ = places
     before = _listing(tmp)
     cases = [
         (_fill([*argv[0].split(), *argv[1:]], data, tmp), fragment)
         for argv, fragment in OUT_OF_RANGE
     ]
+    firsts = {}
+    for case in cases:  # each command's first case in a fresh process, the rest here
+        firsts.setdefault(case[0][0], case)
+    fresh = list(firsts.values())
     with ThreadPoolExecutor(max_workers=4) as pool:
-        results = list(pool.map(lambda case: _run(case[0], tmp), cases))
-    for (argv, fragment), (code, err, _) in zip(cases, results):
+        results = dict(zip(map(id, fresh), pool.map(lambda case: _run(case[0], tmp), fresh)))
+    for case in cases:
+        argv, fragment = case
+        code, err = results[id(case)][:2] if id(case) in results else _run_here(argv, capsys)
         label = " ".join(argv)
         _assert_contract(label, code, err, before, _listing(tmp))
         assert fragment in err, f"{label}: {err}"
