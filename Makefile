@@ -27,8 +27,8 @@ slow: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -m slow
 
 bench: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.inversebench
-	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.inversebench --diagnose
+	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench
+	MPLBACKEND=Agg $(BIN)/python -m experiments.inverse.bench --diagnose
 	$(BIN)/dvs bench board
 	$(BIN)/dvs bench image
 

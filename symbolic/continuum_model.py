@@ -55,7 +55,7 @@ class ContinuumModel(TissueModel):
         free = np.concatenate([self.free + k * self.volume.basis.size for k in range(3)])
         self.continuum = {t: self.elasticity[t][free][:, free] for t in CONTINUUM_TERMS}
         """K_mu and K_lambda on the free points, CSR: the linear path sums them with the
-        effects' CSR terms on one pattern (``solvers.diagnosis.linear``); a CSC copy was
+        effects' CSR terms on one pattern (``solvers.forward.linearpath``); a CSC copy was
         converted back there for every model, 5 % of a diagnosis on row D."""
         self._dm: dict | None = None
 

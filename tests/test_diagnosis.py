@@ -599,15 +599,15 @@ def test_numeric_functions_free_a_large_work_vector_and_agree(monkeypatch):
     import casadi as ca
     import scipy.sparse as sp
 
-    from solvers.diagnosis import numeric
+    from solvers.diagnosis import casadieval
 
     matrix = sp.random(40, 40, density=0.3, random_state=2, format="csc") + sp.identity(40)
     x = ca.MX.sym("x", 40)
     product = ca.DM(matrix.toarray()) @ x
     function = ca.Function("f", [x], [product, ca.jacobian(ca.sin(product), x)])
-    kept = numeric.NumericFunction(function)
-    monkeypatch.setattr(numeric, "PERSISTENT_WORK", 0)
-    fresh = numeric.NumericFunction(function)
+    kept = casadieval.NumericFunction(function)
+    monkeypatch.setattr(casadieval, "PERSISTENT_WORK", 0)
+    fresh = casadieval.NumericFunction(function)
     assert kept.persistent and not fresh.persistent
     rng = np.random.default_rng(0)
     first, second = rng.normal(size=40), rng.normal(size=40)

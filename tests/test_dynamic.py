@@ -17,11 +17,11 @@ from experiments.dynamics.trajectories import (
 from experiments.phantom.forehead import forehead_model, marker_uv, probe_loads
 from experiments.phantom.simulate import simulate
 from experiments.problem.fitting import FitSettings, build_problem
-from solvers.dynamic.dynamicidentifiability import analyse_dynamic
-from solvers.dynamic.dynamicnested import DynamicNestedSolver
-from solvers.dynamic.dynamicproblem import DynamicProblem, TimeGrid, trajectory_case
-from solvers.dynamic.dynamicsimultaneous import DynamicSimultaneousSolver
+from solvers.dynamic.identifiability import analyse_dynamic
+from solvers.dynamic.nested import DynamicNestedSolver
+from solvers.dynamic.problem import DynamicProblem, TimeGrid, trajectory_case
 from solvers.dynamic.scheme import TrapezoidalScheme
+from solvers.dynamic.simultaneous import DynamicSimultaneousSolver
 from solvers.inverse.identifiability import analyse
 from solvers.inverse.simultaneous import IpoptSettings, SimultaneousSolver
 from solvers.inverse.space import ParameterSpace

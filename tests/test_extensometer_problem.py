@@ -135,14 +135,15 @@ def test_residual_and_jacobian_are_the_planar_problems(synthetic, path):
 
 def test_the_kkt_matrix_goes_to_lu_without_a_cholesky_attempt(synthetic, monkeypatch):
     """dg/ds with multipliers is symmetric but indefinite: factorised by SuperLU at once."""
-    import solvers.diagnosis.linear as linear
+
+    from solvers.forward import linearpath
 
     problem, _, _ = synthetic
 
     def refused(*_):
         raise AssertionError("Cholesky attempted on the KKT matrix")
 
-    monkeypatch.setattr(linear, "factorised", refused)
+    monkeypatch.setattr(linearpath, "factorised", refused)
     problem.cache.pop("last_state_jacobian", None)
     problem.evaluate(np.array([0.013, 0.05]))
 

@@ -185,15 +185,44 @@ def test_folders_only_import_downwards():
     assert not cycles, f"folders that import each other: {cycles}"
 
 
-def test_module_names_are_unique():
-    """A module's file name alone says which one is meant (``__init__`` and ``__main__``
-    aside): no ``report.py`` in four folders."""
-    seen: dict[str, list[str]] = {}
+GENERIC = frozenset({"shared", "files", "linear", "numeric", "utils", "helpers", "misc", "common"})
+"""Module names that say nothing of what the module holds."""
+
+NAMED_AFTER_THE_FOLDER = {"experiments/data/dataset.py"}
+"""``Dataset``, the class users import to write their data (docs/formats.md), keeps its
+name."""
+
+
+def _folder_words(folder: str) -> tuple[str, ...]:
+    """The words a module name would repeat its folder with: ``design``, ``phantoms`` and
+    ``phantom``, ``imaging`` and ``image``."""
+    words = [folder]
+    if folder.endswith("s"):
+        words.append(folder[:-1])
+    if folder.endswith("ing"):
+        words.append(folder[:-3] + "e")
+    return tuple(words)
+
+
+def test_module_names_say_what_they_hold_within_their_folder():
+    """Names are scoped by folder (``design/command.py``, ``imaging/command.py``): none
+    repeats its folder's name (``design/designcommand.py``), and none is a word that
+    says nothing (``shared``, ``files``, ``linear``, ``numeric``); the checker sees both."""
+    assert "designcommand".startswith(_folder_words("design"))
+    assert "imagebench".startswith(_folder_words("imaging"))
+    assert not "dynamics".startswith(_folder_words("design"))
+    repeating, generic = [], []
     for path in _modules().values():
-        if path.name not in ("__init__.py", "__main__.py"):
-            seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
-    repeated = {name: paths for name, paths in seen.items() if len(paths) > 1}
-    assert not repeated, f"module names used more than once: {repeated}"
+        if path.name in ("__init__.py", "__main__.py"):
+            continue
+        where = str(path.relative_to(ROOT))
+        if path.stem.startswith(_folder_words(path.parent.name)):
+            if where not in NAMED_AFTER_THE_FOLDER:
+                repeating.append(where)
+        if path.stem in GENERIC:
+            generic.append(where)
+    assert not repeating, f"modules named after their folder: {repeating}"
+    assert not generic, f"module names that say nothing: {generic}"
 
 
 def test_every_project_import_resolves():

@@ -1,6 +1,6 @@
 """The linear path (one factorisation per p for every case) against Newton per case.
 
-``solvers.diagnosis.linear`` replaces, for a model linear in the state, the per-case
+``solvers.forward.linearpath`` replaces, for a model linear in the state, the per-case
 Newton solve and sensitivity of ``ExtendedProblem``; these tests hold its residuals,
 Jacobians, score statistics and left-out predictions against that reference, on the
 paper's energy and on a continuum with data from scikit-fem.
@@ -13,7 +13,6 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-import solvers.diagnosis.linear as linear
 from experiments.diagnosis.diagnose import BASE_NAMES, base_settings
 from experiments.phantom.designs import DIAGNOSIS_CONTACTS, DIAGNOSIS_TILT_DEG
 from experiments.phantom.fe import ReferenceSlab, SlabSolution, design_cases, reference_dataset
@@ -23,6 +22,7 @@ from solvers.diagnosis import guard
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
 from solvers.diagnosis.stats import score_test
+from solvers.forward import linearpath
 from symbolic.effects.library import ALL_EFFECT_NAMES, effect_library
 
 EFFECT_SETS = (
@@ -69,7 +69,7 @@ def _count_factorisations(monkeypatch) -> list:
     """A list that grows by one at every sparse factorisation of the linear path (CHOLMOD
     or SuperLU, ``solvers.linalg.cholmod.factorised``) and every LU of the Newton path."""
     calls = []
-    original, choose = spla.splu, linear.factorised
+    original, choose = spla.splu, linearpath.factorised
 
     def counted(*args, **kwargs):
         calls.append(1)
@@ -78,11 +78,11 @@ def _count_factorisations(monkeypatch) -> list:
     def counted_choice(matrix, fallback, **options):
         calls.append(1)
         return choose(
-            matrix, lambda m: original(sp.csc_matrix(m), **linear.FACTOR_OPTIONS), **options
+            matrix, lambda m: original(sp.csc_matrix(m), **linearpath.FACTOR_OPTIONS), **options
         )
 
-    monkeypatch.setattr(linear.spla, "splu", counted)
-    monkeypatch.setattr(linear, "factorised", counted_choice)
+    monkeypatch.setattr(linearpath.spla, "splu", counted)
+    monkeypatch.setattr(linearpath, "factorised", counted_choice)
     return calls
 
 
@@ -281,14 +281,14 @@ def test_base_compliance_at_zero_is_block_triangular_and_solved_so(name, request
     assert factor.matrix.shape[0] > n and factor.matrix[n:, :n].count_nonzero() == 0
     right = np.random.default_rng(0).standard_normal((factor.matrix.shape[0], 3))
     solution = factor.solve(right)
-    assert isinstance(factor._lu, linear._BlockTriangular)
+    assert isinstance(factor._lu, linearpath._BlockTriangular)
     if cholmod.available():
         assert isinstance(factor._lu.first, cholmod.Cholesky)
     reference = spla.splu(factor.matrix.tocsc()).solve(right)
     assert np.abs(solution - reference).max() <= 1e-9 * np.abs(reference).max()
     coupled = extended.stiffness_factor(_point(extended, base_fit.p))  # c > 0: not split
     coupled.solve(right[:, 0])
-    assert not isinstance(coupled._lu, linear._BlockTriangular)
+    assert not isinstance(coupled._lu, linearpath._BlockTriangular)
 
 
 def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuum, monkeypatch):
@@ -319,8 +319,8 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
     assert not admissible(gradient, corner)
     if cholmod.available():  # the box bounds alone let the material go unstable
         with pytest.raises(cholmod.NotPositiveDefinite):
-            cholmod.Cholesky(linear.stiffness_matrix(gradient, corner))
-        cholmod.Cholesky(linear.stiffness_matrix(gradient, into_admissible(gradient, corner)))
+            cholmod.Cholesky(linearpath.stiffness_matrix(gradient, corner))
+        cholmod.Cholesky(linearpath.stiffness_matrix(gradient, into_admissible(gradient, corner)))
     seen = []
     evaluate = gradient.evaluate_full
 
@@ -336,7 +336,7 @@ def test_fits_stay_where_the_stiffness_fields_leave_the_material_stable(continuu
 
 def test_k_summed_on_a_shared_pattern_is_the_sum_of_its_terms(continuum):
     """The continuum's unit terms and the gradient's share one pattern, so K(p) is summed
-    on their stored values (``linear.stiffness_matrix``); a depth band may cover only part
+    on their stored values (``linearpath.stiffness_matrix``); a depth band may cover only part
     of it and then takes the general sum. Both equal the scipy sum of c_t K_t."""
     from symbolic.sparse import term_matrix
 
@@ -352,10 +352,10 @@ def test_k_summed_on_a_shared_pattern_is_the_sum_of_its_terms(continuum):
         matrices = [term_matrix(t) for t in terms.matrices]
         filled = [m for m in matrices if m.nnz]
         if shared is not None:
-            assert all(linear._same_pattern(filled[0], m) for m in filled[1:]) == shared
+            assert all(linearpath._same_pattern(filled[0], m) for m in filled[1:]) == shared
         c = np.ravel(np.asarray(extended.numeric_of(terms.coefficients)(p)[0]))
         reference = sum(v * m for v, m in zip(c, matrices))
-        summed = linear.stiffness_matrix(extended, p)
+        summed = linearpath.stiffness_matrix(extended, p)
         difference = abs(summed - reference).max()
         assert difference <= 1e-12 * abs(reference).max()
         if shared:  # found once per set of terms; the sum never holds a term's arrays
@@ -363,19 +363,19 @@ def test_k_summed_on_a_shared_pattern_is_the_sum_of_its_terms(continuum):
             assert not any(np.shares_memory(summed.indices, m.indices) for m in filled)
         # a symmetric CSR K goes to CHOLMOD as it stands: the solve is K's own
         right = np.linspace(-1.0, 1.0, summed.shape[0])
-        solution = linear._factorised(summed).solve(right)
+        solution = linearpath._factorised(summed).solve(right)
         assert np.linalg.norm(reference @ solution - right) <= 1e-8 * np.linalg.norm(right)
 
 
 def test_a_csr_matrix_that_is_not_symmetric_is_solved_as_itself():
-    """``linear._factorised`` passes a symmetric CSR matrix's arrays to CHOLMOD as its CSC
+    """``linearpath._factorised`` passes a symmetric CSR matrix's arrays to CHOLMOD as its CSC
     form; one that is not symmetric must not be read so (that would solve its transpose)."""
     rng = np.random.default_rng(3)
     n = 40
     matrix = sp.random(n, n, density=0.2, random_state=rng) + 5.0 * sp.identity(n)
     matrix = sp.csr_matrix(matrix)
     right = rng.standard_normal(n)
-    solution = linear._factorised(matrix).solve(right)
+    solution = linearpath._factorised(matrix).solve(right)
     assert np.allclose(matrix @ solution, right, atol=1e-12)
     assert not np.allclose(matrix.T @ solution, right, atol=1e-6)
 
@@ -422,7 +422,7 @@ def test_a_sets_case_parts_are_those_of_its_case_effects_widened(continuum, monk
 def test_terms_of_other_patterns_are_added_into_their_union(continuum):
     """base_compliance's terms (its extra state) do not share the continuum's pattern:
     they are added into the union of the patterns, found once per set of terms
-    (``linear._union``). K equals the scipy sum of c_t K_t, and the row scaling of K
+    (``linearpath._union``). K equals the scipy sum of c_t K_t, and the row scaling of K
     equals diag(d) K entry by entry."""
     from symbolic.sparse import term_matrix
 
@@ -433,18 +433,18 @@ def test_terms_of_other_patterns_are_added_into_their_union(continuum):
         terms = extended.extended.stiffness_terms()
         c = np.ravel(np.asarray(extended.numeric_of(terms.coefficients)(p)[0]))
         reference = sum(v * term_matrix(m) for v, m in zip(c, terms.matrices))
-        summed = linear.stiffness_matrix(extended, p)
+        summed = linearpath.stiffness_matrix(extended, p)
         assert abs(summed - reference).max() <= 1e-12 * abs(reference).max()
         unions = [k for k in terms.shares_pattern if k[0] == "union"]
         assert len(unions) == 1, unions
-        again = linear.stiffness_matrix(extended, p)  # the union is found once
+        again = linearpath.stiffness_matrix(extended, p)  # the union is found once
         assert [k for k in terms.shares_pattern if k[0] == "union"] == unions
         assert np.array_equal(again.data, summed.data)
         from symbolic.effects.functions import StiffnessTerms
 
         fresh = StiffnessTerms([], terms.coefficients)  # a CSC term: the scipy sum serves
-        assert linear._union(fresh, 0, summed.tocsc(), [(1, 1.0, summed)]) is None
+        assert linearpath._union(fresh, 0, summed.tocsc(), [(1, 1.0, summed)]) is None
         rows = np.linspace(0.5, 2.0, summed.shape[0])
         for matrix in (summed, summed.tocsc()):
-            scaled = linear._rows_scaled(matrix, rows)
+            scaled = linearpath._rows_scaled(matrix, rows)
             assert abs(scaled - sp.diags(rows) @ matrix).max() == 0.0

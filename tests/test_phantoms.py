@@ -10,10 +10,10 @@ import pytest
 
 from experiments.command.options import UsageError
 from experiments.data.compression import compression_dataset, read_recipe
-from experiments.phantoms import phantomdiagnosis
+from experiments.phantoms import diagnosis
 from experiments.phantoms.cylinder import uniform_force
 from experiments.phantoms.cylindercheck import reference_ratio, spline_ratio
-from experiments.phantoms.phantomstudy import (
+from experiments.phantoms.study import (
     PUBLISHED_E_KPA,
     LinearFit,
     energy_entry,
@@ -93,10 +93,10 @@ def test_diagnose_on_a_recipe_fits_the_a_series_and_predicts_the_b_series(
     def coarse(travel, radius, height, shape=None, degree=None):
         return unit_curves(travel, radius, height, (7, 7, 5) if shape is None else (6, 6, 4), 2)
 
-    monkeypatch.setattr(phantomdiagnosis, "unit_curves", coarse)
+    monkeypatch.setattr(diagnosis, "unit_curves", coarse)
     recipe, tests = read_recipe(shared_data / "phantom-compression" / "data" / "EF10_100T")
     dataset = compression_dataset(recipe, tests, 8, 0.3)
-    document = phantomdiagnosis.diagnose_compression(dataset, tmp_path / "d", log=print)
+    document = diagnosis.diagnose_compression(dataset, tmp_path / "d", log=print)
     assert document["schema"] == "dvs-diagnosis/1" and document["recipe"] == "EF10_100T"
     assert set(document["selected"]) <= {"bonded_plates"}
     named = document["windows"]["curve"]["named"]
@@ -111,7 +111,7 @@ def test_diagnose_on_a_recipe_fits_the_a_series_and_predicts_the_b_series(
     }
     only_a = compression_dataset(recipe, [t for t in tests if t.name.startswith("A")], 8, 0.3)
     with pytest.raises(UsageError, match="A and non-A"):
-        phantomdiagnosis.diagnose_compression(only_a, tmp_path / "e")
+        diagnosis.diagnose_compression(only_a, tmp_path / "e")
     assert not (tmp_path / "e").exists()
 
 

@@ -39,8 +39,8 @@ def test_compare_finds_the_same_optimum_with_both_fast_methods():
 def test_benchmark_measures_in_a_fresh_process_and_judges_the_targets(capsys):
     """bench: a power law's exponent is recovered; one isolated 9x9x2 measurement
     carries timings, iterations and peak memory; the targets block names each target."""
+    from experiments.inverse.bench import _inverse_job, isolated
     from experiments.inverse.benchtables import print_targets, scaling_exponent
-    from experiments.inverse.inversebench import _inverse_job, isolated
 
     assert scaling_exponent([1e2, 1e3, 1e4], [3e-2, 3e0, 3e2]) == pytest.approx(2.0)
     row = isolated(_inverse_job, (9, 9, 2), "simultaneous")

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import pytest
 
-from experiments.diagnosis.defaults import ROWS as ROWS_ALL
-from experiments.diagnosis.defaults import injected_scenarios, row_dataset
 from experiments.diagnosis.diagnose import diagnose_dataset
+from experiments.diagnosis.tissuedefaults import ROWS as ROWS_ALL
+from experiments.diagnosis.tissuedefaults import injected_scenarios, row_dataset
 
 PHYSICAL = frozenset(
     {"contact_patch", "surrounding_tissue", "volumetric_coupling", "shear_coupling"}

@@ -20,14 +20,14 @@ VERBS = {
     "demo": ("experiments.demo.run", "run the main job on the embedded forehead phantom"),
     "simulate": ("experiments.phantom.simulate", "write a synthetic dataset from the phantom"),
     "reconstruct": ("experiments.stereo.reconstruct", "images of the marked skin -> dataset"),
-    "fit": ("experiments.fit.fitcommand", "estimate parameters from a dataset, with a verdict"),
+    "fit": ("experiments.fit.command", "estimate parameters from a dataset, with a verdict"),
     "diagnose": ("experiments.diagnosis.diagnose", "find the effect the model lacks"),
     "image": (
         "experiments.imaging.imagecommand",
         "Young's modulus as a field, with its uncertainty",
     ),
     "design": (
-        "experiments.design.designcommand",
+        "experiments.design.command",
         "choose where and how hard to press (design.json)",
     ),
     "next": ("experiments.design.nextpress", "the next press of an experiment, from its data"),
@@ -40,11 +40,11 @@ GROUPS = {
         "speed and accuracy benchmarks: inverse, design, image, factorisation, board, ...",
         {
             "inverse": (
-                "experiments.inverse.inversebench",
+                "experiments.inverse.bench",
                 "build and solve times, memory, scaling",
             ),
             "design": (
-                "experiments.design.designbench",
+                "experiments.design.bench",
                 "design search: speed, gap, against by hand",
             ),
             "image": ("experiments.imaging.imagebench", "stiffness imaging: fit time against N"),
@@ -93,7 +93,7 @@ GROUPS = {
                 "the Truth Cube: nu, the plate, each state predicted",
             ),
             "phantoms": (
-                "experiments.phantoms.phantomstudy",
+                "experiments.phantoms.study",
                 "silicone phantoms: E, the B series predicted",
             ),
         },
@@ -104,7 +104,7 @@ GROUPS = {
         {
             "truth-cube": ("experiments.truthcube.cubeimport", "the Truth Cube's bead file"),
             "compression": (
-                "experiments.phantoms.phantomimport",
+                "experiments.phantoms.importer",
                 "one recipe's phantom compression tests",
             ),
             "extensometer": (

@@ -19,8 +19,8 @@ def isolated(function, *args):
 
 def factorisation_seconds(stiffness) -> float:
     """The median of three factorisations (and one solve) of ``stiffness`` [s], as the
-    loop factorises (``solvers.diagnosis.linear.StateJacobian``)."""
-    from solvers.diagnosis.linear import StateJacobian
+    loop factorises (``solvers.forward.linearpath.StateJacobian``)."""
+    from solvers.forward.linearpath import StateJacobian
 
     times = []
     for _ in range(3):

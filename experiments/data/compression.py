@@ -1,5 +1,5 @@
 """A recipe's silicone-phantom compression tests as a dataset (``dvs import compression``,
-``experiments.phantoms.phantomimport``).
+``experiments.phantoms.importer``).
 
 The phantoms (Ecoflex cylinders, 50 mm across and 30 mm high; Queen Mary University of
 London, "A database of silicone phantom materials for modeling human tissue mechanics
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.data.dataset import Dataset
-from experiments.data.dataseterror import DatasetError
+from experiments.data.errors import DatasetError
 
 GRID = 9
 """Points per side of the square grid mapped onto the top face (``disc_grid``)."""

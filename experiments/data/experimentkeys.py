@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.data.dataseterror import DatasetError
+from experiments.data.errors import DatasetError
 
 EXPERIMENT_KEYS = (
     "markers_rest",

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.data.dataset import Dataset
-from experiments.data.dataseterror import DatasetError
+from experiments.data.errors import DatasetError
 
 NOMINAL_COMPRESSION = (0.05, 0.125, 0.1825)
 """The three loaded states' nominal compression, as a fraction of the cube's height [1]."""

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.data.dataseterror import DatasetError, one_line
+from experiments.data.errors import DatasetError, one_line
 from experiments.data.experimentkeys import (
     EXPERIMENT_KEYS,
     MAX_PLATE_FORCE_N,

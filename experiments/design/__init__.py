@@ -1,9 +1,9 @@
 """Experiment design on datasets (docs/design.md): ``plan`` (dataset -> candidates -> search
--> design.json), ``designcommand`` (``dvs design``), ``designoptions`` (the options it shares
-with ``dvs next``), ``designreport``, ``nextpress`` and
-``nextfield`` (``dvs next``, for the effects or for a stiffness map), ``files`` (next.json's
+-> design.json), ``command`` (``dvs design``), ``options`` (the options it shares
+with ``dvs next``), ``report``, ``nextpress`` and
+``nextfield`` (``dvs next``, for the effects or for a stiffness map), ``nextjson`` (next.json's
 keys), ``sequential``, ``lab`` and ``pathreport`` (press, diagnose, choose again against
-FE data), ``predictions`` (do a design's predictions hold?), ``designbench`` and
+FE data), ``predictions`` (do a design's predictions hold?), ``bench`` and
 ``speed`` (benchmarks)."""
 
 from experiments import lazy_exports

@@ -210,7 +210,7 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
 def field_document(row: dict, target: FieldTarget, args) -> dict:
     """``next.json`` of ``--target field`` (docs/formats.md): a ``dvs-design/1`` file whose
     ``presses`` hold the proposal, with the posterior of the inclusion's place."""
-    from experiments.design.files import next_header, next_why
+    from experiments.design.nextjson import next_header, next_why
 
     posterior = row["posterior"]
     return {

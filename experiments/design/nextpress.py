@@ -34,7 +34,7 @@ from experiments.fit.stepzero import AUTO
 def build_parser(prog: str = "python -m experiments.design.nextpress"):
     """The options of ``dvs next``."""
     from experiments.command.options import make_parser, path_argument
-    from experiments.design.designoptions import add_candidate_arguments
+    from experiments.design.options import add_candidate_arguments
     from experiments.fit.stepzero import add_model_arguments
 
     parser = make_parser(prog, "Propose the next press of an experiment from the data so far.")
@@ -85,7 +85,7 @@ def work(args) -> int:
     from experiments.command.options import UsageError, check_output_dir
     from experiments.data.captures import merge_captures
     from experiments.data.dataset import load_dataset, require_indentation, save_dataset
-    from experiments.design.designoptions import SEQUENTIAL_MODEL, given
+    from experiments.design.options import SEQUENTIAL_MODEL, given
     from experiments.design.plan import DesignSettings, require_noise
     from experiments.design.sequential import SequentialSettings, step
     from experiments.fit.stepzero import model_options, refuse_model_options
@@ -158,7 +158,7 @@ def work(args) -> int:
 def next_document(row: dict, candidates, args) -> dict:
     """``next.json``: the ``dvs-design/1`` keys a design file has (``presses`` the proposal,
     or empty), the diagnosis of the data so far, every question and why this press."""
-    from experiments.design.files import next_header, next_why
+    from experiments.design.nextjson import next_header, next_why
 
     return {
         **next_header(row, args, "effects"),

@@ -5,7 +5,7 @@
 - ``detection``: how large each effect must be to meet the criteria (``dvs study detection``);
 - ``outoflibrary``: data from physics outside the library, an FE slab (``dvs study outoflibrary``);
 - ``continuumstudy``: the loop on scikit-fem continuum data (``dvs study continuum``);
-- ``defaults``: the defaults on Q2 tissue patches of another generator
+- ``tissuedefaults``: the defaults on Q2 tissue patches of another generator
   (docs/results/tissue-defaults.md);
 - ``guardstudy``: the linearised overfitting guard against exact refits, check by check.
 """

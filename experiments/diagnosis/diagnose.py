@@ -148,7 +148,7 @@ def run(
         return run_case(case.name, RealSkinSettings(), Path(out), log, case, Path(out))
     if dataset.kind == "plate" and dataset.markers_rest is None:
         # compression curves: the phantom study's models and rule (docs/experiments.md)
-        from experiments.phantoms.phantomdiagnosis import diagnose_compression
+        from experiments.phantoms.diagnosis import diagnose_compression
 
         _only_out(settings, grid, base, check_refinement, "a compression dataset")
         return diagnose_compression(dataset, Path(out), log=log)

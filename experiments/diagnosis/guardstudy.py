@@ -10,7 +10,7 @@ it, and lists the three: the margins must exceed what the steps can miss by near
 The datasets: the scikit-fem slabs of ``experiments.diagnosis.continuumstudy`` (its
 scenarios, seeds other than the benchmark's 1, three slab geometries: tissue reaching 5, 10 and
 15 mm beyond the markers, free or clamped, and probe radii of 3-5 mm) and the Q2 tissue
-patches of ``experiments.diagnosis.defaults`` (rows A-H, and row A with each injected
+patches of ``experiments.diagnosis.tissuedefaults`` (rows A-H, and row A with each injected
 departure). The tables of docs/results/left-out-fits.md came
 from ``python -c "from experiments.diagnosis.guardstudy import main; main()"`` (about
 40 minutes on 2 cores).
@@ -91,7 +91,7 @@ def recorded_checks(rows: list):
 def datasets():
     """(label, dataset) of every job, made when asked for."""
     from experiments.diagnosis.continuumstudy import ContinuumStudy, scenario_dataset
-    from experiments.diagnosis.defaults import row_dataset
+    from experiments.diagnosis.tissuedefaults import row_dataset
 
     for scenario, seed, slab, radius in SLAB_JOBS:
         base = ContinuumStudy()

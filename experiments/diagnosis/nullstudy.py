@@ -138,7 +138,7 @@ def configured_diagnosis(path: str) -> dict:
     """``timed_default_diagnosis`` in a process set up as the ``dvs`` command sets its own
     (``experiments.command.process.configure``: numpy's BLAS on one thread)."""
     from experiments.command.process import configure
-    from experiments.diagnosis.defaults import timed_default_diagnosis
+    from experiments.diagnosis.tissuedefaults import timed_default_diagnosis
 
     configure()
     return timed_default_diagnosis(path)

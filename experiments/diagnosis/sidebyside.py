@@ -3,12 +3,12 @@
 A speed claim against an earlier commit has to be measured in one run on a shared,
 noisy machine: each dataset is written once, then diagnosed by this checkout and by
 the other (``git worktree add DIR REV`` with its own ``.venv``), one after the other,
-each in a fresh process (``experiments.diagnosis.defaults.timed_default_diagnosis``).
+each in a fresh process (``experiments.diagnosis.tissuedefaults.timed_default_diagnosis``).
 The ratio of CPU times is the figure to read (other jobs change it least)::
 
     dvs bench sidebyside --other /path/to/worktree A G A:rigid_motion
 
-Each argument is a row of ``experiments.diagnosis.defaults.ROWS``, with ``:effect`` for
+Each argument is a row of ``experiments.diagnosis.tissuedefaults.ROWS``, with ``:effect`` for
 the row's design with that departure injected (docs/results/tissue-defaults.md).
 """
 
@@ -23,7 +23,7 @@ from pathlib import Path
 from experiments.command.options import Command
 
 _RUN = (
-    "import json, sys; from experiments.diagnosis.defaults import timed_default_diagnosis; "
+    "import json, sys; from experiments.diagnosis.tissuedefaults import timed_default_diagnosis; "
     "print('ROW ' + json.dumps(timed_default_diagnosis(sys.argv[1]), default=str))"
 )
 
@@ -41,7 +41,7 @@ def timed_in(root: Path, path: str) -> dict:
 def compare(names, other: Path, log=print) -> list[dict]:
     """Each named dataset diagnosed by the other checkout, then by this one."""
     from experiments.data.dataset import save_dataset
-    from experiments.diagnosis.defaults import row_dataset
+    from experiments.diagnosis.tissuedefaults import row_dataset
 
     here = Path(__file__).resolve().parents[2]
     log(
@@ -80,7 +80,7 @@ def build_parser(prog: str):
 def work(args) -> int:
     """Check the output file, the rows and the other checkout, then compare."""
     from experiments.command.options import UsageError, check_output_file
-    from experiments.diagnosis.defaults import ROWS, injected_scenarios
+    from experiments.diagnosis.tissuedefaults import ROWS, injected_scenarios
 
     if args.json is not None:
         check_output_file(args.json, ".json", "--json")

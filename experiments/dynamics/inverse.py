@@ -48,10 +48,10 @@ from experiments.dynamics.trajectories import (  # noqa: E402
 )
 from experiments.output.atomic import atomic_savefig, atomic_write_json  # noqa: E402
 from experiments.problem.fitting import FitSettings, build_problem  # noqa: E402
-from solvers.dynamic.dynamicidentifiability import analyse_dynamic, contrast, contrast_table  # noqa: E402
-from solvers.dynamic.dynamicnested import DynamicNestedSolver  # noqa: E402
-from solvers.dynamic.dynamicproblem import DynamicProblem  # noqa: E402
-from solvers.dynamic.dynamicsimultaneous import DynamicSimultaneousSolver  # noqa: E402
+from solvers.dynamic.identifiability import analyse_dynamic, contrast, contrast_table  # noqa: E402
+from solvers.dynamic.nested import DynamicNestedSolver  # noqa: E402
+from solvers.dynamic.problem import DynamicProblem  # noqa: E402
+from solvers.dynamic.simultaneous import DynamicSimultaneousSolver  # noqa: E402
 from solvers.inverse.identifiability import analyse  # noqa: E402
 from solvers.inverse.simultaneous import SimultaneousSolver  # noqa: E402
 

@@ -22,7 +22,7 @@ from experiments.phantom.forehead import (
     probe_loads,
 )
 from experiments.problem.fitting import FitSettings, dataset_loads, rest_geometry
-from solvers.dynamic.dynamicproblem import DynamicProblem, TimeGrid, step_profile, trajectory_case
+from solvers.dynamic.problem import DynamicProblem, TimeGrid, step_profile, trajectory_case
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.forward.equilibrium import EquilibriumSolver
 from solvers.inverse.space import ParameterSpace

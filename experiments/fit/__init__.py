@@ -1,4 +1,4 @@
-"""The fit as the commands run it: ``fitcommand`` (``dvs fit``) and ``stepzero`` (step 0
+"""The fit as the commands run it: ``command`` (``dvs fit``) and ``stepzero`` (step 0
 in the commands beyond fit and diagnose). The problem they pose is
 ``experiments.problem``; step 0's choices are ``experiments.basemodel``."""
 

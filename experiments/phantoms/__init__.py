@@ -1,2 +1,2 @@
 """The silicone phantoms' compression tests (docs/experiments.md): the cylinder between
-two plates (``cylinder``) and the study of every recipe (``phantomstudy``)."""
+two plates (``cylinder``) and the study of every recipe (``study``)."""

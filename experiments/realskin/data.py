@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.command.options import Command
-from experiments.data.dataseterror import DatasetError, one_line
+from experiments.data.errors import DatasetError, one_line
 from experiments.data.paths import shared_data_dir
 from experiments.realskin.dicnoise import (
     _MAD,

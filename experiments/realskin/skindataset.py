@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.data.dataset import Dataset
-from experiments.data.dataseterror import DatasetError, one_line
+from experiments.data.errors import DatasetError, one_line
 from experiments.realskin.data import SkinCase, dic_to_model_offset
 from experiments.realskin.dicnoise import spurious_points
 from experiments.realskin.geometry import geometry_from_geo

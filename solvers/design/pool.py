@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.design import shared
+from solvers.design import adjoint
 from solvers.design.candidates import Press
 from solvers.design.pressloads import press_loads
 from solvers.diagnosis.extended import ExtendedProblem
@@ -137,7 +137,7 @@ class InformationPool:
 
         Linear in the state (the linear path): one factorisation of K(x) for all presses
         (the fit's own), their states in one solve, their sensitivities by eq. (D9)
-        (``solvers.design.shared``); per effect, one more factorisation where it adds
+        (``solvers.design.adjoint``); per effect, one more factorisation where it adds
         state, and one at its magnitude where it changes K. Otherwise Newton per press.
         Pass all presses in one call: each call makes its own equilibria.
         """
@@ -161,7 +161,7 @@ class InformationPool:
             fitted = self.fit.state_jacobians
             if fitted and fitted[0] is not None:
                 problem.cache["last_state_jacobian"] = fitted[0]
-            r0, jac, states, factor = shared.evaluate(problem, x)
+            r0, jac, states, factor = adjoint.evaluate(problem, x)
             factors = [factor] * len(states)
         else:
             r0, jac, states, factors = problem.evaluate_full(x)
@@ -194,7 +194,7 @@ class InformationPool:
             same = all(n_state == s.size for s in states)
             factor = factors[0] if same else extended.stiffness_factor(p)
             columns = np.arange(block.start, block.stop)
-            _, jacobian = shared.linearise(extended, p, np.column_stack(starts), factor, columns)
+            _, jacobian = adjoint.linearise(extended, p, np.column_stack(starts), factor, columns)
         else:
             extended, p, starts, jacobian = extended_linearisation(
                 problem, x, states, factors, effect, candidate_only=True
@@ -205,7 +205,7 @@ class InformationPool:
             if same:  # K(theta_1) equal to K(x) entry by entry (a load, an observation
                 # effect) reuses its factors (``ExtendedProblem.stiffness_factor``)
                 extended.cache["last_state_jacobian"] = factor
-            return jacobian[:, block], shared.residual(extended, p)
+            return jacobian[:, block], adjoint.residual(extended, p)
         return jacobian[:, block], extended.residual(p, starts)
 
     def _totals(self, marker_index: np.ndarray, block: np.ndarray) -> Totals:

@@ -2,13 +2,13 @@
 
 - ``loop``: ``diagnose``; ``record``: its settings and what it records (``diagnosis.json``);
 - ``extended``: an inverse problem extended by effects (docs/inverse.md eq. 24), sharing a
-  ``cache``; ``linear``: its linear path (one factorisation of K(p) for every case);
+  ``cache``; on a model linear in the state it runs ``solvers.forward.linearpath``;
 - ``fit``: its nested least-squares fit; ``stability``: the admissible set;
 - ``stats``: the residual test, score tests, the information criterion, the chi^2 power;
 - ``guard``: the left-out-contact check against overfitting; ``blind``: what the design
   cannot see;
 - ``verdict``: does a fit explain the data; ``report``: ``report.md``;
-- ``numeric``: fast evaluation of CasADi Functions into numpy and scipy arrays."""
+- ``casadieval``: fast evaluation of CasADi Functions into numpy and scipy arrays."""
 
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import EffectFit, fit

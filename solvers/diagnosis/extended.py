@@ -15,7 +15,7 @@ with W = (I + P P^T)^-1/2 (closed form, ``solvers.inverse.noise``): rho = W r ha
 covariance sigma^2 I under pure noise.
 
 A model linear in the state (``ExtendedModel.linear_state``) takes the linear path
-instead (``solvers.diagnosis.linear``): one factorisation of the shared stiffness per
+instead (``solvers.forward.linearpath``): one factorisation of the shared stiffness per
 parameter value, every case and sensitivity solved with it. Newton stays the path of
 the nonlinear bases.
 
@@ -28,10 +28,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.diagnosis import linear, newton
+from solvers.diagnosis import newton
 from solvers.diagnosis.cache import SharedCache
-from solvers.diagnosis.linear import StateJacobian
-from solvers.diagnosis.numeric import NumericFunction
+from solvers.diagnosis.casadieval import NumericFunction
 from solvers.diagnosis.observation import (
     case_data,
     force_errors,
@@ -39,6 +38,8 @@ from solvers.diagnosis.observation import (
     point_errors,
     row_offsets,
 )
+from solvers.forward import linearpath
+from solvers.forward.linearpath import StateJacobian
 from solvers.inverse.noise import Whitening
 from solvers.inverse.problem import InverseProblem, LoadCase
 from solvers.inverse.space import LOG_PARAMETERS
@@ -223,13 +224,13 @@ class ExtendedProblem:
         entry = self.cache.get(key)
         if entry is not None and np.array_equal(entry[0], p):
             return entry[1]
-        matrix = linear.stiffness_matrix(self, p)
+        matrix = linearpath.stiffness_matrix(self, p)
         last = self.cache.get("last_state_jacobian")
         if last is not None and last.same_as(matrix):
             factor = last
         else:
             split = 3 * self.model.n_free  # where an effect's extra state begins
-            rows = linear.symmetric_rows(self, p)
+            rows = linearpath.symmetric_rows(self, p)
             factor = StateJacobian(matrix, rows, split, definite=not self.model.n_constraints)
         self.cache["last_state_jacobian"] = factor
         self.cache[key] = (p.copy(), factor)
@@ -244,7 +245,7 @@ class ExtendedProblem:
         ``columns`` limits the solve to those entries of p (the others stay zero).
         """
         factor = self.stiffness_factor(p) if factor is None else factor
-        residuals, jacobians = linear.linearise(
+        residuals, jacobians = linearpath.linearise(
             self, p, np.column_stack(states), factor, columns=columns
         )
         return np.concatenate(residuals), np.vstack(jacobians)
@@ -312,8 +313,8 @@ class ExtendedProblem:
         """As ``evaluate``, plus the sparse dg/ds of every case."""
         if self.linear_state:
             factor = self.stiffness_factor(p)
-            states = linear.equilibria(self, p, factor)
-            residuals, jacobians = linear.linearise(self, p, states, factor)
+            states = linearpath.equilibria(self, p, factor)
+            residuals, jacobians = linearpath.linearise(self, p, states, factor)
             columns = [states[:, k].copy() for k in range(states.shape[1])]
             return (
                 np.concatenate(residuals),
@@ -335,7 +336,7 @@ class ExtendedProblem:
     def residual(self, p: np.ndarray, starts=None) -> np.ndarray:
         """Stacked raw residual r(p) alone: the equilibria, no sensitivities."""
         if self.linear_state:
-            states = linear.equilibria(self, p, self.stiffness_factor(p))
+            states = linearpath.equilibria(self, p, self.stiffness_factor(p))
             observe = [
                 self.numeric_of(self.extended.case_parts(k).observation)
                 for k in range(states.shape[1])

@@ -148,7 +148,7 @@ def extended_linearisation(
     Costs one sensitivity evaluation per load case and one sparse LU where the
     candidate adds state (its new state starts at 0 and stays there); otherwise the
     cases' own ``state_jacobians`` serve. On the linear path the cases share one
-    factorisation and one multi-column solve (``solvers.diagnosis.linear``).
+    factorisation and one multi-column solve (``solvers.forward.linearpath``).
 
     Returns
     -------

@@ -1,15 +1,15 @@
 """The dynamic inverse: mu, gamma and alpha from marker trajectories (docs/dynamic.md).
 
-- ``dynamicproblem``: the problem stated once (trajectories, time grid, scheme);
+- ``problem``: the problem stated once (trajectories, time grid, scheme);
 - ``scheme``: the trapezoidal scheme and its exact forward sensitivities;
-- ``dynamicsimultaneous``: the discretised dynamics as constraints of one IPOPT NLP;
-- ``dynamicnested``: single shooting over the scheme;
-- ``dynamicidentifiability``: what trajectories tell, against static data."""
+- ``simultaneous``: the discretised dynamics as constraints of one IPOPT NLP;
+- ``nested``: single shooting over the scheme;
+- ``identifiability``: what trajectories tell, against static data."""
 
-from solvers.dynamic.dynamicidentifiability import analyse_dynamic
-from solvers.dynamic.dynamicnested import DynamicNestedSolver
-from solvers.dynamic.dynamicproblem import DynamicProblem, TimeGrid, trajectory_case
-from solvers.dynamic.dynamicsimultaneous import DynamicSimultaneousSolver
+from solvers.dynamic.identifiability import analyse_dynamic
+from solvers.dynamic.nested import DynamicNestedSolver
+from solvers.dynamic.problem import DynamicProblem, TimeGrid, trajectory_case
+from solvers.dynamic.simultaneous import DynamicSimultaneousSolver
 
 __all__ = [
     "DynamicNestedSolver",

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.dynamic.dynamicproblem import TimeGrid, parameter_values, unit_matrices
+from solvers.dynamic.problem import TimeGrid, parameter_values, unit_matrices
 from solvers.forward.evaluator import casadi_to_scipy
 from symbolic.model import TissueModel
 from symbolic.unitterms import term_parameter

@@ -20,7 +20,7 @@ with A_k, b_k those of ``InverseProblem`` (markers observed on the skin) and W t
 whitening of the rest-marker noise every case shares (``solvers.inverse.noise``), so that
 under pure noise 2 Phi_d ~ chi^2 with n_residuals degrees of freedom. Every load
 case shares M(c): one sparse factorisation per c serves all forward and adjoint
-solves (SuperLU with the options of ``solvers.diagnosis.linear``, ``Factor``). The
+solves (SuperLU with the options of ``solvers.forward.linearpath``, ``Factor``). The
 derivative of K(c) s along a direction v of the field is
 
     (dK/dc v) Delta = G^T (f (x) (w_q E(q) (Phi v)_q) * (G Delta)),                 (I5)

@@ -2,7 +2,7 @@
 (docs/transient.md, eq. 22).
 
 - ``stepping``: the integrator; ``schemes``: Newmark, generalised-alpha, backward Euler;
-- ``transientresult``: what a run returns and the settling time;
+- ``result``: what a run returns and the settling time;
 - ``profiles``: F_B(t), a step, a ramp or any callable;
 - ``steadystate``: the run to steady state against the static equilibrium;
 - ``modal``: modes and the damping that settles fastest;
@@ -10,10 +10,10 @@
 
 from solvers.transient.modal import modal_basis, optimal_damping
 from solvers.transient.profiles import ramp_load, step_load
+from solvers.transient.result import TransientResult, settling_time
 from solvers.transient.schemes import generalized_alpha
 from solvers.transient.steadystate import compare_with_equilibrium, run_to_steady_state
 from solvers.transient.stepping import StepSettings, TransientSolver, transient_solver
-from solvers.transient.transientresult import TransientResult, settling_time
 
 __all__ = [
     "StepSettings",

@@ -13,8 +13,8 @@ from dataclasses import replace
 import numpy as np
 
 from solvers.forward.equilibrium import EquilibriumSolver
+from solvers.transient.result import TransientResult
 from solvers.transient.stepping import StepSettings, transient_solver
-from solvers.transient.transientresult import TransientResult
 from symbolic.model import TissueModel
 
 

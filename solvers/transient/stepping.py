@@ -35,8 +35,8 @@ import scipy.sparse.linalg as spla
 from solvers.forward.evaluator import casadi_to_scipy
 from solvers.transient.modal import probe_observation
 from solvers.transient.profiles import as_load
+from solvers.transient.result import TransientResult, settling_time
 from solvers.transient.schemes import SCHEMES, Scheme
-from solvers.transient.transientresult import TransientResult, settling_time
 from symbolic.model import TissueModel
 
 

@@ -201,7 +201,7 @@ class Effect:
     def stiffness_terms(self, model: TissueModel) -> list[sp.spmatrix]:
         """The unit matrices K_t of a ``unit_terms`` effect, with ``stiffness`` = sum_t
         c_t K_t for the coefficients c of ``stiffness_coefficients``: the numeric form
-        of the linear path (``solvers.diagnosis.linear``), which never builds K_theta in
+        of the linear path (``solvers.forward.linearpath``), which never builds K_theta in
         CasADi. On the free points, stacked, (3 n_free)-square; an effect with extra
         state gives them on [free points; its extra points]."""
         raise NotImplementedError(f"{self.name} gives no unit stiffness terms")

@@ -118,14 +118,14 @@ class ExtendedModel:
     def linear_state(self) -> bool:
         """True when dg/ds = K(p), the same for every case, with K(p) = sum_t c_t(p) K_t
         (``stiffness_terms``): the cases then share one factorisation per parameter
-        value (``solvers.diagnosis.linear``). Otherwise Newton, case by case."""
+        value (``solvers.forward.linearpath``). Otherwise Newton, case by case."""
         return self.stiffness_terms() is not None
 
     def stiffness_terms(self) -> StiffnessTerms | None:
         """K(p) as unit terms, or None unless the base model is linear and every effect
         that enters h has ``unit_terms`` (the same for all cases, at most one with extra
         state): then the linear path needs no CasADi graph of the stiffness at all
-        (``solvers.diagnosis.linear``). Built once per effect set.
+        (``solvers.forward.linearpath``). Built once per effect set.
         """
         model = self.model
         inside = [e for e in self.effects if enters_model_part(e)]

@@ -1,7 +1,7 @@
 """The CasADi Functions of an extended model's load cases (``symbolic.effects.library``).
 
 ``CaseFunctions`` are what Newton and the implicit-function Jacobian need per case;
-``CaseParts`` and ``StiffnessTerms`` are the linear path's (``solvers.diagnosis.linear``):
+``CaseParts`` and ``StiffnessTerms`` are the linear path's (``solvers.forward.linearpath``):
 each case's load and observation alone, and the stiffness as numeric unit terms with
 symbolic coefficients.
 """
@@ -149,7 +149,7 @@ class StiffnessTerms:
         p -> (c(p), dc/dp), (T, 1) and (T, n_p): the only symbolic part.
     shares_pattern : dict
         (s, t) -> whether K_s and K_t store their entries at the same positions, filled
-        as the terms are summed (``solvers.diagnosis.linear.stiffness_matrix``).
+        as the terms are summed (``solvers.forward.linearpath.stiffness_matrix``).
     """
 
     matrices: list

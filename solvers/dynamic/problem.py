@@ -28,9 +28,9 @@ The objective is eq. (24) summed over frames,
 
     f(x) = 1/2 sum_k sum_j | W_k (S_kj u_k(t_j) + S_kj B0 - Y_kj) |^2,
 
-with S_kj the rows of J at the markers seen in frame j. ``solvers.dynamic.dynamicnested``
-(single shooting) and ``solvers.dynamic.dynamicsimultaneous`` (one IPOPT NLP) solve this
-same discrete problem and agree on it; ``solvers.dynamic.dynamicidentifiability`` reports
+with S_kj the rows of J at the markers seen in frame j. ``solvers.dynamic.nested``
+(single shooting) and ``solvers.dynamic.simultaneous`` (one IPOPT NLP) solve this
+same discrete problem and agree on it; ``solvers.dynamic.identifiability`` reports
 what the trajectories can tell.
 """
 

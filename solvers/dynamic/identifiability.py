@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.dynamic.dynamicnested import DynamicNestedSolver
-from solvers.dynamic.dynamicproblem import DynamicProblem
+from solvers.dynamic.nested import DynamicNestedSolver
+from solvers.dynamic.problem import DynamicProblem
 from solvers.inverse.identifiability import (  # noqa: F401  (report_from_sensitivity re-exported)
     IdentifiabilityReport,
     report_from_sensitivity,

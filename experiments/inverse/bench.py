@@ -1,6 +1,6 @@
 """Benchmarks: build and solve times measured side by side in one run.
 
-Run ``python -m experiments.inverse.inversebench`` (or ``make bench``). Times are wall-clock
+Run ``python -m experiments.inverse.bench`` (or ``make bench``). Times are wall-clock
 on a shared machine; compare the ratios printed, not the absolute numbers.
 
 Every measurement runs in a fresh process, so that its peak resident memory
@@ -160,7 +160,7 @@ def _inverse_job(grid, method) -> dict:
     return row
 
 
-def build_parser(prog: str = "python -m experiments.inverse.inversebench"):
+def build_parser(prog: str = "python -m experiments.inverse.bench"):
     """The options of ``dvs bench inverse``."""
     from experiments.command.options import make_parser, path_argument
 
@@ -217,8 +217,8 @@ def work(args) -> int:
             sequential_step_benchmark,
         )
         from experiments.diagnosis.continuumstudy import diagnosis_benchmark
-        from experiments.diagnosis.defaults import defaults_benchmark
         from experiments.diagnosis.study import diagnosis_timings
+        from experiments.diagnosis.tissuedefaults import defaults_benchmark
         from experiments.imaging.imagebench import imaging_benchmark
         from experiments.inverse.factorisation import factorisation_benchmark
 
@@ -256,7 +256,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.inverse.inversebench", build_parser, work).main
+main = Command("experiments.inverse.bench", build_parser, work).main
 
 
 if __name__ == "__main__":

@@ -11,11 +11,11 @@ from experiments.command.cli import main as dvs
 from experiments.design.plan import dataset_presses
 from experiments.design.predictions import NOISE_MM, base_fit, phantom_dataset
 from experiments.diagnosis.diagnose import base_settings
-from solvers.design import shared
+from solvers.design import adjoint
 from solvers.design.candidates import candidate_presses, contact_grid
 from solvers.design.pressloads import press_loads
-from solvers.diagnosis import linear
 from solvers.diagnosis.extended import ExtendedProblem
+from solvers.forward import linearpath
 from solvers.inverse.problem import InverseProblem, observation_case
 from symbolic.effects.library import make_effect
 
@@ -57,11 +57,13 @@ def test_the_fast_evaluation_is_the_linear_path(presses):
     x = fit.p
     assert problem.linear_state
     r, jacobian, states, _ = problem.evaluate_full(x)
-    for adjoint in (True, False):
+    for by_adjoint in (True, False):
         factor = problem.stiffness_factor(x)
-        fast_states = shared.equilibria(problem, x, factor)
+        fast_states = adjoint.equilibria(problem, x, factor)
         assert np.allclose(fast_states, np.column_stack(states), rtol=1e-10, atol=1e-14)
-        fast_r, fast_jacobian = shared.linearise(problem, x, fast_states, factor, adjoint=adjoint)
+        fast_r, fast_jacobian = adjoint.linearise(
+            problem, x, fast_states, factor, adjoint=by_adjoint
+        )
         assert np.allclose(fast_r, r, rtol=1e-10, atol=1e-14)
         scale = np.abs(jacobian).max()
         assert np.allclose(fast_jacobian, jacobian, rtol=1e-9, atol=1e-12 * scale)
@@ -82,13 +84,13 @@ def test_the_effect_columns_and_signal_are_the_linear_path(presses, name):
     block = extended.slice_of(name)
     columns = np.arange(block.start, block.stop)
     factor = extended.stiffness_factor(p)
-    reference = np.vstack(linear.linearise(extended, p, padded, factor, columns)[1])
-    _, fast = shared.linearise(extended, p, padded, factor, columns, adjoint=True)
+    reference = np.vstack(linearpath.linearise(extended, p, padded, factor, columns)[1])
+    _, fast = adjoint.linearise(extended, p, padded, factor, columns, adjoint=True)
     scale = np.abs(reference[:, block]).max()
     assert np.allclose(fast[:, block], reference[:, block], rtol=1e-9, atol=1e-12 * scale)
     p[block] = effect.true_parameters(effect.default_magnitude, 1)
     expected = extended.residual(p)
-    assert np.allclose(shared.residual(extended, p), expected, rtol=1e-10, atol=1e-14)
+    assert np.allclose(adjoint.residual(extended, p), expected, rtol=1e-10, atol=1e-14)
 
 
 @pytest.mark.parametrize(

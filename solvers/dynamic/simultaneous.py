@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.dynamic.dynamicproblem import DynamicProblem
+from solvers.dynamic.problem import DynamicProblem
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.inverse.methods import FullSpaceSolver
 from solvers.inverse.simultaneous import IpoptSettings

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from solvers.dynamic.dynamicproblem import DynamicProblem
+from solvers.dynamic.problem import DynamicProblem
 from solvers.dynamic.scheme import TrapezoidalScheme
 from solvers.inverse.methods import ReducedSpaceSolver
 

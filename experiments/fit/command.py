@@ -35,7 +35,7 @@ def check_energy_names(energy: str, names: tuple[str, ...]) -> None:
         )
 
 
-def build_parser(prog: str = "python -m experiments.fit.fitcommand"):
+def build_parser(prog: str = "python -m experiments.fit.command"):
     """The options of ``dvs fit`` (docs/cli.md)."""
     from experiments.command.options import add_dataset_argument, make_parser, path_argument
     from experiments.fit.stepzero import add_model_arguments
@@ -186,7 +186,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.fit.fitcommand", build_parser, work).main
+main = Command("experiments.fit.command", build_parser, work).main
 
 
 if __name__ == "__main__":

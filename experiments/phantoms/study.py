@@ -375,7 +375,7 @@ def table(rows: list) -> str:
     return "\n".join(lines) + "\n"
 
 
-def build_parser(prog: str = "python -m experiments.phantoms.phantomstudy"):
+def build_parser(prog: str = "python -m experiments.phantoms.study"):
     """The options of ``dvs study phantoms``."""
     parser = make_parser(prog, __doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="output folder")
@@ -396,7 +396,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.phantoms.phantomstudy", build_parser, work).main
+main = Command("experiments.phantoms.study", build_parser, work).main
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.command.options import Command
-from experiments.design.designoptions import given
+from experiments.design.options import given
 from experiments.design.plan import DesignSettings, plan, require_noise
 from experiments.fit.stepzero import AUTO, add_model_arguments, chosen_base
 
@@ -135,10 +135,10 @@ def plot_map(path: Path, dataset, chosen, gains) -> None:
     plt.close(fig)
 
 
-def build_parser(prog: str = "python -m experiments.design.designcommand"):
+def build_parser(prog: str = "python -m experiments.design.command"):
     """The options of ``dvs design``."""
     from experiments.command.options import add_dataset_argument, make_parser, path_argument
-    from experiments.design.designoptions import add_candidate_arguments
+    from experiments.design.options import add_candidate_arguments
     from experiments.diagnosis.diagnose import BASE_ENERGIES
 
     parser = make_parser(prog, "Choose where, in which direction and how hard to press.")
@@ -200,8 +200,8 @@ def work(args) -> int:
     """``dvs design FILE.npz --out DIR``; exit 0, or 2 with one line for bad input."""
     from experiments.command.options import UsageError, check_output_dir
     from experiments.data.dataset import load_dataset, require_indentation
-    from experiments.design.designoptions import SEQUENTIAL_MODEL
-    from experiments.design.designreport import report_text
+    from experiments.design.options import SEQUENTIAL_MODEL
+    from experiments.design.report import report_text
     from experiments.diagnosis.diagnose import base_from_options
     from experiments.fit.stepzero import model_options, refuse_model_options
     from experiments.output.atomic import atomic_write_json, atomic_write_text
@@ -302,7 +302,7 @@ def run_sequential(scenario: str, candidates, budget: int, model: dict, out: Pat
     return 0
 
 
-main = Command("experiments.design.designcommand", build_parser, work).main
+main = Command("experiments.design.command", build_parser, work).main
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """The sensitivities of many presses from the rows their markers share (the adjoint).
 
-On the linear path (``solvers.diagnosis.linear``) the sensitivity of press k is
+On the linear path (``solvers.forward.linearpath``) the sensitivity of press k is
 
     dr_k/dp = dr_k/dp|_s - dr_k/ds K^-1 dg_k/dp,
 
@@ -15,7 +15,7 @@ with E_k picking press k's rows. Z costs one solve per distinct row; every press
 sensitivity is then a dense product Z^T dg_k/dp. The rows are matched entry by entry
 (pattern and values), never assumed equal. K^-T = K^-1 needs K symmetric, checked
 entry by entry too; otherwise, or when the presses have fewer sensitivity columns than
-distinct rows, ``linearise`` solves forward as ``solvers.diagnosis.linear.linearise``
+distinct rows, ``linearise`` solves forward as ``solvers.forward.linearpath.linearise``
 does, for the wanted columns alone. Either way dh/dp s_k is formed for the wanted
 columns only, each unit term acting on a basis of the states (``compress``), and the
 states themselves come from the independent loads (``equilibria``). The answers are
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.diagnosis import linear
+from solvers.forward import linearpath
 from solvers.linalg.blas import one_thread
 
 
@@ -69,12 +69,12 @@ def load_parts(problem, p: np.ndarray) -> list:
 
 def linearise(problem, p: np.ndarray, states: np.ndarray, factor, columns=None, adjoint=None):
     """r and exact dr/dp of every case at solved states (linear path), as
-    ``solvers.diagnosis.linear.linearise``, by eq. (D9) when it takes fewer solves.
+    ``solvers.forward.linearpath.linearise``, by eq. (D9) when it takes fewer solves.
 
     Parameters
     ----------
     problem, p, states, factor, columns
-        As ``solvers.diagnosis.linear.linearise``.
+        As ``solvers.forward.linearpath.linearise``.
     adjoint : bool, optional
         Eq. (D9) (True) or the forward path (False); default: eq. (D9) when K is
         symmetric and it takes fewer solves.
@@ -85,7 +85,7 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor, columns=None, 
         Stacked raw residual r (not whitened) and dr/dp, (n_r,) and (n_r, n_p).
     """
     n_cases, n_p = states.shape[1], p.size
-    wanted = linear.wanted_columns(n_p, columns)
+    wanted = linearpath.wanted_columns(n_p, columns)
     observe = problem.extended.case_parts
     observed = [problem.numeric_of(observe(k).observation)(states[:, k], p) for k in range(n_cases)]
     rows, where = distinct_rows([o[1] for o in observed])
@@ -122,7 +122,7 @@ def linearise(problem, p: np.ndarray, states: np.ndarray, factor, columns=None, 
 
 def force_columns(problem, p: np.ndarray, states: np.ndarray, picked: np.ndarray) -> np.ndarray:
     """dh/dp_j s_k = sum_t dc_t/dp_j K_t s_k for the entries ``picked`` of p, (n_state,
-    n_cases, n_picked) (``solvers.diagnosis.linear.force_derivatives`` for those
+    n_cases, n_picked) (``solvers.forward.linearpath.force_derivatives`` for those
     columns alone). Each K_t acts on a basis of the states (``compress``): the presses
     at one contact share three directions of state."""
     terms = problem.extended.stiffness_terms()
@@ -167,7 +167,7 @@ def equilibria(problem, p: np.ndarray, factor) -> np.ndarray:
     basis, coefficients = compress(right)
     if not coefficients.shape[0]:
         return np.zeros_like(right)
-    return linear.solve_states(factor, basis) @ coefficients
+    return linearpath.solve_states(factor, basis) @ coefficients
 
 
 def residual(problem, p: np.ndarray) -> np.ndarray:

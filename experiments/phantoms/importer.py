@@ -7,10 +7,10 @@ from __future__ import annotations
 from experiments.command.options import Command, check_output_file, importer_parser
 from experiments.data.compression import compression_dataset, read_recipe
 from experiments.data.dataset import save_dataset
-from experiments.data.dataseterror import DatasetError
+from experiments.data.errors import DatasetError
 
 
-def build_parser(prog: str = "python -m experiments.phantoms.phantomimport"):
+def build_parser(prog: str = "python -m experiments.phantoms.importer"):
     """The options of ``dvs import compression``."""
     parser = importer_parser(
         prog,
@@ -41,7 +41,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.phantoms.phantomimport", build_parser, work).main
+main = Command("experiments.phantoms.importer", build_parser, work).main
 
 
 if __name__ == "__main__":

@@ -139,7 +139,7 @@ def run(budget: int = 10, gap_budget: int = 3, log=print) -> dict:
     }
 
 
-def build_parser(prog: str = "python -m experiments.design.designbench"):
+def build_parser(prog: str = "python -m experiments.design.bench"):
     """The options of ``dvs bench design``."""
     from experiments.command.options import make_parser, path_argument
 
@@ -174,7 +174,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.design.designbench", build_parser, work).main
+main = Command("experiments.design.bench", build_parser, work).main
 
 
 if __name__ == "__main__":

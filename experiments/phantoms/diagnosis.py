@@ -4,7 +4,7 @@ dataset): the phantom study's models and rule on the dataset's own samples.
 The base model is the published fits' assumption: sliding plates, uniform uniaxial
 stress. The one candidate effect is the plates' hold on the ends, **bonded plates**
 (the cylinder barrels: the 3D volume spline). Both are fitted to the A series
-(E by linear least squares over unit-E curves, ``experiments.phantoms.phantomstudy``)
+(E by linear least squares over unit-E curves, ``experiments.phantoms.study``)
 and predict the B series; bonded plates are added only if they predict the B series
 better than chance, on both discretisations, by more than the load cell's noise
 (docs/experiments.md, "Silicone phantoms"). Writes ``diagnosis.json`` (docs/formats.md,
@@ -22,7 +22,7 @@ import numpy as np
 from experiments.command.options import UsageError
 from experiments.data.dataset import Dataset
 from experiments.output.atomic import atomic_write_json, atomic_write_text
-from experiments.phantoms.phantomstudy import (
+from experiments.phantoms.study import (
     CHECK_DEGREE,
     CHECK_SHAPE,
     WINDOWS,
