@@ -17,8 +17,8 @@ import pytest
 from scipy import stats
 
 from experiments.basemodel import MARGINS_MM, SUPPORTS, choose_base
-from experiments.basemodel.choice import MAX_CHECK_POINTS, MAX_REFINEMENTS, linearised_refit
 from experiments.basemodel.family import MIN_RADIUS_MM, span_settings, with_radius
+from experiments.basemodel.resolution import MAX_CHECK_POINTS, MAX_REFINEMENTS, linearised_refit
 
 
 def _patch_dataset(radius: float, probe: str, seed: int):
@@ -27,9 +27,14 @@ def _patch_dataset(radius: float, probe: str, seed: int):
     from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
 
     patch = TissuePatch(
-        marked=(24.0, 18.0), extent_mm=4.0, thickness=4.0, poisson=0.45, support="clamped",
-        layers=3, spacing_mm=3.0,
-    )  # fmt: skip
+        marked=(24.0, 18.0),
+        extent_mm=4.0,
+        thickness=4.0,
+        poisson=0.45,
+        support="clamped",
+        layers=3,
+        spacing_mm=3.0,
+    )
     forces, contacts = tissue_cases("corners", patch)
     measurement = SimulationSettings(noise_mm=0.02, seed=seed)
     return tissue_dataset(patch, forces, contacts, radius, (7, 6), probe, measurement=measurement)

@@ -35,10 +35,15 @@ def offset_data():
     )
     forces, contacts = tissue_cases("paper", patch)
     return tissue_dataset(
-        patch, forces, contacts, TRUE_RADIUS_MM, (7, 6), "disc",
+        patch,
+        forces,
+        contacts,
+        TRUE_RADIUS_MM,
+        (7, 6),
+        "disc",
         measurement=SimulationSettings(noise_mm=0.02, seed=3),
         departure=Departure(contact_offset_mm=(1.2, 1.6)),
-    )  # fmt: skip
+    )
 
 
 def test_with_the_offset_in_the_search_finds_the_true_radius_and_the_fit_improves(offset_data):

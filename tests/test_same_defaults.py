@@ -29,9 +29,14 @@ def _patch_dataset():
     from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
 
     patch = TissuePatch(
-        marked=(18.0, 12.0), extent_mm=4.0, thickness=4.0, poisson=0.45, support="clamped",
-        layers=3, spacing_mm=3.0,
-    )  # fmt: skip
+        marked=(18.0, 12.0),
+        extent_mm=4.0,
+        thickness=4.0,
+        poisson=0.45,
+        support="clamped",
+        layers=3,
+        spacing_mm=3.0,
+    )
     forces, contacts = tissue_cases("corners", patch)
     measurement = SimulationSettings(noise_mm=0.02, seed=3)
     return tissue_dataset(patch, forces, contacts, 3.0, (5, 4), "disc", measurement=measurement)
@@ -138,8 +143,10 @@ def test_the_four_commands_record_and_print_the_same_choice(outputs):
         assert record == records["fit"], (name, _difference(record, records["fit"]))
     choice = records["fit"]
     assert choice["chosen"] == "linear-elastic"  # FE tissue: the continuum wins
-    lines = {name: [ln.strip() for ln in text.splitlines() if "base model: " in ln][0]
-             for name, text in printed.items()}  # fmt: skip
+    lines = {
+        name: [ln.strip() for ln in text.splitlines() if "base model: " in ln][0]
+        for name, text in printed.items()
+    }
     assert len(set(lines.values())) == 1, lines
     continuum, surroundings = choice["continuum"], choice["surroundings"]
     grid = "x".join(map(str, continuum["grid"]))
@@ -247,8 +254,9 @@ def test_on_phantom_data_design_keeps_the_papers_energy(tmp_path, capsys):
     options = ["--budget", "2", "--contacts", "2"]
     documents = {}
     for name, energy in (("auto", []), ("dnurbs", ["--energy", "dnurbs"])):
-        _, out = _run(["design", str(data), *options, *energy, "--out", str(tmp_path / name)],
-                      capsys)  # fmt: skip
+        _, out = _run(
+            ["design", str(data), *options, *energy, "--out", str(tmp_path / name)], capsys
+        )
         documents[name] = json.loads((tmp_path / name / "design.json").read_text())
         assert ("base model: dnurbs, grid auto, degrees 3x3x1" in out) == (name == "auto")
     auto, paper = documents["auto"], documents["dnurbs"]
@@ -307,8 +315,10 @@ def test_image_on_phantom_data_searches_the_continuum(tmp_path, capsys):
     searches the continuum's surroundings itself and records where its model came from."""
     data = tmp_path / "phantom.npz"
     assert dvs(["simulate", "--out", str(data)]) == 0
-    _, out = _run(["image", str(data), "--field", "3x3", "--weight", "100", "--out",
-                   str(tmp_path / "image")], capsys)  # fmt: skip
+    _, out = _run(
+        ["image", str(data), "--field", "3x3", "--weight", "100", "--out", str(tmp_path / "image")],
+        capsys,
+    )
     assert "base model: dnurbs" in out and "did not try the continuum" in out
     record = json.loads((tmp_path / "image" / "image.json").read_text())
     assert record["base_choice"]["chosen"] == "dnurbs"

@@ -351,8 +351,9 @@ def _object_view(dist, noise_px=0.3, seed=0):
 
     th = np.radians(12.06) * np.arange(14) - np.radians(78.0)
     z = 10.0 + 12.0 * np.arange(20)
-    grid = np.stack(np.broadcast_arrays(57 * np.cos(th)[None], 57 * np.sin(th)[None],
-                                        z[:, None]), axis=-1).reshape(-1, 3)  # fmt: skip
+    grid = np.stack(
+        np.broadcast_arrays(57 * np.cos(th)[None], 57 * np.sin(th)[None], z[:, None]), axis=-1
+    ).reshape(-1, 3)
     R = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
     t = -R @ np.array([450.0, 0.0, 124.0])
     K = np.array([[3000.0, 0.0, 1240.0], [0.0, 3000.0, 1650.0], [0.0, 0.0, 1.0]])

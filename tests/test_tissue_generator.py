@@ -49,9 +49,15 @@ def test_flat_clamped_monolayer_agrees_with_the_tuned_tet_generator():
         return solver.at(solver.displacement(force, contact, 4.0), markers)
 
     patch = TissuePatch(
-        marked=(16.0, 16.0), extent_mm=4.0, thickness=4.0, support="clamped",
-        spacing_mm=4.0, growth=1.0, layers=2, poisson=0.45,
-    )  # fmt: skip
+        marked=(16.0, 16.0),
+        extent_mm=4.0,
+        thickness=4.0,
+        support="clamped",
+        spacing_mm=4.0,
+        growth=1.0,
+        layers=2,
+        poisson=0.45,
+    )
     hexes = TissueSolution(patch)
     ours = hexes.at(hexes.displacement(force, contact, 4.0, probe="gauss"), markers)
     coarse, fine = tets(2), tets(3)

@@ -39,11 +39,9 @@ is not decided here: it keeps its neo-Hookean route (``experiments.realskin``).
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field, replace
 
-import numpy as np
 from scipy import stats
 
 from experiments.basemodel.family import (
@@ -53,9 +51,14 @@ from experiments.basemodel.family import (
     Family,
     Trial,
     profile,
-    span_settings,
     starting_resolution,
     with_radius,
+)
+from experiments.basemodel.resolution import (
+    REFINEMENT,
+    checked_resolution,
+    linearised_refit,
+    quiet,
 )
 from experiments.data.dataset import Dataset
 from experiments.problem.fitting import FitSettings, dataset_loads
@@ -65,19 +68,6 @@ from solvers.diagnosis.fit import EffectFit, fit
 from solvers.diagnosis.stats import residual_test, robust_sigma
 from solvers.linalg.blas import one_thread
 from symbolic.loads import PROBE_SHAPES
-
-REFINEMENT = 1.5
-"""Factor by which the resolution check divides the knot span along the skin."""
-
-MAX_REFINEMENTS = 2
-"""Most refinements the resolution check makes (the last one adopted unchecked)."""
-
-MAX_CHECK_POINTS = 20000
-"""Largest volume (control points) the resolution check refits on: 53 x 42 x 7 takes
-about 20 s to build and factor once; the next step up costs 5x that. Rows D and E of
-docs/results/tissue-defaults.md stop below it (47 x 40 x 7, next 70 x 58 x 8); checked there with
-40000 (2026-11-27) both are converged (chi^2 0.2 and 4.2, limit 6.6), but the check
-adds about 18 s, and D's gradient then ends at 123 s, over the two minutes."""
 
 PAPER_PARAMETERS = 3
 """k of the paper's base model in the BIC: alpha_u, alpha_v, alpha_w."""
@@ -251,7 +241,7 @@ def choose_base(dataset: Dataset, log=None, level: float = 0.01) -> BaseChoice:
         resolution, shapes = [], []
         if chosen is continuum:
             span, layers = starting_resolution(dataset)
-            start = Family(dataset, span, layers, sigma, _quiet)
+            start = Family(dataset, span, layers, sigma, quiet)
             begun = start.trial_at(best.surroundings, best.fit.p)
             chosen, resolution = checked_resolution(dataset, start, begun, sigma, level, log)
             chosen, shapes = checked_shape(chosen, level, log)
@@ -315,18 +305,27 @@ def checked_shape(trial: Trial, level: float, log) -> tuple[Trial, list[dict]]:
             radius, chi2 = None, chi2_at(None)
         else:
             radius, chi2 = profile(chi2_at, s.radius_mm, family.max_radius())
-        records.append({**_shape_record(trial, "linearised"), "shape": other, "chi2": chi2,
-                        "probe_radius_mm": radius})  # fmt: skip
+        records.append(
+            {
+                **_shape_record(trial, "linearised"),
+                "shape": other,
+                "chi2": chi2,
+                "probe_radius_mm": radius,
+            }
+        )
         if chi2 < best.chi2 - limit:
             full = family.trial(s.margin_mm, s.support, radius, estimates[radius], other)
             records[-1] = _shape_record(full, "fit")
             best = full if full.chi2 < best.chi2 - limit else best
     log(
         f"probe shape on {'x'.join(map(str, trial.settings.grid))}: "
-        + ", ".join(f"{r['shape']} {_radius_text(r['probe_radius_mm'])} chi2 {r['chi2']:.0f} "
-                    f"({r['method']})" for r in records)
+        + ", ".join(
+            f"{r['shape']} {_radius_text(r['probe_radius_mm'])} chi2 {r['chi2']:.0f} "
+            f"({r['method']})"
+            for r in records
+        )
         + f": {best.surroundings.shape} kept"
-    )  # fmt: skip
+    )
     return best, records
 
 
@@ -338,8 +337,13 @@ def _radius_text(radius) -> str:
 
 def _shape_record(trial: Trial, method: str) -> dict:
     s = trial.surroundings
-    return {"shape": s.shape, "probe_radius_mm": s.radius_mm, "chi2": trial.chi2,
-            "grid": list(trial.settings.grid), "method": method}  # fmt: skip
+    return {
+        "shape": s.shape,
+        "probe_radius_mm": s.radius_mm,
+        "chi2": trial.chi2,
+        "grid": list(trial.settings.grid),
+        "method": method,
+    }
 
 
 def _chi2(fitted: EffectFit, sigma: float) -> tuple[float, int]:
@@ -356,76 +360,3 @@ def _paper_trial(dataset: Dataset) -> Trial:
     problem = build_problem(dataset, settings)
     fitted = fit(ExtendedProblem(problem, dataset_loads(dataset, problem.model.volume), []))
     return Trial(settings, None, fitted, 0.0, 0, PAPER_PARAMETERS, time.perf_counter() - begin)
-
-
-def checked_resolution(dataset, family, trial, sigma, level, log):
-    """The chosen continuum checked on finer volumes until the data cannot see the change
-    of its predicted markers (``REFINEMENT``, at most ``MAX_REFINEMENTS`` refinements):
-    the trial kept (its ``family`` at the kept resolution) and the checks' records.
-
-    The refit on the finer volume is linearised: one Gauss-Newton step from the coarse
-    estimate (one factorisation of the finer K; the two parameters move little, so the
-    step is the refit to first order). A refinement the data can see is adopted and
-    fitted in full.
-    """
-    limit = float(stats.chi2.isf(level, 1))
-    records = []
-    for _ in range(MAX_REFINEMENTS):
-        begin = time.perf_counter()
-        finer = Family(dataset, family.span / REFINEMENT, family.layers + 1, sigma, _quiet)
-        key = trial.surroundings
-        settings = span_settings(dataset, key.margin_mm, key.support, finer.span, finer.layers)
-        if math.prod(settings.grid) > MAX_CHECK_POINTS:
-            grid = "x".join(map(str, settings.grid))
-            records.append(
-                {
-                    "grid": list(trial.settings.grid),
-                    "refined_grid": list(settings.grid),
-                    "verdict": "not checked",
-                    "reason": f"the check's volume {grid} "
-                    f"exceeds {MAX_CHECK_POINTS} control points",
-                }
-            )
-            log(f"resolution: {records[-1]['reason']}; not checked")
-            break
-        settings, problem = finer.problem(key)
-        predicted, estimate = linearised_refit(problem, trial.fit.p)
-        change = trial.fit.whitened - predicted
-        distance = float(change @ change / sigma**2)
-        converged = distance <= limit
-        records.append(
-            {
-                "grid": list(trial.settings.grid),
-                "refined_grid": list(settings.grid),
-                "prediction_chi2": distance,
-                "limit": limit,
-                "parameters": dict(zip(("E", "nu"), map(float, trial.fit.p))),
-                "refined_parameters": dict(zip(("E", "nu"), map(float, estimate))),
-                "verdict": "converged" if converged else "refined",
-                "seconds": time.perf_counter() - begin,
-            }
-        )
-        log(
-            f"resolution: {'x'.join(map(str, trial.settings.grid))} -> "
-            f"{'x'.join(map(str, settings.grid))} moves the predicted markers by "
-            f"chi2 {distance:.1f} (limit {limit:.1f}): {records[-1]['verdict']} "
-            f"({records[-1]['seconds']:.1f} s)"
-        )
-        if converged:
-            break
-        trial, family = finer.trial_at(key, estimate), finer
-        records[-1]["refined_chi2"] = trial.chi2
-    return trial, records
-
-
-def linearised_refit(problem: ExtendedProblem, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The whitened residual and the estimate after one Gauss-Newton step from ``p``."""
-    r, jacobian, _ = problem.evaluate(p)
-    rho, slope = problem.whiten(r), problem.whiten(jacobian)
-    step = np.linalg.lstsq(slope, -rho, rcond=None)[0]
-    estimate = np.clip(p + step, problem.lower, problem.upper)
-    return rho + slope @ (estimate - p), estimate
-
-
-def _quiet(*_) -> None:
-    """A log that prints nothing."""

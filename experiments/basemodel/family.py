@@ -225,9 +225,14 @@ class Family:
         test = residual_test(fitted, self.sigma)
         chosen = 2 if self.declared else 3  # margin, support (, radius)
         trial = Trial(
-            settings, key, fitted, test.statistic, test.dof, 2 + chosen + 1,  # + shape
+            settings,
+            key,
+            fitted,
+            test.statistic,
+            test.dof,
+            2 + chosen + 1,  # + shape
             time.perf_counter() - begin,
-        )  # fmt: skip
+        )
         trial.family = self
         self.trials[key] = trial
         self.log(

@@ -103,9 +103,14 @@ def null_dataset(name: str):
         curvature = (None, None) if job["radii"] == "flat" else _pair(job["radii"])
         support = "elastic" if job["support"] == "springs" else job["support"]
         patch = TissuePatch(
-            marked=marked, extent_mm=extent, thickness=thickness, support=support,
-            curvature_radii=curvature, poisson=float(job["nu"]), layers=4,
-        )  # fmt: skip
+            marked=marked,
+            extent_mm=extent,
+            thickness=thickness,
+            support=support,
+            curvature_radii=curvature,
+            poisson=float(job["nu"]),
+            layers=4,
+        )
         forces, contacts = tissue_cases(job["design"], patch)
         return tissue_dataset(
             patch, forces, contacts, radius, markers, job["probe"], measurement=measurement
@@ -114,9 +119,12 @@ def null_dataset(name: str):
         raise ValueError(f"{name}: the slab is flat, Gaussian-probed, free or clamped")
     lengths = tuple(m + 2 * extent for m in marked)
     slab = ReferenceSlab(
-        lengths=(*lengths, thickness), marked=marked, poisson=float(job["nu"]),
-        elements=(*(round(n / 2.5) for n in lengths), 4), fix_lateral=job["support"] == "clamped",
-    )  # fmt: skip
+        lengths=(*lengths, thickness),
+        marked=marked,
+        poisson=float(job["nu"]),
+        elements=(*(round(n / 2.5) for n in lengths), 4),
+        fix_lateral=job["support"] == "clamped",
+    )
     forces, contacts = tissue_cases(job["design"], slab)
     dataset = reference_dataset(
         slab, forces, contacts, radius, markers, measurement, None, SlabSolution(slab)

@@ -22,42 +22,99 @@ FLAT_4030 = dict(marked=(40.0, 30.0))
 ROWS = {  # name: (TissuePatch fields, design, markers, probe, radius [mm])
     "A": (
         dict(FLAT_4030, extent_mm=5.0, thickness=5.0, poisson=0.45, support="clamped"),
-        "diagnosis", (11, 8), "disc", 2.5,
+        "diagnosis",
+        (11, 8),
+        "disc",
+        2.5,
     ),
     "B": (
         dict(marked=(40.0, 40.0), extent_mm=2.0, thickness=6.0, poisson=0.49, support="clamped"),
-        "diagnosis", (9, 9), "gauss", 4.0,
+        "diagnosis",
+        (9, 9),
+        "gauss",
+        4.0,
     ),
     "C": (
         dict(marked=(40.0, 40.0), extent_mm=20.0, thickness=4.0, poisson=0.40, support="free"),
-        "paper", (9, 9), "disc", 1.5,
+        "paper",
+        (9, 9),
+        "disc",
+        1.5,
     ),
     "D": (
-        dict(FLAT_4030, extent_mm=5.0, thickness=7.0, poisson=0.47, support="elastic",
-             curvature_radii=(60.0, 90.0)),
-        "corners", (11, 8), "disc", 3.0,
+        dict(
+            FLAT_4030,
+            extent_mm=5.0,
+            thickness=7.0,
+            poisson=0.47,
+            support="elastic",
+            curvature_radii=(60.0, 90.0),
+        ),
+        "corners",
+        (11, 8),
+        "disc",
+        3.0,
     ),
     "E": (
-        dict(FLAT_4030, extent_mm=10.0, thickness=8.0, poisson=0.45, support="free",
-             curvature_radii=(80.0, 80.0)),
-        "diagnosis", (11, 8), "disc", 2.0,
+        dict(
+            FLAT_4030,
+            extent_mm=10.0,
+            thickness=8.0,
+            poisson=0.45,
+            support="free",
+            curvature_radii=(80.0, 80.0),
+        ),
+        "diagnosis",
+        (11, 8),
+        "disc",
+        2.0,
     ),
     "F": (
-        dict(FLAT_4030, extent_mm=3.0, thickness=6.0, poisson=0.48, support="clamped",
-             curvature_radii=(60.0, None)),
-        "paper", (11, 8), "gauss", 3.5,
+        dict(
+            FLAT_4030,
+            extent_mm=3.0,
+            thickness=6.0,
+            poisson=0.48,
+            support="clamped",
+            curvature_radii=(60.0, None),
+        ),
+        "paper",
+        (11, 8),
+        "gauss",
+        3.5,
     ),
     "G": (
-        dict(FLAT_4030, extent_mm=5.0, thickness=6.0, poisson=0.45, support="clamped",
-             skin_mm=1.5, skin_ratio=5.0),
-        "diagnosis", (11, 8), "disc", 2.5,
+        dict(
+            FLAT_4030,
+            extent_mm=5.0,
+            thickness=6.0,
+            poisson=0.45,
+            support="clamped",
+            skin_mm=1.5,
+            skin_ratio=5.0,
+        ),
+        "diagnosis",
+        (11, 8),
+        "disc",
+        2.5,
     ),
     "H": (
-        dict(FLAT_4030, extent_mm=8.0, thickness=7.0, poisson=0.47, support="elastic",
-             curvature_radii=(70.0, 100.0), skin_mm=1.5, skin_ratio=5.0),
-        "corners", (11, 8), "disc", 2.0,
+        dict(
+            FLAT_4030,
+            extent_mm=8.0,
+            thickness=7.0,
+            poisson=0.47,
+            support="elastic",
+            curvature_radii=(70.0, 100.0),
+            skin_mm=1.5,
+            skin_ratio=5.0,
+        ),
+        "corners",
+        (11, 8),
+        "disc",
+        2.0,
     ),
-}  # fmt: skip
+}
 """The rows of the table: E = 20 kPa, 4 layers of Q2 cells (2.5 mm over the markers,
 graded x1.5 beyond), forces 0.17 and 0.25 N, 0.02 mm noise, seed = the row's index."""
 
@@ -88,9 +145,16 @@ def row_dataset(name: str, injected: str | None = None):
     forces, contacts = tissue_cases(design, patch)
     measurement = SimulationSettings(noise_mm=0.02, seed=seed)
     return tissue_dataset(
-        patch, forces, contacts, radius, markers, probe, measurement=measurement,
-        departure=Departure(**departure), declare_radius=injected == "larger_probe_patch",
-    )  # fmt: skip
+        patch,
+        forces,
+        contacts,
+        radius,
+        markers,
+        probe,
+        measurement=measurement,
+        departure=Departure(**departure),
+        declare_radius=injected == "larger_probe_patch",
+    )
 
 
 def timed_default_diagnosis(path: str) -> dict:

@@ -152,7 +152,8 @@ def checked_continuum(dataset, trial, sigma: float, level: float, log=print):
     """``trial`` refitted on step 0's starting volume and checked by its resolution rule
     and its probe's shape (``experiments.basemodel.choice``), as step 0 treats a
     continuum it chooses: the resolved trial and the resolution checks."""
-    from experiments.basemodel.choice import checked_resolution, checked_shape
+    from experiments.basemodel.choice import checked_shape
+    from experiments.basemodel.resolution import checked_resolution
 
     span, layers = starting_resolution(dataset)
     start = Family(dataset, span, layers, sigma, lambda *_: None)

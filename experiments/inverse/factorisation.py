@@ -199,10 +199,14 @@ def _measure(name: str, path: str, threads: int) -> dict | None:
         residual = max(residual, _residual(other, solver.solve(right), right))
         peak = _memory_kb("VmHWM") - before
     return {
-        "name": solver.name, "threads": threads, "factorise_s": first,
-        "refactorise_s": again, "solve_s": solve, "residual": residual,
+        "name": solver.name,
+        "threads": threads,
+        "factorise_s": first,
+        "refactorise_s": again,
+        "solve_s": solve,
+        "residual": residual,
         "peak_mb": peak / 1024.0,
-    }  # fmt: skip
+    }
 
 
 class _unchanged:

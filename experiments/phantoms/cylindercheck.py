@@ -39,9 +39,10 @@ def reference_ratio(nu: float, cells: int = 8) -> float:
     from skfem.models.elasticity import linear_elasticity
 
     mesh = skfem.MeshTet.init_tensor(
-        np.linspace(-1, 1, cells + 1), np.linspace(-1, 1, cells + 1),
+        np.linspace(-1, 1, cells + 1),
+        np.linspace(-1, 1, cells + 1),
         np.linspace(0, HEIGHT, cells + 1),
-    )  # fmt: skip
+    )
     x, y = disc_map(mesh.p[0], mesh.p[1])
     mesh = skfem.MeshTet(np.vstack([RADIUS * x, RADIUS * y, mesh.p[2]]), mesh.t)
     basis = skfem.Basis(mesh, skfem.ElementVector(skfem.ElementTetP2()))

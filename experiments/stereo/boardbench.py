@@ -113,10 +113,12 @@ def rendered_boards(views: int = 6, seed: int = 0) -> dict:
                     found = found[::-1]
                 errors[name].append(np.linalg.norm(found - truth, axis=1))
     return {
-        name: {"rms_px": float(np.sqrt(np.mean(np.concatenate(e) ** 2))),
-               "max_px": float(np.concatenate(e).max())}
+        name: {
+            "rms_px": float(np.sqrt(np.mean(np.concatenate(e) ** 2))),
+            "max_px": float(np.concatenate(e).max()),
+        }
         for name, e in errors.items()
-    }  # fmt: skip
+    }
 
 
 def report(sample: dict, rendered: dict) -> list[str]:

@@ -354,15 +354,19 @@ def write_synthetic_experiment(
             atomic_write_bytes(folder / f"cam{c}_{name}.png", png.tobytes())
     u, v = scene.shape
     grid = (u, v, 3)
-    atomic_save_npz(folder / "segmentation.npz", outer=scene.rest.reshape(grid),
-                    inner=scene.inner.reshape(grid))  # fmt: skip
+    atomic_save_npz(
+        folder / "segmentation.npz", outer=scene.rest.reshape(grid), inner=scene.inner.reshape(grid)
+    )
     loads = zip(scene.forces.tolist(), scene.contacts.tolist(), scene.probe_radius.tolist())
     spec = dict(
-        schema="dvs-stereo-experiment/1", cameras=len(cameras), markers=[u, v],
+        schema="dvs-stereo-experiment/1",
+        cameras=len(cameras),
+        markers=[u, v],
         board=dict(pattern=list(target.pattern), square_mm=target.square_mm, views=n_boards),
-        frame="segmentation", segmentation="segmentation.npz",
+        frame="segmentation",
+        segmentation="segmentation.npz",
         loads=[dict(force_N=f, contact_mm=p, probe_radius_mm=r) for f, p, r in loads],
-    )  # fmt: skip
+    )
     atomic_write_text(folder / "experiment.json", json.dumps(spec, indent=2) + "\n")
     return SyntheticExperiment(folder, cameras, scene, target)
 

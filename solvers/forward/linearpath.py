@@ -236,8 +236,9 @@ def _union(terms, reference: int, first, others) -> tuple | None:
         if not all(m.format == "csr" and m.has_canonical_format for _, m in matrices):
             terms.shares_pattern[key] = None
             return None
-        ones = sum(sp.csr_matrix((np.ones(m.nnz), m.indices, m.indptr), shape=m.shape)
-                   for _, m in matrices)  # fmt: skip
+        ones = sum(
+            sp.csr_matrix((np.ones(m.nnz), m.indices, m.indptr), shape=m.shape) for _, m in matrices
+        )
         ones.sort_indices()
         width = ones.shape[1]
 

@@ -105,8 +105,12 @@ class CaseParts:
         ``dvs next``). The values are the same arithmetic on the same numbers.
         """
         columns = np.asarray(columns, dtype=int)
-        select = ca.DM(sp.csc_matrix((np.ones(columns.size), (np.arange(columns.size), columns)),
-                                     shape=(columns.size, n_p)))  # fmt: skip
+        select = ca.DM(
+            sp.csc_matrix(
+                (np.ones(columns.size), (np.arange(columns.size), columns)),
+                shape=(columns.size, n_p),
+            )
+        )
         p, s = ca.MX.sym("p", n_p), ca.MX.sym("s", n_state)
         q = p[columns.tolist()]
         load, load_q = self.load(q)
@@ -122,7 +126,7 @@ class CaseParts:
                     ca.vertcat(load[:head], ca.MX(extra, 1), load[head:]),
                     ca.vertcat(load_p[:head, :], ca.MX(extra, n_p), load_p[head:, :]),
                 ],
-            ),  # fmt: skip
+            ),
             observation=ca.Function(
                 "observation",
                 [s, p],
@@ -131,7 +135,7 @@ class CaseParts:
                     ca.horzcat(observed[1][:, :head], ca.MX(rows, extra), observed[1][:, head:]),
                     ca.mtimes(observed[2], select),
                 ],
-            ),  # fmt: skip
+            ),
         )
 
 
