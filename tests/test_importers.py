@@ -302,7 +302,7 @@ def skin_arrays(skin_folders):
     ],
 )
 def test_the_extensometer_rule_names_its_key(skin_arrays, change, key):
-    """Rule 23 (docs/formats.md): each broken extensometer key is named."""
+    """Rule 23 (docs/formats-validation.md): each broken extensometer key is named."""
     arrays = {k: np.array(v, copy=True) for k, v in skin_arrays.items()}
     change(arrays)
     with pytest.raises(DatasetError) as raised:

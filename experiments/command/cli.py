@@ -158,7 +158,7 @@ FORMER = {
     "realskin-strain": "realskin strain",
     "realskin-data": "realskin data",
 }
-"""The flat names of before the groups, still accepted (docs/cli.md): old -> new."""
+"""The flat names of before the groups, still accepted (docs/cli-groups.md): old -> new."""
 
 
 def resolve(argv: list[str]) -> tuple[str, list[str]] | None:

@@ -5,20 +5,16 @@ arrays, and numpy's BLAS runs on one thread.
 raised towards 32 MiB as such blocks are freed) from fresh pages of the kernel and
 hands them back at ``free``; a heap whose free top exceeds the trim threshold is given
 back too. A fit allocates arrays of the same few sizes at every evaluation (the
-sensitivities' right-hand sides, n_state x n_cases x n_p; CHOLMOD's transposed copy of
-K), so each evaluation page-faults them in again: a default ``dvs next`` over FE tissue
-(10 loads, the 15,360-unknown K of a 32 x 32 x 6 quadratic volume) took 3.1 M page
-faults, and its main thread spent a tenth of its time in the kernel (docs/inverse.md,
-"A factor's memory kept for the next one"). ``keep_freed_memory`` raises the mmap
-threshold to glibc's largest (32 MiB) and the trim threshold to 256 MiB, so freed
-blocks stay in the heap for reuse. Larger blocks, the Cholesky factor foremost, are
-reused by ``solvers.linalg.cholmod`` itself.
+sensitivities' right-hand sides, n_state x n_cases x n_p), so each evaluation would
+page-fault them in again. ``keep_freed_memory`` raises the mmap threshold to glibc's
+largest (32 MiB) and the trim threshold to 256 MiB, so freed blocks stay in the heap
+for reuse. Larger blocks, the Cholesky factor foremost, are reused by
+``solvers.linalg.cholmod`` itself. The page faults and times it saves are in
+docs/results/next-press-speed.md.
 
 **Threads.** numpy's own OpenBLAS on two threads waits busily on the second core
-between the dense products of the fit, where the factorisations want it. On one
-thread (``numpy_blas_on_one_thread``), the same ``dvs next``
-on compliant_base took 62.9-64.6 s against 65.5-72.2 s, three runs each, interleaved
-(docs/design.md, "The next press in the lab").
+between the dense products of the fit, where the factorisations want it; on one thread
+(``numpy_blas_on_one_thread``) a default ``dvs next`` runs faster (same page).
 
 ``configure`` does both. The console entry point calls it, and so do the benchmark
 rows that time a command; a library user (a notebook) keeps its allocator and its

@@ -1,4 +1,4 @@
-"""The rules of dataset format v1 (docs/formats.md, "Validation rules").
+"""The rules of dataset format v1 (docs/formats-validation.md).
 
 ``validate`` checks a ``Dataset`` (or anything with its attributes) and raises
 ``DatasetError`` at the first problem, with one line naming the key, what is wrong and

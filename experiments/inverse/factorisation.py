@@ -17,7 +17,7 @@ The times are printed as ratios to SuperLU's (the shared machine moves every col
 alike). Solvers: SuperLU (scipy; ``solvers.linalg.cholmod.symmetric_lu``), the
 project's CHOLMOD (``solvers.linalg.cholmod``), and MKL's PARDISO (pypardiso) when it
 is installed. ``dvs bench factorisation``; part of ``make bench``
-(``--diagnose``); docs/inverse.md, "Sparse factorisation".
+(``--diagnose``); docs/results/factorisation.md.
 """
 
 from __future__ import annotations

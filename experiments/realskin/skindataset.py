@@ -1,4 +1,5 @@
-"""The skin extensometer as a dataset (docs/formats.md, "Measured experiments", rule 23).
+"""The skin extensometer as a dataset (docs/formats.md, "Measured experiments";
+rule 23 of docs/formats-validation.md).
 
 ``skin_dataset(case)`` poses a ``SkinCase`` (``experiments.realskin.data``) in the
 format, in the case's DIC frame [mm, N]; ``case_from_dataset`` gives the same case back,

@@ -1,6 +1,7 @@
 """``dvs import extensometer DIR --out X.npz``: one case of the skin extensometer as a
-dataset (docs/formats.md, "Measured experiments", rule 23; the reader is
-``experiments.realskin.data.read_case``, the mapping ``experiments.realskin.skindataset``)."""
+dataset (docs/formats.md, "Measured experiments"; rule 23 of
+docs/formats-validation.md; the reader is ``experiments.realskin.data.read_case``, the
+mapping ``experiments.realskin.skindataset``)."""
 
 from __future__ import annotations
 

@@ -58,12 +58,8 @@ class IpoptSettings:
 
     Notes
     -----
-    The monotone (Fiacco-McCormick) barrier is the default: from 80
-    log-uniform starts on the phantom it converged 80 times; mu_init = 1e-3
-    73 times (the others ended in a second basin, alpha_u at its lower bound
-    with a stiff alpha_w). tol = 1e-8 (IPOPT's default) would save one
-    iteration, but on the pad-force problem it leaves alpha_w 1.7e-6 from the
-    noise-free truth, so 1e-10 stays.
+    The monotone (Fiacco-McCormick) barrier and tol = 1e-10 are the defaults; why, with
+    the multistart counts, is in docs/results/inverse-speed.md ("IPOPT's options").
     """
 
     tol: float = 1e-10
@@ -96,16 +92,11 @@ STATIC_DEFAULTS = {
     "ipopt.constr_mult_init_max": 0.0,
     "ipopt.mu_superlinear_decrease_power": 1.8,
 }
-"""IPOPT options measured on the static NLP (``IpoptSettings.options`` override them).
-
-- The equality multipliers start at zero instead of IPOPT's least-squares estimate:
-  the states start on the equilibrium, and the estimate costs a factorisation of its
-  own. From 80 log-uniform starts it converged 80 times (79 with the estimate) in
-  15.7 iterations on average (17.8), and in 9 instead of 10 from the paper's start.
-- Once the barrier problem is solved, mu falls to mu^1.8 instead of mu^1.5 (the
-  monotone strategy's superlinear phase): 7 instead of 9 iterations from the
-  paper's start, and 160/160 converged from 160 log-uniform starts (8 draws of 20,
-  mean 15.1 iterations against 16.4); 1.9 lost one of the 160.
+"""IPOPT options of the static NLP (``IpoptSettings.options`` override them): the
+equality multipliers start at zero (the states start on the equilibrium, and IPOPT's
+least-squares estimate costs a factorisation), and once the barrier problem is solved
+mu falls to mu^1.8 instead of mu^1.5. docs/results/inverse-speed.md ("IPOPT's options")
+gives the multistart counts and iterations that chose them.
 """
 
 METIS_ABOVE = 2000
@@ -113,23 +104,12 @@ METIS_ABOVE = 2000
 
 
 def static_defaults(n_variables: int) -> dict:
-    """``STATIC_DEFAULTS`` plus the options that depend on the size of the NLP.
-
-    - MUMPS ordering: on 17 x 17 x 3 (3,471 variables) METIS halved the factorisation
-      time against IPOPT's automatic choice (1.9 s against 4.2 s CPU over one solve)
-      and matches AMD; on 9 x 9 x 2 (489 variables) AMD is about 15 % faster per
-      solve than METIS, whose own ordering time is then not repaid (40 interleaved
-      solves each, median).
-    - Residual check of each search direction: skipped on small NLPs
-      (``fast_step_computation``), about 10 % off a 9 x 9 x 2 solve with the same
-      iterations and 240/240 starts. Kept on large ones: on 33 x 33 x 4 skipping it
-      took 19 iterations instead of 10.
-    - MUMPS without threshold pivoting on large NLPs (``mumps_pivtol`` 0, static
-      pivots in METIS's order): on 33 x 33 x 4 one solve takes 9 iterations and 13 s
-      instead of 16 and 262 s (MUMPS's default 1e-6), the same optimum to all printed
-      digits; 1e-10 was slower than either. Converged from 80 of 80 starts on 17 x 17
-      x 3 and 5 of 5 on 33 x 33 x 4; also 80/80 on 9 x 9 x 2 with METIS, but 30/80 with
-      AMD, so small NLPs keep MUMPS's default (docs/inverse.md, "Speed at scale").
+    """``STATIC_DEFAULTS`` plus the options that depend on the size of the NLP
+    (``n_variables``): above ``METIS_ABOVE``, MUMPS orders by METIS, keeps the residual
+    check of each search direction and pivots statically (``mumps_pivtol`` 0); below it,
+    IPOPT's automatic ordering, no residual check and MUMPS's default pivoting. The
+    measurements behind each choice are in docs/results/inverse-speed.md ("IPOPT's
+    options").
     """
     small = n_variables <= METIS_ABOVE
     large = {} if small else {"ipopt.mumps_pivtol": 0.0}

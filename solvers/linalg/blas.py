@@ -3,8 +3,8 @@
 SuperLU's multi-column solve calls BLAS on thin blocks. With OpenBLAS on two threads
 and a busy machine those calls wait on each other: at 27 x 27 x 4 (K with 2.5 M
 nonzeros, 8.5 M in its factors) a 10-column solve took 0.88-0.91 s on two threads
-and 0.10 s on one, side by side in one process (docs/inverse.md). The factorisation
-itself is not affected (0.94 against 1.02 s). ``one_thread`` limits BLAS to one thread
+and 0.10 s on one, side by side in one process; the factorisation itself is not
+affected (docs/results/diagnosis-linear-path.md). ``one_thread`` limits BLAS to one thread
 for the duration of a block when threadpoolctl is installed, and does nothing
 otherwise.
 """

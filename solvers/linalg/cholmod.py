@@ -2,8 +2,7 @@
 
 K(p) of the continuum is symmetric positive definite, and SuperLU factorises it as a
 general matrix. CHOLMOD's supernodal Cholesky is 2-5x faster on it and its solves
-10-30x (docs/inverse.md, "Sparse factorisation", measured by
-``dvs bench factorisation``).
+10-30x (docs/results/factorisation.md, measured by ``dvs bench factorisation``).
 
 - **Library.** ``cvxopt.cholmod`` (the ``cholmod`` extra of pyproject.toml, installed
   by ``make``): a manylinux/macOS/Windows wheel that carries CHOLMOD with its own
