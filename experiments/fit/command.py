@@ -83,26 +83,24 @@ def _warn(prog: str, lines) -> None:
         print(f"{prog}: warning: {line}", file=sys.stderr)
 
 
-def work(args) -> int:
-    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
+def fit_settings(args) -> tuple[str, FitSettings]:
+    """The energy asked for (``auto``: step 0 chooses) and the fit's settings, from
+    ``dvs fit``'s parsed options alone (no file is read): ``UsageError`` names an
+    option that contradicts another.
 
-    Plausibility warnings go to stderr, one line each; the verdict is printed last.
+    ``--method paper`` and ``--objective control_points`` are the paper's method, so
+    they imply its energy (dnurbs); model options (``--grid``, ``--degrees``,
+    ``--margin``) describe a chosen energy and are refused with ``auto``.
     """
-    import sys
-
     from experiments.command.options import (
-        EXIT_NOT_CONVERGED,
         UsageError,
         check_grid,
         check_margin,
-        check_output_dir,
         parse_degrees,
         parse_grid,
         parse_names,
-        plural,
         verb,
     )
-    from experiments.data.dataset import load_dataset, require_indentation
 
     objective = "control_points" if args.method == "paper" else "markers"
     energy = args.energy
@@ -117,32 +115,48 @@ def work(args) -> int:
             )
     if energy == "auto" and paper:
         energy = "dnurbs"  # the paper's method, objective and parameters are its model's
+    margin = check_margin(args.margin)
     if energy == "auto":
         chosen = [
             f"--{name}"
             for name, value in (("grid", args.grid != "auto"), ("degrees", args.degrees))
             if value
         ]
-        chosen += ["--margin"] * (check_margin(args.margin) > 0)
+        chosen += ["--margin"] * (margin > 0)
         if chosen:
             raise UsageError(
                 f"{', '.join(chosen)} {verb(chosen)} the model of a chosen --energy; with "
                 "--energy auto (the default) step 0 chooses it, or give --energy too"
             )
     degrees = parse_degrees(args.degrees or "3x3x1")
-    if check_margin(args.margin) > 0 and (args.objective or objective) != "markers":
+    if margin > 0 and (args.objective or objective) != "markers":
         raise UsageError("--margin needs --objective markers (control points follow the grid)")
     named = "dnurbs" if energy == "auto" else energy
     names = parse_names(args.params or ",".join(ENERGY_NAMES[named]))
     check_energy_names(named, names)
+    grid = None if args.grid == "auto" else check_grid(parse_grid(args.grid), degrees, args.grid)
     settings = FitSettings(
         names=names,
-        grid=None if args.grid == "auto" else check_grid(parse_grid(args.grid), degrees, args.grid),
+        grid=grid,
         degrees=degrees,
         objective=args.objective or objective,
         energy=named,
-        margin=check_margin(args.margin),
+        margin=margin,
     )
+    return energy, settings
+
+
+def work(args) -> int:
+    """``dvs fit FILE.npz --out DIR``: exit 0, or 2 with one line for bad input.
+
+    Plausibility warnings go to stderr, one line each; the verdict is printed last.
+    """
+    import sys
+
+    from experiments.command.options import EXIT_NOT_CONVERGED, check_output_dir, plural
+    from experiments.data.dataset import load_dataset, require_indentation
+
+    energy, settings = fit_settings(args)
     check_output_dir(args.out)
     dataset = require_indentation(load_dataset(args.dataset), args.prog)
     early = dataset_warnings(dataset)
