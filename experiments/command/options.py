@@ -154,6 +154,18 @@ def run_guarded(prog: str, work: Callable[[], int | None]) -> int:
         return EXIT_INTERNAL
 
 
+def write_dataset(path: Path, dataset, summary: str) -> int:
+    """Save ``dataset`` to ``path`` (docs/formats.md) and print one line of what it holds:
+    the end of every command that makes a dataset (``dvs simulate``, ``dvs import``);
+    exit code 0."""
+    from experiments.data.dataset import save_dataset
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    save_dataset(path, dataset)
+    print(f"wrote {path}: {summary}")
+    return 0
+
+
 def plural(count: int, noun: str) -> str:
     """'1 load case', '2 load cases'."""
     return f"{count} {noun}{'' if count == 1 else 's'}"

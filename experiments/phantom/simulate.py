@@ -27,8 +27,9 @@ from experiments.command.options import (
     make_parser,
     path_argument,
     plural,
+    write_dataset,
 )
-from experiments.data.dataset import Dataset, save_dataset
+from experiments.data.dataset import Dataset
 from experiments.phantom.designs import DESIGNS, design_loads, design_options, press_loads
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
@@ -369,14 +370,13 @@ def work(args) -> int:
         raise UsageError(
             f"the phantom has no equilibrium with {effects}; lower the effect magnitudes"
         ) from None
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_dataset(args.out, dataset)
-    print(
-        f"wrote {args.out}: {plural(dataset.n_loads, 'load case')} ({args.design} design), "
+    return write_dataset(
+        args.out,
+        dataset,
+        f"{plural(dataset.n_loads, 'load case')} ({args.design} design), "
         f"{dataset.outer_rest.shape[0]}x{dataset.outer_rest.shape[1]} markers, "
-        f"noise {args.noise} mm, seed {args.seed}"
+        f"noise {args.noise} mm, seed {args.seed}",
     )
-    return 0
 
 
 main = Command("experiments.phantom.simulate", build_parser, work).main

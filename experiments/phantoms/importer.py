@@ -4,9 +4,13 @@ tests as a dataset (docs/formats.md, "Measured experiments"; the reader is
 
 from __future__ import annotations
 
-from experiments.command.options import Command, check_output_file, importer_parser
+from experiments.command.options import (
+    Command,
+    check_output_file,
+    importer_parser,
+    write_dataset,
+)
 from experiments.data.compression import compression_dataset, read_recipe
-from experiments.data.dataset import save_dataset
 from experiments.data.errors import DatasetError
 
 
@@ -32,13 +36,13 @@ def work(args) -> int:
         raise DatasetError("--samples must be >= 1 and --strain in (0, 1)")
     recipe, tests = read_recipe(args.folder)
     dataset = compression_dataset(recipe, tests, args.samples, args.strain)
-    save_dataset(args.out, dataset)
-    print(
-        f"{args.out}: {recipe}, {len(tests)} tests x {args.samples} points "
-        f"(compression to {args.strain:g} x {tests[0].height_mm:g} mm); force noise "
-        f"{dataset.force_noise_n:.3g} N"
+    return write_dataset(
+        args.out,
+        dataset,
+        f"{recipe}, {len(tests)} tests x {args.samples} points (compression to "
+        f"{args.strain:g} x {tests[0].height_mm:g} mm); force noise "
+        f"{dataset.force_noise_n:.3g} N",
     )
-    return 0
 
 
 main = Command("experiments.phantoms.importer", build_parser, work).main

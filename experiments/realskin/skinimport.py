@@ -7,8 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.command.options import Command, check_output_file, importer_parser
-from experiments.data.dataset import save_dataset
+from experiments.command.options import (
+    Command,
+    check_output_file,
+    importer_parser,
+    write_dataset,
+)
 
 
 def build_parser(prog: str = "python -m experiments.realskin.skinimport"):
@@ -28,14 +32,14 @@ def work(args) -> int:
     from experiments.realskin.skindataset import skin_dataset
 
     case = read_case(args.folder)
-    save_dataset(args.out, skin_dataset(case))
     forced = int(np.isfinite(case.force_at_frame_n).sum())
-    print(
-        f"{args.out}: {case.name}, {case.n_frames} DIC frames x {case.n_points} points "
-        f"(x, y), pad travel {-case.pad_displacement_mm[-1, 0]:.3g} mm, force at "
-        f"{forced} frames, force record {len(case.force_ux_mm)} samples"
+    return write_dataset(
+        args.out,
+        skin_dataset(case),
+        f"{case.name}, {case.n_frames} DIC frames x {case.n_points} points (x, y), pad "
+        f"travel {-case.pad_displacement_mm[-1, 0]:.3g} mm, force at {forced} frames, "
+        f"force record {len(case.force_ux_mm)} samples",
     )
-    return 0
 
 
 main = Command("experiments.realskin.skinimport", build_parser, work).main
