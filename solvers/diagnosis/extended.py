@@ -17,7 +17,9 @@ covariance sigma^2 I under pure noise.
 A model linear in the state (``ExtendedModel.linear_state``) takes the linear path
 instead (``solvers.forward.linearpath``): one factorisation of the shared stiffness per
 parameter value, every case and sensitivity solved with it. Newton stays the path of
-the nonlinear bases.
+the nonlinear bases and effects; where the base is linear and the nonlinear effects give
+their forces in numbers (nonlinear_stiffening), Newton's g, dg/ds and dg/dp are
+assembled numerically around them (the split path, ``solvers.diagnosis.splitpath``).
 
 The base solvers stay untouched; ``solvers.diagnosis.fit.fit`` is the generic
 nested least squares over any subset of p (scipy trf, exact Jacobian).
@@ -28,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.diagnosis import newton
+from solvers.diagnosis import newton, splitpath
 from solvers.diagnosis.cache import SharedCache
 from solvers.diagnosis.casadieval import NumericFunction
 from solvers.diagnosis.observation import (
@@ -284,8 +286,8 @@ class ExtendedProblem:
         The state, ds/dp and dg/ds are kept for the next solve of this case on this
         problem (``solve_state``: the first-order start and its chord steps)."""
         if jacobian is None:
-            jacobian = self._factorised(self.numeric(position, "newton")(state, p)[1])
-        dg_dp, r, dr_ds, dr_dp = self.numeric(position, "sensitivity")(state, p)
+            jacobian = self._factorised(splitpath.equations(self, position, p)[1](state))
+        dg_dp, r, dr_ds, dr_dp = splitpath.sensitivity(self, position, state, p)
         sensitivity = -jacobian.solve(_dense(dg_dp))
         total = dr_ds @ sensitivity + _dense(dr_dp)
         memory = (np.array(p, dtype=float), np.array(state), np.asarray(sensitivity), jacobian)
@@ -348,7 +350,7 @@ class ExtendedProblem:
         residuals = []
         for position in range(len(self.positions)):
             state, _ = self.solve_state(position, p, starts[position])
-            residuals.append(np.ravel(_dense(self.numeric(position, "residual")(state, p))))
+            residuals.append(splitpath.residual(self, position, state, p))
         return np.concatenate(residuals)
 
     def whiten(self, values: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.diagnosis import splitpath
 from solvers.forward.equilibrium import EquilibriumError
 
 ITERATIONS = 40
@@ -148,16 +149,13 @@ def solve_case(problem, position: int, p: np.ndarray, start, tolerance: float, c
     last solve on ``problem`` predicted to first order (s + ds/dp dp, with chord steps on
     that solve's factorisation), else from ``start`` (default rest); with
     ``continuation``, load continuation from rest where Newton fails. Returns the state
-    and its ``StateJacobian``."""
-    equilibrium = problem.numeric(position, "equilibrium")
-    jacobian = problem.numeric(position, "newton")
-    zero = np.zeros(problem.functions(position).n_state)
-
-    def residual(state):
-        return equilibrium(state, p)[0].ravel()
+    and its ``StateJacobian``. g and dg/ds are the split path's where it applies
+    (``solvers.diagnosis.splitpath``), else the case's CasADi Functions."""
+    residual, jacobian = splitpath.equations(problem, position, p)
+    zero = np.zeros(problem.extended.n_state)
 
     def factorise(state):
-        return problem._factorised(jacobian(state, p)[1])
+        return problem._factorised(jacobian(state))
 
     target = tolerance * max(float(np.linalg.norm(residual(zero))), 1e-300)
     first = zero if start is None else np.array(start, dtype=float)

@@ -173,8 +173,9 @@ def solve_states(factor: StateJacobian, right: np.ndarray) -> np.ndarray:
     return states
 
 
-def stiffness_matrix(problem, p: np.ndarray) -> sp.spmatrix:
-    """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``).
+def stiffness_matrix(problem, p: np.ndarray, terms=None) -> sp.spmatrix:
+    """K(p) = dh/ds = sum_t c_t(p) K_t from the unit terms (``ExtendedModel.stiffness_terms``,
+    or the ``terms`` given: the split path's, ``solvers.diagnosis.splitpath``).
 
     A term whose coefficient is zero (an effect at theta = 0) is never assembled. Terms
     that share one sparsity pattern (the continuum's K_mu, K_lambda and the gradient's
@@ -189,7 +190,7 @@ def stiffness_matrix(problem, p: np.ndarray) -> sp.spmatrix:
     (4.1 M nonzeros), 3 s of a default ``dvs next``. Which terms share the first one's
     pattern is found once per set of terms too.
     """
-    terms = problem.extended.stiffness_terms()
+    terms = problem.extended.stiffness_terms() if terms is None else terms
     c = np.ravel(_dense(problem.numeric_of(terms.coefficients)(p)[0]))
     chosen = [
         (t, value, term_matrix(term))
@@ -290,11 +291,11 @@ def equilibria(problem, p: np.ndarray, factor: StateJacobian) -> np.ndarray:
     return solve_states(factor, -np.column_stack(loads))
 
 
-def force_derivatives(problem, p: np.ndarray, states: np.ndarray) -> np.ndarray:
+def force_derivatives(problem, p: np.ndarray, states: np.ndarray, terms=None) -> np.ndarray:
     """dh/dp at every state, (n_state, n_cases n_p), case by case side by side:
     dh/dp_j s_k = sum_t dc_t/dp_j K_t s_k, one sparse product per term whose coefficient
-    depends on p."""
-    terms = problem.extended.stiffness_terms()
+    depends on p (the terms of ``stiffness_matrix``)."""
+    terms = problem.extended.stiffness_terms() if terms is None else terms
     slope = _dense(problem.numeric_of(terms.coefficients)(p)[1])  # (T, n_p)
     n_state, n_cases = states.shape
     out = np.zeros((n_state, n_cases, p.size))

@@ -191,6 +191,14 @@ class Effect:
         or None: the builder then differentiates ``internal_force`` by AD."""
         return None
 
+    def numeric_force(self, model: TissueModel, values: dict, theta) -> tuple | None:
+        """``internal_force`` in numbers, for the split path (``solvers.diagnosis.splitpath``):
+        (q, evaluator), q a CasADi column of the force's arguments in ``values`` and theta,
+        and an object whose ``force(delta, q)``, ``tangent(delta, q)`` and
+        ``slope(delta, q)`` give vec(F) on the free points, d vec(F) / d vec(Delta)
+        (sparse) and d vec(F) / dq, for Delta (n_free, 3); None (the default): none."""
+        return None
+
     def stiffness(self, model: TissueModel, values: dict, theta) -> ca.MX:
         """K_theta of a ``linear`` effect: (3 n_free)-square, stacked order [N/mm].
 
@@ -310,3 +318,8 @@ def changes_case(effect: Effect) -> bool:
     """True when the effect changes a case's load or its observation."""
     kind = type(effect)
     return any(getattr(kind, h) is not getattr(Effect, h) for h in ("load", "observe"))
+
+
+def adds_rows(effect: Effect) -> bool:
+    """True when the effect adds equilibrium rows of its own (``extra_residual``)."""
+    return type(effect).extra_residual is not Effect.extra_residual

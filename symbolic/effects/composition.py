@@ -24,6 +24,7 @@ from symbolic.effects.base import (
     CaseData,
     CaseSymbols,
     Effect,
+    adds_rows,
     apply_stacked,
     changes_case,
     enters_model_part,
@@ -31,6 +32,7 @@ from symbolic.effects.base import (
 from symbolic.effects.functions import (
     CaseFunctions,
     CaseParts,
+    SplitPart,
     StiffnessTerms,
     case_load,
     case_observation,
@@ -127,13 +129,20 @@ class ExtendedModel:
         state): then the linear path needs no CasADi graph of the stiffness at all
         (``solvers.forward.linearpath``). Built once per effect set.
         """
-        model = self.model
         inside = [e for e in self.effects if enters_model_part(e)]
-        if not model.is_linear(self.names) or any(not e.unit_terms or e.per_case for e in inside):
+        if not self.model.is_linear(self.names) or any(not e.unit_terms for e in inside):
+            return None
+        return self._unit_terms(inside, "stiffness_terms")
+
+    def _unit_terms(self, inside: list[Effect], kind: str) -> StiffnessTerms | None:
+        """The unit terms of the base model and of the ``unit_terms`` effects ``inside``
+        (None for a per-case one, or more than one with extra state), kept as ``kind``."""
+        model = self.model
+        if any(e.per_case for e in inside):
             return None
         if sum(1 for e in inside if e.extra_points(model)) > 1:
             return None  # each effect's terms place its extra state right after the free points
-        key = ("functions", self.effect_set, "stiffness_terms", tuple(self.labels))
+        key = ("functions", self.effect_set, kind, tuple(self.labels))
         if key not in self._functions:
             x, base, names = model.linear_terms(self.names)
             p = ca.MX.sym("p", self.n_parameters)
@@ -159,6 +168,46 @@ class ExtendedModel:
                 matrices, ca.Function("coefficients", [p], [c, ca.jacobian(c, p)])
             )
         return self._functions[key]
+
+    def split_part(self) -> SplitPart | None:
+        """h(s, p) = K(p) s + n(s, p), K(p) the unit terms of the base model and of the
+        ``unit_terms`` effects and n the internal forces of the others in numbers
+        (``Effect.numeric_force``), or None: unless the base model is linear, some effect
+        enters h without unit terms, and every such effect adds an internal force alone
+        (no extra state or rows) that it gives in numbers, for every case alike. The split
+        path (``solvers.diagnosis.splitpath``) then needs CasADi only for K's coefficients
+        and n's arguments, functions of p. Built once per effect set.
+        """
+        model = self.model
+        inside = [e for e in self.effects if enters_model_part(e)]
+        forces = [e for e in inside if not e.unit_terms]
+        if not forces or not model.is_linear(self.names):
+            return None
+        if any(e.per_case or e.extra_points(model) or adds_rows(e) for e in forces):
+            return None
+        key = ("functions", self.effect_set, "split_part", tuple(self.labels))
+        if key not in self._functions:
+            self._functions[key] = self._split_part(inside, forces)
+        return self._functions[key]
+
+    def _split_part(self, inside: list[Effect], forces: list[Effect]) -> SplitPart | None:
+        """Built: ``split_part`` of the effects ``inside`` h, ``forces`` not unit terms."""
+        p = ca.MX.sym("p", self.n_parameters)
+        values = self._values(p)
+        arguments, evaluators, start = [], [], 0
+        for effect in forces:
+            numeric = effect.numeric_force(self.model, values, p[self.slices[effect.name]])
+            if numeric is None:
+                return None
+            arguments.append(numeric[0])
+            evaluators.append((slice(start, start + numeric[0].numel()), numeric[1]))
+            start += numeric[0].numel()
+        terms = self._unit_terms([e for e in inside if e.unit_terms], "split_terms")
+        if terms is None:
+            return None
+        q = ca.vertcat(*arguments)
+        function = ca.Function("split_arguments", [p], [q, ca.jacobian(q, p)])
+        return SplitPart(terms, function, tuple(evaluators))
 
     def case_parts(self, position: int) -> CaseParts:
         """The load and observation Functions of one case (no model part; built once).

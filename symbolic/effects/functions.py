@@ -161,6 +161,29 @@ class StiffnessTerms:
     shares_pattern: dict = field(default_factory=dict, compare=False, repr=False)
 
 
+@dataclass(frozen=True)
+class SplitPart:
+    """h(s, p) = K(p) s + n(s, p) of a base model linear in the state whose effects add
+    unit terms or internal forces given in numbers (``ExtendedModel.split_part``): the
+    split path of ``solvers.diagnosis.splitpath``.
+
+    Attributes
+    ----------
+    terms : StiffnessTerms
+        K(p) = sum_t c_t(p) K_t: the base model's, the ``unit_terms`` effects' and the
+        multipliers' block, (n_state)-square.
+    arguments : casadi.Function
+        p -> (q, dq/dp): the arguments of the forces, stacked.
+    forces : tuple
+        (slice of q, evaluator) per force (``Effect.numeric_force``); n is the sum of
+        their vec(F) on the free rows of s.
+    """
+
+    terms: StiffnessTerms
+    arguments: ca.Function
+    forces: tuple
+
+
 def case_load(model: TissueModel, effects, case: CaseData, thetas, n_state: int) -> ca.MX:
     """-F_B(theta) of the case on the free points, stacked, then zero on the extra rows
     and -vec(Q d_k) on the constraint rows of a model with prescribed points

@@ -39,6 +39,7 @@ import scipy.sparse as sp
 from symbolic.continuum import KPA
 from symbolic.effects.base import CaseSymbols, Effect, linear_coefficient
 from symbolic.effects.declaration import Magnitude, Parameter
+from symbolic.effects.numericforce import NumericStiffening, gram_layout
 from symbolic.hyperelastic import NeoHookeanForce
 from symbolic.model import TissueModel
 from symbolic.sparse import to_casadi_sparse
@@ -55,24 +56,7 @@ def _stiffening_parts(stiffening, n_edges: int) -> ca.Function:
 
 def _gram_map(incidence: sp.csr_matrix) -> tuple[ca.Sparsity, ca.DM]:
     """Pattern of G^T diag(c) G and the matrix M with nonzeros(G^T diag(c) G) = M c."""
-    pattern = sp.csc_matrix(abs(incidence).T @ abs(incidence))
-    pattern.sort_indices()
-    position = sp.csc_matrix(
-        (np.arange(pattern.nnz, dtype=float) + 1, pattern.indices, pattern.indptr),
-        shape=pattern.shape,
-    ).tocsr()
-    coo = incidence.tocoo()
-    by_edge: dict[int, list[tuple[int, float]]] = {}
-    for e, a, sign in zip(coo.row, coo.col, coo.data):
-        by_edge.setdefault(int(e), []).append((int(a), float(sign)))
-    rows, cols, values = [], [], []
-    for e, ends in by_edge.items():
-        for a, sa in ends:
-            for b, sb in ends:
-                rows.append(int(position[a, b]) - 1)
-                cols.append(e)
-                values.append(sa * sb)
-    mapping = sp.csr_matrix((values, (rows, cols)), shape=(pattern.nnz, incidence.shape[0]))
+    pattern, mapping = gram_layout(incidence)
     sparsity = ca.Sparsity(
         pattern.shape[0], pattern.shape[1], pattern.indptr.tolist(), pattern.indices.tolist()
     )
@@ -175,6 +159,17 @@ class NonlinearStiffening(Effect):
 
     def internal_tangent(self, model: TissueModel, symbols: CaseSymbols, theta):
         return self._call(model, symbols, theta, 1)
+
+    def numeric_force(self, model: TissueModel, values: dict, theta):
+        """q = (c, k0, the model's k0) and ``NumericStiffening``."""
+        coefficients = [linear_coefficient(model, values, t) for t in model.terms]
+
+        def build():
+            parts = _stiffening_parts(model.stiffening, model.edges().values.shape[0])
+            return NumericStiffening(model, parts)
+
+        arguments = ca.vertcat(*coefficients, theta[0], values["k0"])
+        return arguments, self.cached(model, "numeric", build)
 
     def _call(self, model: TissueModel, symbols: CaseSymbols, theta, which: int):
         """The force (0) or its tangent (1) at the case's Delta and coefficients."""
