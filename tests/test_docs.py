@@ -185,6 +185,10 @@ def _exists(token: str) -> bool:
 def test_every_path_and_module_the_docs_name_exists():
     """README.md and docs/ (not docs/results/, whose pages record a study at the commit
     they name): every module, source file and repository file named in backticks exists."""
+    broken = "`solvers/diagnosis/linear.py`, `experiments.design.designcommand`, `docs/nowhere.md`"
+    assert list(_named(broken)) == [t.strip("`") for t in broken.split(", ")]
+    assert not any(_exists(token) for token in _named(broken))  # the checker sees a break
+    assert _exists("solvers/forward/linearpath.py") and _exists("experiments.design.command")
     pages = [ROOT / "README.md"] + [p for p in DOCS.rglob("*.md") if "results" not in p.parts]
     missing = [
         f"{page.relative_to(ROOT)}: {token}"
