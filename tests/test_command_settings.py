@@ -52,3 +52,38 @@ def test_a_chosen_energy_takes_its_model_options():
 def test_contradicting_options_are_refused_naming_the_option(options, named):
     with pytest.raises(UsageError, match=named):
         _fit(*options)
+
+
+def _image(*options: str):
+    from experiments.imaging.command import build_parser, image_settings
+
+    return image_settings(build_parser().parse_args(["data.npz", "--out", "out", *options]))
+
+
+def test_the_default_image_leaves_the_model_to_step_0_and_the_noise_to_the_data():
+    settings, noise = _image()
+    assert noise is None
+    assert settings.fit.grid is None and settings.fit.margin == 0.0
+    assert settings.fit.names == ("E", "nu") and settings.over == "surface"
+
+
+def test_an_image_on_a_chosen_model_takes_its_options():
+    settings, noise = _image(
+        "--energy", "linear-elastic", "--grid", "9x9x2", "--field", "6x4", "--noise", "0.02"
+    )
+    assert settings.fit.grid == (9, 9, 2) and tuple(settings.shape) == (6, 4)
+    assert noise == 0.02
+
+
+@pytest.mark.parametrize(
+    "options, named",
+    [
+        (("--grid", "9x9x2"), "--grid"),
+        (("--field", "6x4x3"), "--field"),
+        (("--noise", "0"), "--noise"),
+        (("--weight", "sometimes"), "--weight"),
+    ],
+)
+def test_bad_imaging_options_are_refused_naming_the_option(options, named):
+    with pytest.raises(UsageError, match=named):
+        _image(*options)

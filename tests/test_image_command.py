@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from experiments.data.dataset import save_dataset
-from experiments.imaging.imagecommand import main
+from experiments.imaging.command import main
 from experiments.phantom.fe import ReferenceSlab, design_cases, reference_dataset
 from experiments.phantom.simulate import SimulationSettings
 
@@ -107,7 +107,7 @@ def test_every_key_of_image_json_is_documented(fe_dataset, tmp_path):
 
 @pytest.mark.parametrize("text", ["morozov", "gcv", "lcurve", "250"])
 def test_every_weight_rule_is_accepted(text):
-    from experiments.imaging.imageoptions import parse_weight
+    from experiments.imaging.options import parse_weight
 
     assert parse_weight(text) == (float(text) if text[0].isdigit() else text)
 

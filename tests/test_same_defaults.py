@@ -224,7 +224,7 @@ def test_when_step_0_keeps_the_papers_energy_the_map_says_whose_continuum(tissue
 
     import experiments.basemodel as basemodel
     from experiments.data.dataset import load_dataset
-    from experiments.imaging.imagemodel import SOURCES, ImagingModel, fallback_note
+    from experiments.imaging.continuum import SOURCES, ImagingModel, fallback_note
 
     dataset = load_dataset(tissue)
     choice = basemodel.choose_base(dataset)  # the module's shared run

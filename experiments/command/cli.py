@@ -23,7 +23,7 @@ VERBS = {
     "fit": ("experiments.fit.command", "estimate parameters from a dataset, with a verdict"),
     "diagnose": ("experiments.diagnosis.diagnose", "find the effect the model lacks"),
     "image": (
-        "experiments.imaging.imagecommand",
+        "experiments.imaging.command",
         "Young's modulus as a field, with its uncertainty",
     ),
     "design": (
@@ -47,7 +47,7 @@ GROUPS = {
                 "experiments.design.bench",
                 "design search: speed, gap, against by hand",
             ),
-            "image": ("experiments.imaging.imagebench", "stiffness imaging: fit time against N"),
+            "image": ("experiments.imaging.bench", "stiffness imaging: fit time against N"),
             "factorisation": (
                 "experiments.inverse.factorisation",
                 "sparse direct solvers of K side by side",

@@ -4,7 +4,7 @@
 The question is the one of the imaging acceptance: is there an inclusion of a stated size
 and contrast anywhere over the marked area, and where?
 
-1. The continuum ``dvs image`` maps on: step 0's (``experiments.imaging.imagemodel``), its
+1. The continuum ``dvs image`` maps on: step 0's (``experiments.imaging.continuum``), its
    homogeneous fit (E_ref and the held nu).
 2. The candidates: an n x n grid of contacts over the marked area
    (``solvers.design.candidates.contact_grid``), each pressed along the inward normal
@@ -117,7 +117,7 @@ def field_step(dataset, target: FieldTarget, budget: int, log=print) -> dict:
     """Step 0, the homogeneous fit, the posterior and the next press, or why to stop."""
     from experiments.design.plan import press_document
     from experiments.fit.stepzero import model_record
-    from experiments.imaging.imagemodel import imaging_model
+    from experiments.imaging.continuum import imaging_model
     from experiments.problem.fitting import build_problem, solve
     from solvers.imaging.fielddesign import (
         PlacePosterior,

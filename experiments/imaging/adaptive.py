@@ -293,7 +293,7 @@ def build_parser(prog: str = "python -m experiments.imaging.adaptive"):
 
 def work(args) -> int:
     """Run the places and write ``adaptive.json`` and ``adaptive.md`` to ``--out``."""
-    from experiments.imaging.imageoptions import parse_field
+    from experiments.imaging.options import parse_field
     from experiments.output.atomic import atomic_write_json, atomic_write_text
 
     out = check_output_dir(args.out)

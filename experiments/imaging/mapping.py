@@ -97,7 +97,7 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print, problem=
     """Fit the homogeneous model, then the field; see the module docstring.
 
     ``problem`` is the homogeneous linear-elastic ``InverseProblem`` when already built
-    (step 0's, ``experiments.imaging.imagemodel``); otherwise it is built from ``settings.fit``.
+    (step 0's, ``experiments.imaging.continuum``); otherwise it is built from ``settings.fit``.
     """
     begin = time.perf_counter()
     if problem is None:

@@ -77,7 +77,7 @@ def document(
     """image.json (schema ``dvs-image/1``, docs/formats.md).
 
     ``model`` adds to the record's ``model`` (the volume imaged on and where it came
-    from, ``experiments.imaging.imagecommand``); ``base_choice`` is step 0's record.
+    from, ``experiments.imaging.command``); ``base_choice`` is step 0's record.
     """
     fp, estimate, posterior = image.field_problem, image.estimate, image.posterior
     nodes = fp.field.nodes()

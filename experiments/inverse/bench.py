@@ -219,7 +219,7 @@ def work(args) -> int:
         from experiments.diagnosis.continuumstudy import diagnosis_benchmark
         from experiments.diagnosis.study import diagnosis_timings
         from experiments.diagnosis.tissuedefaults import defaults_benchmark
-        from experiments.imaging.imagebench import imaging_benchmark
+        from experiments.imaging.bench import imaging_benchmark
         from experiments.inverse.factorisation import factorisation_benchmark
 
         factorisation_benchmark()

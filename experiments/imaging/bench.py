@@ -119,7 +119,7 @@ def timed_imaging(path: str) -> dict:
 
     from experiments.command.isolation import factorisation_seconds, peak_mb
     from experiments.data.dataset import load_dataset
-    from experiments.imaging.imagecommand import main
+    from experiments.imaging.command import main
     from experiments.problem.fitting import FitSettings, build_problem
 
     with tempfile.TemporaryDirectory() as out:
@@ -199,7 +199,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m experiments.imaging.imagebench"):
+def build_parser(prog: str = "python -m experiments.imaging.bench"):
     """The options of ``dvs bench image`` (docs/cli.md)."""
     parser = make_parser(prog, "Stiffness imaging: fit time against N for three methods.")
     parser.add_argument("--grids", default="9x9x2,17x17x3", help="model grids, comma list")
@@ -241,7 +241,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.imaging.imagebench", build_parser, work).main
+main = Command("experiments.imaging.bench", build_parser, work).main
 
 
 if __name__ == "__main__":

@@ -2,22 +2,22 @@
 
 Writes image.json, map.png, std.png and map.vtu (ParaView) into ``--out``
 (docs/cli.md, docs/formats.md; the method in docs/imaging.md). With no model option
-(``--energy auto``) the map is made on step 0's continuum (``experiments.imaging.imagemodel``);
+(``--energy auto``) the map is made on step 0's continuum (``experiments.imaging.continuum``);
 ``--energy linear-elastic`` takes the volume of ``--grid``, ``--degrees`` and ``--margin``.
 """
 
 from __future__ import annotations
 
 from experiments.command.options import Command
-from experiments.imaging.imageoptions import parse_field, parse_weight
 from experiments.imaging.mapping import REGULARIZERS
+from experiments.imaging.options import parse_field, parse_weight
 from solvers.imaging.estimate import SOLVERS
 
 DEGREES = (3, 3, 1)
 """Degrees of ``--energy linear-elastic`` without ``--degrees`` (those of ``dvs fit``)."""
 
 
-def build_parser(prog: str = "python -m experiments.imaging.imagecommand"):
+def build_parser(prog: str = "python -m experiments.imaging.command"):
     """The options of ``dvs image`` (docs/cli.md)."""
     from experiments.command.options import add_margin_argument, make_parser, path_argument
 
@@ -64,25 +64,22 @@ def build_parser(prog: str = "python -m experiments.imaging.imagecommand"):
     return parser
 
 
-def work(args) -> int:
-    """``dvs image FILE.npz --out DIR``: exit 0, 2 for bad input, 3 if a solve failed."""
-    import sys
-    from dataclasses import replace
-
+def image_settings(args):
+    """The imaging settings and the noise level given on the command line [mm] (None:
+    the dataset's), from ``dvs image``'s parsed options alone (no file is read):
+    ``UsageError`` names a bad or contradicting option. Model options (``--grid``,
+    ``--degrees``, ``--margin``) describe ``--energy linear-elastic`` and are refused
+    with ``auto``, whose step 0 chooses the model."""
     from experiments.command.options import (
-        EXIT_NOT_CONVERGED,
         UsageError,
         check_grid,
         check_margin,
         check_noise,
-        check_output_dir,
         parse_degrees,
         parse_grid,
     )
-    from experiments.data.dataset import load_dataset, require_indentation
-    from experiments.fit.stepzero import model_record, refuse_model_options
-    from experiments.imaging.mapping import ImageSettings, image_dataset
-    from experiments.imaging.outputs import document, plot_maps, write_vtu
+    from experiments.fit.stepzero import refuse_model_options
+    from experiments.imaging.mapping import ImageSettings
     from experiments.problem.fitting import FitSettings
 
     shape = parse_field(args.field, args.over)
@@ -104,7 +101,21 @@ def work(args) -> int:
         degrees=degrees or DEGREES,
         margin=margin,
     )
-    settings = ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit)
+    return ImageSettings(shape, args.over, args.regularizer, weight, args.method, fit), noise
+
+
+def work(args) -> int:
+    """``dvs image FILE.npz --out DIR``: exit 0, 2 for bad input, 3 if a solve failed."""
+    import sys
+    from dataclasses import replace
+
+    from experiments.command.options import EXIT_NOT_CONVERGED, UsageError, check_output_dir
+    from experiments.data.dataset import load_dataset, require_indentation
+    from experiments.fit.stepzero import model_record
+    from experiments.imaging.mapping import image_dataset
+    from experiments.imaging.outputs import document, plot_maps, write_vtu
+
+    settings, noise = image_settings(args)
     check_output_dir(args.out)
     dataset = require_indentation(load_dataset(args.dataset), args.prog)
     if noise is not None:
@@ -118,7 +129,7 @@ def work(args) -> int:
     log = lambda line: print(line, flush=True)  # noqa: E731
     chosen, problem = None, None
     if args.energy == "auto":
-        from experiments.imaging.imagemodel import imaging_model
+        from experiments.imaging.continuum import imaging_model
 
         chosen = imaging_model(dataset, log=log)
         dataset, problem = chosen.dataset(dataset), chosen.problem()
@@ -169,7 +180,7 @@ def work(args) -> int:
     return 0
 
 
-main = Command("experiments.imaging.imagecommand", build_parser, work).main
+main = Command("experiments.imaging.command", build_parser, work).main
 
 
 if __name__ == "__main__":
