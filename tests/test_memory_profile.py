@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from experiments.command.isolation import isolated
 from experiments.inverse.memoryprofile import print_profile, profile, resident_mb
 
 
@@ -17,9 +18,16 @@ def _hold(megabytes: int) -> float:
     return float(block[-1])
 
 
-def test_the_peak_and_its_holder_are_seen():
+def _profiled_hold(megabytes: int):
+    """In a fresh process (whose freed memory cannot serve the block): the resident set
+    before, the value, the profile."""
     before = resident_mb()
-    value, record = profile(_hold, 200, interval=0.02)
+    value, record = profile(_hold, megabytes, interval=0.02)
+    return before, value, record
+
+
+def test_the_peak_and_its_holder_are_seen():
+    before, value, record = isolated(_profiled_hold, 200)
     assert value == 1.0
     assert record.peak_mb >= before + 150  # the 200 MB block, resident while held
     assert record.peak_stack() == ("experiments.inverse.memoryprofile.profile",)
