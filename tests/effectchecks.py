@@ -1,13 +1,36 @@
 """Checks every effect must pass on any base model: off at theta = 0, exact derivatives.
 
-``setting`` is (ExtendedProblem without effects, its fitted EffectFit, the library).
+``setting`` is (ExtendedProblem without effects, its fitted EffectFit, the library):
+``fitted_setting`` makes one of any base problem, ``simulated_setting`` the paper's.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from experiments.diagnosis.diagnose import BASE_NAMES
+from experiments.phantom.simulate import simulate_with_effects
+from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.extended import ExtendedProblem
+from solvers.diagnosis.fit import fit
+from symbolic.effects.library import ALL_EFFECT_NAMES, effect_library
+
+
+def fitted_setting(base, loads, names, energy: str | None = None) -> tuple:
+    """The ``setting`` of a base problem: ``base`` with its ``loads`` extended by no
+    effect, its fit (``solvers.diagnosis.fit``) and the library of the effects ``names``
+    (those that extend ``energy`` when given, ``effect_library``)."""
+    problem = ExtendedProblem(base, loads, [])
+    return problem, fit(problem), effect_library(names, energy)
+
+
+def simulated_setting() -> tuple:
+    """The ``setting`` of a simulated dataset on the paper's energy (seed 3, no effect):
+    its base problem on ``BASE_NAMES``, fitted, with every effect of the library."""
+    dataset = simulate_with_effects({}, seed=3)
+    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
+    loads = dataset_loads(dataset, base.model.volume)
+    return fitted_setting(base, loads, ALL_EFFECT_NAMES)
 
 
 def _point(problem: ExtendedProblem, base_p: np.ndarray, factor: float) -> np.ndarray:

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from fepatch import patch_dataset
 from scipy import stats
 
 from experiments.basemodel import MARGINS_MM, SUPPORTS, choose_base
@@ -23,21 +24,7 @@ from experiments.basemodel.resolution import MAX_CHECK_POINTS, MAX_REFINEMENTS, 
 
 def _patch_dataset(radius: float, probe: str, seed: int):
     """The module's FE patch (docstring) pressed by a probe of ``radius`` [mm] and shape."""
-    from experiments.phantom.simulate import SimulationSettings
-    from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
-
-    patch = TissuePatch(
-        marked=(24.0, 18.0),
-        extent_mm=4.0,
-        thickness=4.0,
-        poisson=0.45,
-        support="clamped",
-        layers=3,
-        spacing_mm=3.0,
-    )
-    forces, contacts = tissue_cases("corners", patch)
-    measurement = SimulationSettings(noise_mm=0.02, seed=seed)
-    return tissue_dataset(patch, forces, contacts, radius, (7, 6), probe, measurement=measurement)
+    return patch_dataset((24.0, 18.0), (7, 6), radius, probe, seed)
 
 
 @pytest.fixture(scope="module")

@@ -4,19 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from effectchecks import check_derivatives, check_theta_zero
+from effectchecks import check_derivatives, check_theta_zero, simulated_setting
 
-from experiments.diagnosis.diagnose import BASE_NAMES
 from experiments.phantom.simulate import (
     SimulationSettings,
     parse_effect_specs,
     simulate,
     simulate_with_effects,
 )
-from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis.extended import ExtendedProblem
-from solvers.diagnosis.fit import fit
-from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, effect_library, make_effect
+from symbolic.effects.library import ALL_EFFECT_NAMES, EFFECT_NAMES, make_effect
 from symbolic.effects.load import basis_values
 from symbolic.effects.measurement import cayley_rotation
 from symbolic.effects.nonlinearity import stiffening_force
@@ -41,10 +38,7 @@ DESIGN_NAMES = {
 @pytest.fixture(scope="module")
 def setting():
     """A simulated dataset, its base problem, the fitted base model and the library."""
-    dataset = simulate_with_effects({}, seed=3)
-    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
-    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
-    return problem, fit(problem), effect_library(ALL_EFFECT_NAMES)
+    return simulated_setting()
 
 
 def test_library_names_are_those_of_the_design():

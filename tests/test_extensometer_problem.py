@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from effectchecks import check_derivatives, check_theta_zero
+from effectchecks import check_derivatives, check_theta_zero, fitted_setting
 
 from experiments.realskin.cases import FrameData, force_weight, load_cases
 from experiments.realskin.geometry import Rect
@@ -76,13 +76,19 @@ def synthetic_problem() -> tuple[PlanarProblem, list]:
     return base, [FrameLoad(case.label) for case in cases]
 
 
+def synthetic_setting(names) -> tuple:
+    """The ``setting`` (``effectchecks``) of ``synthetic_problem`` with the effects
+    ``names`` that extend the paper's energy (dnurbs)."""
+    base, loads = synthetic_problem()
+    return fitted_setting(base, loads, names, "dnurbs")
+
+
 @pytest.fixture(scope="module")
 def synthetic():
     """(ExtendedProblem without effects, its fit, the library) of ``synthetic_problem``."""
-    base, loads = synthetic_problem()
-    problem = ExtendedProblem(base, loads, [])
-    names = ("rigid_motion", "nonlinear_stiffening", "volumetric_coupling", "anisotropy")
-    return problem, fit(problem), effect_library(names, "dnurbs")
+    return synthetic_setting(
+        ("rigid_motion", "nonlinear_stiffening", "volumetric_coupling", "anisotropy")
+    )
 
 
 def _solver(base: PlanarProblem) -> NestedSolver:

@@ -19,27 +19,10 @@ import json
 
 import numpy as np
 import pytest
+from fepatch import patch_dataset
 
 from experiments.command.cli import main as dvs
 from experiments.data.dataset import save_dataset, to_arrays
-
-
-def _patch_dataset():
-    from experiments.phantom.simulate import SimulationSettings
-    from experiments.phantom.tissue import TissuePatch, tissue_cases, tissue_dataset
-
-    patch = TissuePatch(
-        marked=(18.0, 12.0),
-        extent_mm=4.0,
-        thickness=4.0,
-        poisson=0.45,
-        support="clamped",
-        layers=3,
-        spacing_mm=3.0,
-    )
-    forces, contacts = tissue_cases("corners", patch)
-    measurement = SimulationSettings(noise_mm=0.02, seed=3)
-    return tissue_dataset(patch, forces, contacts, 3.0, (5, 4), "disc", measurement=measurement)
 
 
 def _fingerprint(dataset) -> str:
@@ -53,7 +36,7 @@ def _fingerprint(dataset) -> str:
 @pytest.fixture(scope="module")
 def tissue(tmp_path_factory):
     path = tmp_path_factory.mktemp("same") / "patch.npz"
-    save_dataset(path, _patch_dataset())
+    save_dataset(path, patch_dataset((18.0, 12.0), (5, 4), 3.0))
     return path
 
 

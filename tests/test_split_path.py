@@ -14,17 +14,14 @@ import casadi as ca
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from test_extensometer_problem import synthetic_problem
+from effectchecks import simulated_setting
+from test_extensometer_problem import synthetic_setting
 
-from experiments.diagnosis.diagnose import BASE_NAMES
-from experiments.phantom.simulate import simulate_with_effects
-from experiments.problem.fitting import FitSettings, build_problem, dataset_loads
 from solvers.diagnosis import splitpath
 from solvers.diagnosis.extended import ExtendedProblem
 from solvers.diagnosis.fit import fit
 from symbolic.effects.base import Effect
 from symbolic.effects.declaration import Parameter
-from symbolic.effects.library import ALL_EFFECT_NAMES, effect_library
 from symbolic.effects.nonlinearity import _stiffening
 
 PAPER_SETS = (
@@ -40,19 +37,15 @@ PAPER_SETS = (
 @pytest.fixture(scope="module")
 def paper():
     """A simulated dataset on the paper's energy (k0 = 0), its base fit, the library."""
-    dataset = simulate_with_effects({}, seed=3)
-    base = build_problem(dataset, FitSettings(names=BASE_NAMES))
-    problem = ExtendedProblem(base, dataset_loads(dataset, base.model.volume), [])
-    return problem, fit(problem), effect_library(ALL_EFFECT_NAMES)
+    return simulated_setting()
 
 
 @pytest.fixture(scope="module")
 def slab():
     """The synthetic two-pad extensometer of ``test_extensometer_problem``."""
-    base, loads = synthetic_problem()
-    problem = ExtendedProblem(base, loads, [])
-    names = ("nonlinear_stiffening", "volumetric_coupling", "anisotropy", "stiffer_region")
-    return problem, fit(problem), effect_library(names, "dnurbs")
+    return synthetic_setting(
+        ("nonlinear_stiffening", "volumetric_coupling", "anisotropy", "stiffer_region")
+    )
 
 
 def _dense(value) -> np.ndarray:

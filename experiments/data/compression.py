@@ -11,7 +11,8 @@ The dataset (docs/formats.md, "Measured experiments"): the cylinder between its 
 face (``outer_rest``, a grid over the disc) and its base (``inner_rest``); one load case
 per sampled point of each test's curve, the plate moved down by the compression
 (``plate_motion``) and its measured force (``forces``); ``specimen`` numbers the tests
-(``specimen_names``). No marker is seen (``outer_loaded`` all NaN).
+(``specimen_names``). No marker is seen (``outer_loaded`` all NaN). ``compression_summary``
+says what it holds in one line.
 """
 
 from __future__ import annotations
@@ -171,4 +172,17 @@ def compression_dataset(
             "specimen_names": np.array([t.name for t in tests]),
             "source": np.array(f"phantom-compression {recipe}"),
         },
+    )
+
+
+def compression_summary(
+    recipe: str, tests: list[CompressionTest], samples: int, strain: float, dataset: Dataset
+) -> str:
+    """One line of what ``compression_dataset`` holds: the recipe, its tests, the
+    ``samples`` points on each curve up to ``strain`` x the height [mm], and the force
+    noise [N]."""
+    return (
+        f"{recipe}, {len(tests)} tests x {samples} points (compression to "
+        f"{strain:g} x {tests[0].height_mm:g} mm); force noise "
+        f"{dataset.force_noise_n:.3g} N"
     )

@@ -15,7 +15,8 @@ index) and ``x, y, z`` [mm] for each of the four states, rest first.
 ``experiments.truthcube.cubeimport``) (docs/formats.md,
 "Measured experiments"): the beads as ``markers_rest``/``markers_loaded``, the plate's
 nominal travel as ``plate_motion``, no force (``forces`` NaN), and the cube's faces
-placed from the bead lattice (``cube_faces``).
+placed from the bead lattice (``cube_faces``); ``truth_cube_summary`` says what it holds
+in one line.
 """
 
 from __future__ import annotations
@@ -162,6 +163,17 @@ def truth_cube_dataset(cube: TruthCube) -> Dataset:
             "source": np.array("truth-cube uniaxial_positions.csv (Kerdok et al. 2003)"),
             "bead_index": cube.index,
         },
+    )
+
+
+def truth_cube_summary(cube: TruthCube) -> str:
+    """One line of what ``truth_cube_dataset`` holds: the beads, the compressed states
+    with the bead positions located in them, and the plate's nominal travel [mm]."""
+    located = int(np.isfinite(cube.loaded).all(axis=-1).sum())
+    return (
+        f"{cube.n_beads} beads, {cube.loaded.shape[0]} compressed states ({located} bead "
+        f"positions located), plate travel "
+        f"{', '.join(f'{t:g}' for t in cube.plate_travel_mm())} mm"
     )
 
 

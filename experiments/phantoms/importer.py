@@ -10,7 +10,7 @@ from experiments.command.options import (
     importer_parser,
     write_dataset,
 )
-from experiments.data.compression import compression_dataset, read_recipe
+from experiments.data.compression import compression_dataset, compression_summary, read_recipe
 from experiments.data.errors import DatasetError
 
 
@@ -36,13 +36,8 @@ def work(args) -> int:
         raise DatasetError("--samples must be >= 1 and --strain in (0, 1)")
     recipe, tests = read_recipe(args.folder)
     dataset = compression_dataset(recipe, tests, args.samples, args.strain)
-    return write_dataset(
-        args.out,
-        dataset,
-        f"{recipe}, {len(tests)} tests x {args.samples} points (compression to "
-        f"{args.strain:g} x {tests[0].height_mm:g} mm); force noise "
-        f"{dataset.force_noise_n:.3g} N",
-    )
+    summary = compression_summary(recipe, tests, args.samples, args.strain, dataset)
+    return write_dataset(args.out, dataset, summary)
 
 
 main = Command("experiments.phantoms.importer", build_parser, work).main

@@ -4,7 +4,7 @@ rule 23 of docs/formats-validation.md).
 ``skin_dataset(case)`` poses a ``SkinCase`` (``experiments.realskin.data``) in the
 format, in the case's DIC frame [mm, N]; ``case_from_dataset`` gives the same case back,
 array for array (``dvs import extensometer``, ``experiments.realskin.skinimport``, writes
-the file; ``dvs diagnose`` reads it):
+the file and prints ``skin_summary``; ``dvs diagnose`` reads it):
 
 - one load case per DIC frame, frame 0 (the reference, the pads at rest) included;
 - the DIC points as ``markers_rest`` (frame 0, z = 0 on the skin) and ``markers_loaded``
@@ -97,6 +97,18 @@ def skin_dataset(case: SkinCase) -> Dataset:
             "specimen_names": np.array([case.name]),
             "source": np.array(f"{SOURCE} {case.name}"),
         },
+    )
+
+
+def skin_summary(case: SkinCase) -> str:
+    """One line of what ``skin_dataset`` holds: the case's DIC frames and points (x, y),
+    the moving pad's travel [mm], the frames with a force and the force record's
+    samples."""
+    forced = int(np.isfinite(case.force_at_frame_n).sum())
+    return (
+        f"{case.name}, {case.n_frames} DIC frames x {case.n_points} points (x, y), pad "
+        f"travel {-case.pad_displacement_mm[-1, 0]:.3g} mm, force at {forced} frames, "
+        f"force record {len(case.force_ux_mm)} samples"
     )
 
 

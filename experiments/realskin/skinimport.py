@@ -5,8 +5,6 @@ mapping ``experiments.realskin.skindataset``)."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from experiments.command.options import (
     Command,
     check_output_file,
@@ -29,17 +27,10 @@ def work(args) -> int:
     """Read the case's folder and write the dataset."""
     check_output_file(args.out, ".npz")
     from experiments.realskin.data import read_case
-    from experiments.realskin.skindataset import skin_dataset
+    from experiments.realskin.skindataset import skin_dataset, skin_summary
 
     case = read_case(args.folder)
-    forced = int(np.isfinite(case.force_at_frame_n).sum())
-    return write_dataset(
-        args.out,
-        skin_dataset(case),
-        f"{case.name}, {case.n_frames} DIC frames x {case.n_points} points (x, y), pad "
-        f"travel {-case.pad_displacement_mm[-1, 0]:.3g} mm, force at {forced} frames, "
-        f"force record {len(case.force_ux_mm)} samples",
-    )
+    return write_dataset(args.out, skin_dataset(case), skin_summary(case))
 
 
 main = Command("experiments.realskin.skinimport", build_parser, work).main

@@ -3,15 +3,13 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from experiments.command.options import (
     Command,
     check_output_file,
     importer_parser,
     write_dataset,
 )
-from experiments.data.truthcube import read_truth_cube, truth_cube_dataset
+from experiments.data.truthcube import read_truth_cube, truth_cube_dataset, truth_cube_summary
 
 
 def build_parser(prog: str = "python -m experiments.truthcube.cubeimport"):
@@ -25,14 +23,7 @@ def work(args) -> int:
     """Read the bead file and write the dataset."""
     check_output_file(args.out, ".npz")
     cube = read_truth_cube(args.file)
-    located = int(np.isfinite(cube.loaded).all(axis=-1).sum())
-    return write_dataset(
-        args.out,
-        truth_cube_dataset(cube),
-        f"{cube.n_beads} beads, {cube.loaded.shape[0]} compressed states ({located} bead "
-        f"positions located), plate travel "
-        f"{', '.join(f'{t:g}' for t in cube.plate_travel_mm())} mm",
-    )
+    return write_dataset(args.out, truth_cube_dataset(cube), truth_cube_summary(cube))
 
 
 main = Command("experiments.truthcube.cubeimport", build_parser, work).main
