@@ -1,19 +1,22 @@
 """The fast paths of stiffness imaging equal the straightforward ones (docs/imaging.md,
 "Speed"): K(c) by the elasticity blocks, J by the distinct observed rows (eq. I6-I7),
-the dense triangular solves, Morozov's search with predicted comparisons, and the
-homogeneous fit's one-factorisation path."""
+the factorisation's many-column solves and its switch, Morozov's search with predicted
+comparisons, and the homogeneous fit's one-factorisation path."""
 
 import copy
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
+import solvers.imaging.fieldproblem as fieldproblem
 import solvers.inverse.nested as nested
 from solvers.imaging.estimate import SOLVERS
 from solvers.imaging.fieldproblem import Factor, FieldProblem
 from solvers.imaging.regularization import Tikhonov
 from solvers.imaging.weight import discrepancy_weight
+from solvers.linalg.cholmod import Cholesky
 from symbolic.field import StiffnessField
 
 LENGTHS = (40.0, 40.0, 5.0)
@@ -39,13 +42,45 @@ def test_sensitivities_by_the_observed_rows_equal_the_forward_columns(field_prob
     assert np.allclose(adjoint @ v, fp.jvp(c, v), rtol=1e-9, atol=1e-12 * np.abs(adjoint).max())
 
 
-def test_dense_triangular_solves_equal_superlus(field_problem):
-    matrix = field_problem.saddle(np.zeros(field_problem.size))
-    factor = Factor(matrix)
-    right = np.random.default_rng(3).normal(size=(matrix.shape[0], 70))
-    dense = factor.solve(right)  # 70 >= DENSE_RIGHT_SIDES columns: the dense path
-    assert np.abs(dense - factor.lu.solve(right)).max() <= 1e-10 * np.abs(dense).max()
-    assert np.abs(matrix @ dense - right).max() <= 1e-8 * np.abs(right).max()
+def _kkt(stiffness: sp.spmatrix, rows: int = 6) -> sp.csc_matrix:
+    """[[K, C^T], [C, 0]] with C holding ``rows`` unknowns: an indefinite saddle matrix."""
+    coupling = sp.identity(stiffness.shape[0], format="csr")[:: stiffness.shape[0] // rows][:rows]
+    return sp.bmat([[stiffness, coupling.T], [coupling, None]], "csc")
+
+
+def test_the_factors_many_column_solves_equal_a_sparse_solve(field_problem, monkeypatch):
+    """CHOLMOD's blocked solve of K; SuperLU's of the saddle matrix with its factors made
+    dense (n^2 doubles under ``DENSE_BYTES``) and without (over it)."""
+    stiffness = field_problem.saddle(np.zeros(field_problem.size))
+    saddle = _kkt(stiffness)
+    rng = np.random.default_rng(3)
+    for matrix, definite, dense_bytes in [
+        (stiffness, True, fieldproblem.DENSE_BYTES),
+        (saddle, False, fieldproblem.DENSE_BYTES),
+        (saddle, False, 0),
+    ]:
+        monkeypatch.setattr(fieldproblem, "DENSE_BYTES", dense_bytes)
+        factor = Factor(matrix, definite=definite)
+        assert isinstance(factor.lu, Cholesky) == definite
+        right = rng.normal(size=(matrix.shape[0], 70))  # >= DENSE_RIGHT_SIDES columns
+        reference = spla.spsolve(matrix, right)
+        scale = np.abs(reference).max()
+        assert np.abs(factor.solve(right) - reference).max() <= 1e-10 * scale
+        assert np.abs(factor.solve(right[:, 0]) - reference[:, 0]).max() <= 1e-10 * scale
+
+
+def test_cholmod_and_superlu_give_the_same_map(imaging_problem, monkeypatch):
+    """The factorisation switch (``DVS_FACTORISATION``) does not move the estimate."""
+    field = StiffnessField((4, 4))
+    maps = []
+    for backend in ("cholmod", "superlu"):
+        monkeypatch.setenv("DVS_FACTORISATION", backend)
+        fp = FieldProblem(imaging_problem, field)
+        factor = Factor(fp.saddle(np.zeros(fp.size)))
+        assert isinstance(factor.lu, Cholesky) == (backend == "cholmod")
+        estimate = SOLVERS["nested-sensitivity"](fp, Tikhonov(field, LENGTHS)).solve(100.0)
+        maps.append(estimate.coefficients)
+    assert np.abs(maps[0] - maps[1]).max() <= 1e-8 * np.abs(maps[1]).max()
 
 
 def plain_bisection(fp, regularizer, method, target, bounds=(1e-2, 1e10), tolerance=0.02):

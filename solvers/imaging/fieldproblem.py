@@ -20,7 +20,7 @@ with A_k, b_k those of ``InverseProblem`` (markers observed on the skin) and W t
 whitening of the rest-marker noise every case shares (``solvers.inverse.noise``), so that
 under pure noise 2 Phi_d ~ chi^2 with n_residuals degrees of freedom. Every load
 case shares M(c): one sparse factorisation per c serves all forward and adjoint
-solves (SuperLU with the options of ``solvers.forward.linearpath``, ``Factor``). The
+solves (``Factor``: CHOLMOD for K(c) alone, SuperLU for the saddle matrix). The
 derivative of K(c) s along a direction v of the field is
 
     (dK/dc v) Delta = G^T (f (x) (w_q E(q) (Phi v)_q) * (G Delta)),                 (I5)
@@ -52,31 +52,52 @@ from solvers.imaging.fieldsensitivity import ForceOperators, point_weights
 from solvers.inverse.noise import Whitening
 from solvers.inverse.problem import InverseProblem
 from solvers.linalg.blas import one_thread
+from solvers.linalg.cholmod import Cholesky, factorised
 from symbolic.continuum import KPA, PhysicalGradient, lame
 from symbolic.field import StiffnessField
 
 DENSE_RIGHT_SIDES = 64
-"""From this many right-hand sides on, ``Factor`` solves with its factors made dense."""
+"""From this many right-hand sides on, ``Factor`` may solve with SuperLU's factors made dense."""
+
+DENSE_BYTES = 2**27
+"""The largest dense triangle (n^2 doubles, 128 MB: n up to 4096) ``Factor`` makes of SuperLU's
+factors. Above it the copies cost more than they save, and their memory grows as n^2
+(2.8 GB each at 19,440 unknowns)."""
+
+
+def _lu(matrix: sp.spmatrix):
+    """SuperLU with the options of ``solvers.forward.linearpath``."""
+    return spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
 
 
 class Factor:
-    """The sparse LU factors of M(c) (SuperLU, ``FACTOR_OPTIONS``) and solves with them.
+    """The sparse factors of M(c) and solves with them.
 
-    SuperLU solves its right-hand sides one at a time: 243 of them at 27 x 27 x 4 took
-    three to five times the factorisation. With many right-hand sides (``sensitivities``)
-    the factors (a fifth of n^2 nonzeros there) are copied to dense triangles for the
-    call and solved by BLAS-3 triangular solves (P_r M P_c = L U), the same solution to
-    rounding (the copies, 2 n^2 doubles, are not kept).
+    K(c) alone (no probe constraints, ``definite``) is symmetric positive definite:
+    CHOLMOD factorises it (``solvers.linalg.cholmod.factorised``: SuperLU where cvxopt is
+    missing, under ``DVS_FACTORISATION=superlu`` or where the Cholesky fails),
+    and solves many right-hand sides four at a time (``Cholesky.solve_columns``). The
+    saddle matrix of eq. (I3) is indefinite: SuperLU (``FACTOR_OPTIONS``). SuperLU
+    solves on one BLAS thread (``solvers/linalg/blas.py``); for ``DENSE_RIGHT_SIDES``
+    or more while n^2 doubles are at most ``DENSE_BYTES`` its factors are copied to
+    dense triangles for the call and solved by BLAS-3 triangular solves
+    (P_r M P_c = L U; the copies are not kept). Every path gives the same solution to
+    rounding.
     """
 
-    def __init__(self, matrix: sp.spmatrix):
-        self.lu = spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
+    def __init__(self, matrix: sp.spmatrix, definite: bool = True):
+        matrix = sp.csc_matrix(matrix)
+        self.lu = factorised(matrix, _lu) if definite else _lu(matrix)
 
     def solve(self, right: np.ndarray) -> np.ndarray:
         """M^-1 right, for one right-hand side or the columns of a matrix."""
         right = np.asarray(right, dtype=float)
-        if right.ndim < 2 or right.shape[1] < DENSE_RIGHT_SIDES:
-            with one_thread():  # SuperLU's thin BLAS calls (solvers/linalg/blas.py)
+        if isinstance(self.lu, Cholesky):
+            with one_thread():
+                return self.lu.solve_columns(right)
+        n = right.shape[0]
+        if right.ndim < 2 or right.shape[1] < DENSE_RIGHT_SIDES or 8 * n * n > DENSE_BYTES:
+            with one_thread():  # SuperLU's thin BLAS calls
                 return self.lu.solve(right)
         permuted = np.empty_like(right)
         permuted[self.lu.perm_r] = right
@@ -261,7 +282,7 @@ class FieldProblem:
         c = np.asarray(c, dtype=float)
         if self._cache is not None and np.array_equal(self._cache.coefficients, c):
             return self._cache
-        solve = Factor(self.saddle(c)).solve
+        solve = Factor(self.saddle(c), definite=self.coupling.shape[0] == 0).solve
         states = solve(self.right_hand_sides)
         states = [states[:, k] for k in range(states.shape[1])]
         raw = np.concatenate([a @ s + b for a, s, b in zip(self.A, states, self.b)])
