@@ -322,9 +322,10 @@ def test_out_of_range_options_exit_2_naming_the_option(places, capsys):
 @pytest.mark.parametrize("name", EXPENSIVE)
 def test_an_expensive_command_fails_before_any_work(name, places):
     """Bad output path: no more CPU time than the command's own --help plus a second
-    (each the faster of two runs, one child at a time)."""
+    (the faster of two runs against one of --help, one child at a time: noise in --help's
+    time can only loosen the bound)."""
     tmp, data, _ = places
-    help_time = min(_run([*name.split(), "--help"], tmp)[2] for _ in range(2))
+    help_time = _run([*name.split(), "--help"], tmp)[2]
     argv = [*name.split(), *_fill(DIRECTORY_OUTPUT[name], data, tmp), "--out", str(tmp / "afile")]
     runs = [_run(argv, tmp) for _ in range(2)]
     assert all(code == 2 for code, _, _ in runs)

@@ -18,6 +18,7 @@ import scipy.sparse.linalg as spla
 import skfem
 from volumes import curved_volume
 
+from solvers.linalg.cholmod import factorised, symmetric_lu
 from symbolic.basis import FIRST_DERIVATIVES
 from symbolic.continuum import (
     PhysicalGradient,
@@ -230,7 +231,7 @@ def fe_top_displacement(cells, points, young_kpa=20.0, poisson=0.45, force=(2e-4
     fixed = basis.get_dofs(lambda x: np.isclose(x[2], 0.0))
     free = basis.complement_dofs(fixed)
     solution = np.zeros(basis.N)
-    factor = spla.splu(matrix[free][:, free].tocsc(), permc_spec="MMD_AT_PLUS_A")
+    factor = factorised(matrix[free][:, free].tocsc(), symmetric_lu)  # SPD: CHOLMOD
     solution[free] = factor.solve(load[free])
     return (basis.probes(points.T) @ solution).reshape(3, -1).T
 
@@ -245,7 +246,7 @@ def iga_top_displacement(points, young_kpa=20.0, poisson=0.45, force=(2e-4, 1e-4
     layer = np.indices(volume.shape).reshape(3, -1)[2]
     free = np.concatenate([np.flatnonzero(layer > 0) + k * n for k in range(3)])
     solution = np.zeros(3 * n)
-    solution[free] = spla.splu(matrix[free][:, free].tocsc()).solve(load[free])
+    solution[free] = factorised(matrix[free][:, free].tocsc(), symmetric_lu).solve(load[free])
     uvw = points / np.array([20.0, 16.0, 4.0])
     return volume.collocation(uvw) @ solution.reshape(3, n).T
 

@@ -31,12 +31,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from experiments.command.options import Command
 from experiments.data.dataset import Dataset, save_dataset
 from experiments.phantom.fe import require_skfem
 from experiments.phantom.simulate import SimulationSettings
+from solvers.linalg.cholmod import factorised, symmetric_lu
 from symbolic.continuum import KPA, lame
 
 
@@ -172,7 +172,7 @@ def solve_slab(settings: SlabSettings) -> tuple[np.ndarray, list[np.ndarray], np
     matrix = elasticity.assemble(basis)
     fixed = basis.nodal_dofs[:, order[:, :, 0].ravel()].ravel()
     free = basis.complement_dofs(fixed)
-    factor = spla.splu(matrix[free][:, free].tocsc())
+    factor = factorised(matrix[free][:, free].tocsc(), symmetric_lu)  # SPD
     skin_nodes = order[:, :, -1].ravel()
     skin = nodes[:, :, -1].reshape(-1, 3)
     results, contacts = [], []
