@@ -1,5 +1,6 @@
 """Stiffness imaging from a dataset (docs/imaging.md): ``mapping`` (dataset -> homogeneous
 fit -> field, weight, uncertainty), ``continuum`` (the continuum it images on),
+``fieldchoice`` (the field's nodes when ``--field`` is not given),
 ``outputs`` (image.json, PNG, VTU), ``command`` (``dvs image``), ``bench`` (``dvs
 bench image``), ``weightstudy`` and ``adaptive`` (``dvs study imageweights``,
 ``imageadaptive``)."""

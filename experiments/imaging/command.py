@@ -26,11 +26,18 @@ def build_parser(prog: str = "python -m experiments.imaging.command"):
     )
     parser.add_argument("dataset", type=path_argument, help="dataset v1 (.npz) with noise_mm")
     parser.add_argument("--out", type=path_argument, required=True, help="output directory")
-    parser.add_argument("--field", default="5x5", help="nodes of the field: MxN, or MxNxL")
+    parser.add_argument(
+        "--field",
+        default="auto",
+        help="nodes of the field: MxN, or MxNxL; auto (default): half a marker spacing "
+        "apart over the volume, at most 256 coefficients",
+    )
     parser.add_argument("--over", choices=("surface", "layers", "volume"), default="surface")
     parser.add_argument("--regularizer", choices=tuple(REGULARIZERS), default="h1")
     parser.add_argument(
-        "--weight", default="morozov", help="morozov (needs the noise), gcv, lcurve, or beta [mm^2]"
+        "--weight",
+        default="gcv",
+        help="gcv (default), morozov (needs the noise), lcurve, or beta [mm^2]",
     )
     parser.add_argument(
         "--method",
@@ -82,7 +89,7 @@ def image_settings(args):
     from experiments.imaging.mapping import ImageSettings
     from experiments.problem.fitting import FitSettings
 
-    shape = parse_field(args.field, args.over)
+    shape = "auto" if args.field == "auto" else parse_field(args.field, args.over)
     weight = parse_weight(args.weight)
     degrees = None if args.degrees is None else parse_degrees(args.degrees)
     grid = None
@@ -150,8 +157,10 @@ def work(args) -> int:
 
     atomic_write_json(args.out / "image.json", record)
     residual, strongest = record["residual"], record["strongest_departure"]
+    shape = "x".join(map(str, record["field_choice"]["shape"]))
     print(
-        f"  beta {record['weight']['beta_mm2']:.3g} mm^2 ({record['weight']['note']}), "
+        f"  field {shape} ({record['field_choice']['rule']}), "
+        f"beta {record['weight']['beta_mm2']:.3g} mm^2 ({record['weight']['note']}), "
         f"chi2/n {residual['chi2_over_n']:.3f}, rms {residual['rms_um']:.1f} um, "
         f"{record['effective_dof']:.1f} effective dof; E "
         f"{min(record['field']['E_kPa']):.3g}-{max(record['field']['E_kPa']):.3g} kPa"

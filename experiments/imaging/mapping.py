@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from experiments.data.dataset import Dataset
+from experiments.imaging.fieldchoice import describe, field_choice
 from experiments.problem.fitting import FitSettings, build_problem, solve
 from solvers.imaging.estimate import SOLVERS
 from solvers.imaging.fieldproblem import FieldProblem
@@ -46,8 +47,9 @@ class ImageSettings:
 
     Attributes
     ----------
-    shape : tuple of int
-        Nodes of the field: (M, N) for ``over="surface"``, (M, N, L) otherwise.
+    shape : tuple of int or "auto"
+        Nodes of the field: (M, N) for ``over="surface"``, (M, N, L) otherwise; "auto":
+        chosen from the markers and the volume (``experiments.imaging.fieldchoice``).
     over : {"surface", "layers", "volume"}
         Layout of the field (``symbolic.field.StiffnessField``).
     regularizer : {"h1", "tv"}
@@ -59,10 +61,10 @@ class ImageSettings:
         The model: grid, degrees, margin (energy linear-elastic).
     """
 
-    shape: tuple = (5, 5)
+    shape: tuple | str = "auto"
     over: str = "surface"
     regularizer: str = "h1"
-    weight: str | float = "morozov"
+    weight: str | float = "gcv"
     method: str = "auto"
     fit: FitSettings = field(
         default_factory=lambda: FitSettings(names=("E", "nu"), energy="linear-elastic")
@@ -86,6 +88,8 @@ class Image:
     homogeneous: dict
     method: str
     seconds: float
+    field_choice: dict = field(default_factory=dict)
+    """How the field's shape was chosen (image.json's ``field_choice``)."""
 
     @property
     def estimate(self):
@@ -113,13 +117,16 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print, problem=
         f"  homogeneous: E {homogeneous['E']:.4g} kPa, nu {homogeneous['nu']:.4f}, "
         f"rms {homogeneous['rms_um']:.1f} um"
     )
-    stiffness_field = StiffnessField(tuple(settings.shape), settings.over)
+    choice_of_field = field_choice(dataset, problem.model, settings.over, settings.shape)
+    shape = tuple(choice_of_field["shape"])
+    log(f"  {describe(choice_of_field)}")
+    stiffness_field = StiffnessField(shape, settings.over)
     fp = FieldProblem(problem, stiffness_field, homogeneous["E"], homogeneous["nu"])
     regularizer = REGULARIZERS[settings.regularizer](stiffness_field, tissue_lengths(problem.model))
     method = settings.solver_name(fp.size)
     estimator = SOLVERS[method]
     log(
-        f"  field {'x'.join(map(str, settings.shape))} over the {settings.over} "
+        f"  field {'x'.join(map(str, shape))} over the {settings.over} "
         f"(N = {fp.size}), {settings.regularizer}, {method}, {fp.n_residuals} residuals"
     )
     rank = None if fp.size <= DENSE_LAPLACE_MAX_N else LOW_RANK
@@ -137,6 +144,5 @@ def image_dataset(dataset: Dataset, settings: ImageSettings, log=print, problem=
         )
     nuisance = fp.poisson_sensitivity(choice.estimate.coefficients)
     posterior = laplace(fp, regularizer, choice.estimate, rank, nuisance)
-    return Image(
-        fp, regularizer, choice, posterior, homogeneous, method, time.perf_counter() - begin
-    )
+    seconds = time.perf_counter() - begin
+    return Image(fp, regularizer, choice, posterior, homogeneous, method, seconds, choice_of_field)
