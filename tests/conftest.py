@@ -54,3 +54,24 @@ def assert_same_solution(first, second, cost_rel: float) -> None:
     assert first.success and second.success
     assert np.allclose(first.x, second.x, rtol=1e-6, atol=0)
     assert first.cost == pytest.approx(second.cost, rel=cost_rel)
+
+
+def nlp_derivatives(solver, spread_state: float, spread_parameters: float):
+    """A simultaneous solver's structured d2L/dv2 (full) beside CasADi's AD of the same
+    NLP, at a random point (states ~ N(0, ``spread_state``), parameters about the space's
+    start) with lam_f 0.7 and random lam_g; also the point and AD's dg/dv (sparse)."""
+    import casadi as ca
+
+    nlp, space = solver.nlp, solver.problem.space
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nlp["g"].numel())
+    lagrangian = lam_f * nlp["f"] + ca.dot(lam_g, nlp["g"])
+    automatic = ca.Function("h", [nlp["x"], lam_f, lam_g], [ca.hessian(lagrangian, nlp["x"])[0]])
+    jacobian = ca.Function("j", [nlp["x"]], [ca.jacobian(nlp["g"], nlp["x"])])
+    rng = np.random.default_rng(5)
+    v = rng.normal(0.0, spread_state, nlp["x"].numel())
+    count = len(space.names)
+    v[:count] = space.to_internal(space.start) + rng.normal(0.0, spread_parameters, count)
+    multipliers = rng.normal(0.0, 1.0, nlp["g"].numel())
+    upper = solver.hessian(v, [], 0.7, multipliers).full()
+    structured = upper + np.triu(upper, 1).T
+    return v, automatic(v, 0.7, multipliers).full(), structured, jacobian(v).sparse()

@@ -1,9 +1,8 @@
 """Inverse solution (docs/inverse.md): agreement, recovery, coverage, robustness."""
 
-import casadi as ca
 import numpy as np
 import pytest
-from conftest import assert_same_solution
+from conftest import assert_same_solution, nlp_derivatives
 
 from experiments.phantom.forehead import (
     TRUE_PARAMETERS,
@@ -206,24 +205,10 @@ def test_structured_derivatives_equal_automatic_differentiation(noisy, case):
         ),
     }[case]()
     solver = SimultaneousSolver(problem)
-    nlp = solver.nlp
-    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nlp["g"].numel())
-    lagrangian = lam_f * nlp["f"] + ca.dot(lam_g, nlp["g"])
-    automatic = ca.Function("h", [nlp["x"], lam_f, lam_g], [ca.hessian(lagrangian, nlp["x"])[0]])
-    rng = np.random.default_rng(5)
-    v = rng.normal(0.0, 0.3, nlp["x"].numel())
-    v[: len(problem.names)] = problem.space.to_internal(problem.space.start) + rng.normal(
-        0.0, 0.2, len(problem.names)
-    )
-    multipliers = rng.normal(0.0, 1.0, nlp["g"].numel())
-    expected = automatic(v, 0.7, multipliers).full()
-    upper = solver.hessian(v, [], 0.7, multipliers).full()
-    structured = upper + np.triu(upper, 1).T
+    v, expected, structured, reference = nlp_derivatives(solver, 0.3, 0.2)
     assert np.abs(expected).max() > 0
     np.testing.assert_allclose(structured, expected, atol=1e-10 * np.abs(expected).max())
     if solver.jacobian is not None:  # the linear model's closed-form constraint Jacobian
-        jacobian = ca.Function("j", [nlp["x"]], [ca.jacobian(nlp["g"], nlp["x"])])
-        reference = jacobian(v).sparse()
         assert (
             abs(solver.jacobian(v, [])[1].sparse() - reference).max() < 1e-12 * abs(reference).max()
         )
