@@ -125,7 +125,8 @@ def timed_imaging(path: str) -> dict:
     with tempfile.TemporaryDirectory() as out:
         arguments = [path, "--energy", "linear-elastic", "--grid", IMAGING_GRID]
         arguments += ["--degrees", IMAGING_DEGREES]
-        arguments += ["--margin", "10", "--field", IMAGING_FIELD, "--out", out]
+        arguments += ["--margin", "10", "--field", IMAGING_FIELD, "--weight", "morozov"]
+        arguments += ["--out", out]
         begin = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
             code = main(arguments)

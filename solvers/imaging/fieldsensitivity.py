@@ -56,15 +56,22 @@ class ForceOperators:
         repeat_count = np.repeat(p_count, pairs)
         phi_entry = phi.indptr[point] + offset // np.maximum(repeat_count, 1)
         p_entry = pattern.indptr[point] + offset % np.maximum(repeat_count, 1)
+        del offset, repeat_count
         result = phi.indices[phi_entry].astype(np.int64) * n + pattern.indices[p_entry]
         unique, position = np.unique(result, return_inverse=True)
+        del result
         self.shape = (phi.shape[1], n)
         self.rows, self.columns = np.divmod(unique, n)
+        # one CSR pattern for the three maps: the pairs by entry (stable, so that each
+        # row's points stay increasing), the maps differing only in their values
+        order = np.argsort(np.ravel(position), kind="stable")
+        indptr = np.zeros(len(unique) + 1, dtype=np.int64)
+        np.cumsum(np.bincount(np.ravel(position), minlength=len(unique)), out=indptr[1:])
+        indices = point[order].astype(np.int32)
+        phi_values, p_entry = phi.data[phi_entry][order], p_entry[order]
+        del position, point, phi_entry, order
         self.maps = [
-            sp.csr_matrix(
-                (phi.data[phi_entry] * values[p_entry], (position, point)),
-                shape=(len(unique), n_q),
-            )
+            sp.csr_matrix((phi_values * values[p_entry], indices, indptr), shape=(len(unique), n_q))
             for values in aligned
         ]
 
