@@ -22,9 +22,10 @@ import scipy.sparse as sp
 
 from symbolic.basis import gauss_rule
 from symbolic.continuum import KPA, PhysicalGradient, lame
+from symbolic.curvature import ForceCurvature
 from symbolic.hyperelastic import NeoHookeanForce, NeoHookeanTangent
 from symbolic.model import TissueModel
-from symbolic.sparse import combination, combined, to_casadi_sparse
+from symbolic.sparse import combination, combined, pattern_entries, to_casadi_sparse
 
 CONTINUUM_TERMS = ("shear", "volumetric")
 """The terms of eq. (C3): K_mu (coefficient mu_L) and K_lambda (coefficient lambda)."""
@@ -159,6 +160,7 @@ class NeoHookeanModel(ContinuumModel):
             fibres=self.fibres,
         )
         self._tangent: NeoHookeanTangent | None = None
+        self._curvature: ForceCurvature | None = None
         self._support = None  # the foundation on u_z of the free points [N/mm]
         if self.support > 0.0:
             self._support = self.support * face_areas(self.volume)[self.free]
@@ -189,21 +191,57 @@ class NeoHookeanModel(ContinuumModel):
     def tangent(self, names: tuple[str, ...] = ()):
         """(vec(Delta_free), x) -> K_T of eq. (C9) on the free points (numpy, CSC)."""
         names = tuple(names)
+        element_tangent = self._element_tangent()
+        support = None  # the foundation's entries on the tangent's fixed pattern
+        if self._support is not None:
+            pattern = element_tangent(np.zeros_like(self.rest), 1.0, 1.0)
+            support = pattern_entries(pattern, self._support_matrix)
+
+        def tangent(delta_vec: np.ndarray, x: np.ndarray) -> sp.csc_matrix:
+            coefficients = self._numeric_coefficients(names, x)
+            matrix = element_tangent(self._on_all_points(delta_vec), *coefficients)
+            if support is not None:
+                matrix.data += support
+            return matrix
+
+        return tangent
+
+    def force_curvature(self, names: tuple[str, ...] = ()):
+        """(vec(Delta_free), x, vec(w)) -> d2(w . f)/dDelta2 on the free points (numpy,
+        CSC; ``symbolic.curvature``): f of eq. (C8), w a weight on the free points'
+        components. The foundation is linear in Delta and adds nothing."""
+        names = tuple(names)
+        if self._curvature is None:
+            self._curvature = ForceCurvature(self._element_tangent(), self.exponential, self.fibres)
+
+        def curvature(delta_vec: np.ndarray, x: np.ndarray, weight: np.ndarray) -> sp.csc_matrix:
+            coefficients = self._numeric_coefficients(names, x)
+            delta, weight = self._on_all_points(delta_vec), self._on_all_points(weight)
+            return self._curvature(delta, weight, *coefficients)
+
+        return curvature
+
+    def _element_tangent(self) -> NeoHookeanTangent:
+        """The element-batched tangent of eq. (C8) (built once)."""
         if self._tangent is None:
             gradient = self.gradient
             values = self.volume.collocation(gradient.points)
             self._tangent = NeoHookeanTangent(
                 values, gradient.operators, gradient.volume, self.free
             )
+        return self._tangent
 
-        def tangent(delta_vec: np.ndarray, x: np.ndarray) -> sp.csc_matrix:
-            coefficients = self._energy_coefficients(self.values(dict(zip(names, np.ravel(x)))))
-            delta = np.zeros_like(self.rest)
-            delta[self.free] = np.asarray(delta_vec)[: 3 * self.n_free].reshape(3, -1).T
-            matrix = self._tangent(delta, *coefficients)
-            return matrix if self._support is None else matrix + self._support_matrix
+    def _numeric_coefficients(self, names: tuple[str, ...], x: np.ndarray) -> tuple:
+        """``_energy_coefficients`` at the values ``x`` of ``names``, unchecked like the
+        CasADi force: IPOPT may step past a bound by its relaxation (nu < 0 by 1e-8)."""
+        return self._energy_coefficients({**self.parameters, **dict(zip(names, np.ravel(x)))})
 
-        return tangent
+    def _on_all_points(self, vector: np.ndarray) -> np.ndarray:
+        """vec of the free points' values (x components first) as (n, 3) on every
+        control point, 0 on the fixed ones."""
+        field = np.zeros_like(self.rest)
+        field[self.free] = np.asarray(vector)[: 3 * self.n_free].reshape(3, -1).T
+        return field
 
     def _energy_coefficients(self, values: dict) -> tuple:
         """The numbers the force and the tangent take after Delta: (mu_L, lambda)

@@ -289,8 +289,7 @@ class NeoHookeanTangent:
         """K_T at displacements delta (n, 3) [mm] on every control point, (3 m, 3 m) [N/mm];
         Lame pair and k1 [N/mm^2], k2 [1] of eq. (C12) (k1 = 0: the neo-Hookean tangent);
         kf1 [N/mm^2], kf2 [1] and phi [rad] of the fibre family, eq. (C14)."""
-        local_delta = np.asarray(delta, dtype=float)[self._support]  # (n_q, k, 3): [q, a, i]
-        f = np.eye(3) + np.einsum("qai,qaj->qij", local_delta, self._g)
+        f = np.eye(3) + self.point_gradients(delta)
         det = np.linalg.det(f)
         if np.any(det <= 0):
             raise ValueError("the deformation inverts the material (det F <= 0)")
@@ -305,12 +304,42 @@ class NeoHookeanTangent:
         if kf1 != 0.0:
             first = first + self._fibres(f, kf1, kf2, phi, d.shape)
         local = first + self._swap(swapped)
+        return self._scattered(local, mu_l * self._laplace)
+
+    def point_gradients(self, field: np.ndarray) -> np.ndarray:
+        """grad v at the Gauss points of a field v (n, 3) on every control point, in the
+        points' element order: (n_q, 3, 3), [q, i, j] = sum_a v_ai dN_a/dx_j."""
+        local = np.asarray(field, dtype=float)[self._support]  # (n_q, k, 3): [q, a, i]
+        return np.einsum("qai,qaj->qij", local, self._g)
+
+    def assemble(self, moduli: np.ndarray) -> sp.csc_matrix:
+        """The stiffness of pointwise fourth-order tensors M^q on this pattern,
+
+            K_(a,i),(b,k) = sum_q w_q sum_jl dN_a/dx_j M^q_ijkl dN_b/dx_l,
+
+        for ``moduli`` (n_q, 3, 3, 3, 3) [q, i, j, k, l] in the points' element order
+        (``point_gradients``); M^q = dP/dF at F_q gives K_T, eq. (C9) (tested).
+        """
+        e, p, k = self.n_elements, self.points_per_element, self.k
+        weighted = np.asarray(moduli, dtype=float) * self._w[:, None, None, None, None]
+        # sum over l first, into [q, j, i, k, b]: the layout [e, (q, j), (i, k, b)] as is
+        inner = np.matmul(
+            weighted.transpose(0, 2, 1, 3, 4).reshape(-1, 27, 3),
+            np.ascontiguousarray(self._g.transpose(0, 2, 1)),
+        ).reshape(e, 3 * p, 9 * k)
+        outer = self._g.reshape(e, p, k, 3).transpose(0, 2, 1, 3).reshape(e, k, 3 * p)
+        local = np.matmul(outer, inner).reshape(e, k, 3, 3, k)  # [e, a, i, k, b]
+        return self._scattered(local.transpose(0, 1, 2, 4, 3).reshape(e, 3 * k, 3 * k))
+
+    def _scattered(self, local: np.ndarray, constant: np.ndarray | float = 0.0) -> sp.csc_matrix:
+        """Element matrices [e, (a, i), (b, k)] summed into the pattern, plus ``constant``
+        (entries on the pattern)."""
         data = np.bincount(
             self._position,
             weights=local.reshape(self.n_elements, -1).ravel()[self._keep],
             minlength=self._indices.size,
         )
-        return sp.csc_matrix((data + mu_l * self._laplace, self._indices, self._indptr), self.shape)
+        return sp.csc_matrix((data + constant, self._indices, self._indptr), self.shape)
 
     def _outer(self, left: np.ndarray, right: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """sum_q weight_q left_q (x) right_q per element: [e, (a, i), (b, k)]."""

@@ -228,6 +228,11 @@ class TissueModel(UnitTerms):
         assembles it faster than AD (``NeoHookeanModel``); None: the solvers use AD."""
         return None
 
+    def force_curvature(self, names: tuple[str, ...] = ()):
+        """(vec(Delta_free), x, vec(w)) -> d2(w . elastic force)/dDelta2 as scipy CSC, when
+        the model assembles it (``NeoHookeanModel``); None: the solvers use AD."""
+        return None
+
     def symbolic_values(self, names: tuple[str, ...]) -> tuple[ca.MX, dict]:
         """A symbol x for the named parameters and the full value dict with it inserted."""
         names = tuple(names)

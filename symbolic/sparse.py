@@ -71,23 +71,27 @@ def combined(blocks: tuple[ca.Sparsity, ca.DM], coefficients: ca.MX) -> ca.MX:
 
 
 class SparseCallback(ca.Callback):
-    """A numeric sparse matrix function (v, x) -> A as a CasADi Function (a callback).
+    """A numeric sparse matrix function (v, x, ...) -> A as a CasADi Function (a callback).
 
     Lets an MX graph use a matrix assembled in numpy (the neo-Hookean tangent in the
-    effect library's Newton Jacobian). It has no derivatives of its own, so it may stand
-    only where a Jacobian is the output. ``evaluate(v, x)`` returns a CSC matrix with
-    the nonzero pattern of ``pattern``; v and x are dense columns of the given sizes.
+    effect library's Newton Jacobian and in the simultaneous inverse's derivatives). It
+    has no derivatives of its own, so it may stand only where a derivative is the
+    output. ``evaluate(v, x, ...)`` takes dense columns of the given ``sizes`` (one per
+    input) and returns a sparse matrix whose nonzeros lie in ``pattern``.
     """
 
-    def __init__(self, name: str, evaluate, sizes: tuple[int, int], pattern: sp.csc_matrix):
+    def __init__(self, name: str, evaluate, sizes: tuple[int, ...], pattern: sp.csc_matrix):
         ca.Callback.__init__(self)
-        self._evaluate, self._sizes = evaluate, sizes
-        rows, cols = pattern.shape
-        self._pattern = ca.Sparsity(rows, cols, pattern.indptr.tolist(), pattern.indices.tolist())
+        self._evaluate, self._sizes = evaluate, tuple(sizes)
+        self._csc = sp.csc_matrix(pattern)
+        self._csc.sort_indices()
+        rows, cols = self._csc.shape
+        indptr, indices = self._csc.indptr.tolist(), self._csc.indices.tolist()
+        self._pattern = ca.Sparsity(rows, cols, indptr, indices)
         self.construct(name, {})
 
     def get_n_in(self) -> int:
-        return 2
+        return len(self._sizes)
 
     def get_n_out(self) -> int:
         return 1
@@ -99,8 +103,18 @@ class SparseCallback(ca.Callback):
         return self._pattern
 
     def eval(self, args):
-        matrix = self._evaluate(np.asarray(args[0]).ravel(), np.asarray(args[1]).ravel())
-        return [ca.DM(self._pattern, matrix.data)]
+        matrix = sp.csc_matrix(self._evaluate(*[np.asarray(a).ravel() for a in args]))
+        return [ca.DM(self._pattern, self.entries(matrix))]
+
+    def entries(self, matrix: sp.csc_matrix) -> np.ndarray:
+        """The matrix's entries on the pattern: its data when the structure is the
+        pattern's (the assemblies' fixed patterns), else ``pattern_entries``."""
+        same = (
+            matrix.nnz == self._csc.nnz
+            and np.array_equal(matrix.indptr, self._csc.indptr)
+            and np.array_equal(matrix.indices, self._csc.indices)
+        )
+        return matrix.data if same else pattern_entries(self._csc, matrix)
 
 
 class ProductTerm:

@@ -9,7 +9,8 @@
 - the states are warm-started from a forward solve at the start values;
 - IPOPT uses the exact Hessian of the Lagrangian, assembled from the problem's
   structure (``solvers.inverse.lagrangian``): the objective is quadratic with a constant
-  Hessian J^T J, and for the linear model g is bilinear in (c(x), Delta).
+  Hessian J^T J, for the linear model g is bilinear in (c(x), Delta), and the
+  neo-Hookean family assembles dg/ds and the curvature of lam^T g in numpy.
 
 The marker residuals are not lifted into extra variables: J_k^T J_k couples only
 control points that already share a stiffness entry (a marker touches 4 x 4
@@ -48,10 +49,10 @@ class IpoptSettings:
         Expand the MX graph to SX. Evaluation gets faster but building the
         derivative graphs takes seconds (colouring of K's rows), so off by default.
     structured_hessian : bool
-        Give IPOPT the Hessian of the Lagrangian (and, for the linear model, the
-        constraint Jacobian) assembled from the problem's structure
-        (``solvers.inverse.lagrangian``) instead of CasADi's coloured AD derivatives.
-        Same matrices, cheaper per evaluation.
+        Give IPOPT the Hessian of the Lagrangian (and, for the linear model and a
+        model with a numeric tangent, the constraint Jacobian) assembled from the
+        problem's structure (``solvers.inverse.lagrangian``) instead of CasADi's
+        coloured AD derivatives. Same matrices, cheaper per evaluation.
     options : dict
         Extra nlpsol options, e.g. ``{"ipopt.mu_strategy": "adaptive"}``; they
         override the defaults above and each solver's own (``STATIC_DEFAULTS``).
