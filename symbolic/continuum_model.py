@@ -194,8 +194,7 @@ class NeoHookeanModel(ContinuumModel):
         element_tangent = self._element_tangent()
         support = None  # the foundation's entries on the tangent's fixed pattern
         if self._support is not None:
-            pattern = element_tangent(np.zeros_like(self.rest), 1.0, 1.0)
-            support = pattern_entries(pattern, self._support_matrix)
+            support = pattern_entries(element_tangent.pattern, self._support_matrix)
 
         def tangent(delta_vec: np.ndarray, x: np.ndarray) -> sp.csc_matrix:
             coefficients = self._numeric_coefficients(names, x)

@@ -270,10 +270,12 @@ class NeoHookeanTangent:
         self._indptr = np.searchsorted(unique // (3 * m), np.arange(3 * m + 1)).astype(np.int32)
         laplace = sum(sp.csr_matrix(p).T @ sp.diags(volume) @ sp.csr_matrix(p) for p in operators)
         laplace = sp.kron(sp.identity(3), sp.csr_matrix(laplace)[chosen][:, chosen])
-        pattern = sp.csc_matrix(
-            (np.ones(unique.size), self._indices, self._indptr), shape=self.shape
-        )
-        self._laplace = pattern_entries(pattern, laplace)
+        self._laplace = pattern_entries(self.pattern, laplace)
+
+    @property
+    def pattern(self) -> sp.csc_matrix:
+        """The tangent's nonzero pattern (ones on it), the structure of every K_T."""
+        return sp.csc_matrix((np.ones(self._indices.size), self._indices, self._indptr), self.shape)
 
     def __call__(
         self,

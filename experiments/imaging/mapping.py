@@ -88,7 +88,7 @@ class Image:
     homogeneous: dict
     method: str
     seconds: float
-    field_choice: dict = field(default_factory=dict)
+    field_choice: dict
     """How the field's shape was chosen (image.json's ``field_choice``)."""
 
     @property

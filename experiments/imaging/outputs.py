@@ -174,8 +174,8 @@ def plot_maps(image: Image, markers: np.ndarray, path_map: Path, path_std: Path)
             ax.set_title("skin (w = 1)" if w == 1.0 else f"layer w = {w:.2f}")
             fig.colorbar(mesh, ax=ax, label=label, shrink=0.85)
         fig.suptitle(
-            f"field {'x'.join(map(str, image.field_choice.get('shape', [])))} "
-            f"({image.field_choice.get('rule', 'given')}), {image.method}, "
+            f"field {'x'.join(map(str, image.field_choice['shape']))} "
+            f"({image.field_choice['rule']}), {image.method}, "
             f"beta {image.estimate.weight:.3g} mm^2 ({image.choice.rule})\n"
             f"{image.posterior.effective_dof:.1f} effective dof, "
             f"chi2/n {image.estimate.chi2 / image.field_problem.n_residuals:.2f}",

@@ -83,7 +83,7 @@ class StateJacobian:
     def _factorise(self):
         """CHOLMOD for an SPD K(p), else SuperLU (``solvers.linalg.cholmod.factorised``)."""
         if not self.definite:
-            return _lu(self.matrix if self.rows is None else _rows_scaled(self.matrix, self.rows))
+            return lu(self.matrix if self.rows is None else _rows_scaled(self.matrix, self.rows))
         matrix, n = self.matrix, self.split
         if self.rows is None and n is not None and 0 < n < matrix.shape[0]:
             if matrix[n:, :n].count_nonzero() == 0:
@@ -136,12 +136,21 @@ def _factorised(matrix: sp.spmatrix):
     if matrix.format == "csr" and symmetric(matrix):
         view = sp.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
         view.has_sorted_indices = matrix.has_sorted_indices  # known: not checked again
-        return factorised(view, lambda _: _lu(matrix), known_symmetric=True)
-    return factorised(sp.csc_matrix(matrix), _lu)
+        return factorised(view, lambda _: lu(matrix), known_symmetric=True)
+    return factorised(sp.csc_matrix(matrix), lu)
 
 
-def _lu(matrix: sp.spmatrix):
+def lu(matrix: sp.spmatrix):
+    """SuperLU with the linear path's options (``FACTOR_OPTIONS``): the factor of an
+    indefinite matrix (the saddle matrix of probe constraints), and CHOLMOD's fallback."""
     return spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
+
+
+def factorise(matrix: sp.spmatrix, definite: bool = True):
+    """K alone (``definite``): CHOLMOD (``solvers.linalg.cholmod.factorised``, SuperLU
+    under its switch or where the Cholesky fails); the saddle matrix [[K, C^T], [C, 0]]
+    is indefinite and goes straight to SuperLU (``lu``)."""
+    return factorised(sp.csc_matrix(matrix), lu) if definite else lu(matrix)
 
 
 class _BlockTriangular:

@@ -45,14 +45,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sl
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from solvers.forward.componentwise import FACTOR_OPTIONS
+from solvers.forward.linearpath import factorise
 from solvers.imaging.fieldsensitivity import ForceOperators, point_weights
 from solvers.inverse.noise import Whitening
 from solvers.inverse.problem import InverseProblem
 from solvers.linalg.blas import one_thread
-from solvers.linalg.cholmod import Cholesky, factorised
+from solvers.linalg.cholmod import Cholesky
 from symbolic.continuum import KPA, PhysicalGradient, lame
 from symbolic.field import StiffnessField
 
@@ -65,11 +64,6 @@ factors. Above it the copies cost more than they save, and their memory grows as
 (2.8 GB each at 19,440 unknowns)."""
 
 
-def _lu(matrix: sp.spmatrix):
-    """SuperLU with the options of ``solvers.forward.linearpath``."""
-    return spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
-
-
 class Factor:
     """The sparse factors of M(c) and solves with them.
 
@@ -77,7 +71,7 @@ class Factor:
     CHOLMOD factorises it (``solvers.linalg.cholmod.factorised``: SuperLU where cvxopt is
     missing, under ``DVS_FACTORISATION=superlu`` or where the Cholesky fails),
     and solves many right-hand sides four at a time (``Cholesky.solve_columns``). The
-    saddle matrix of eq. (I3) is indefinite: SuperLU (``FACTOR_OPTIONS``). SuperLU
+    saddle matrix of eq. (I3) is indefinite: SuperLU (``solvers.forward.linearpath.lu``). SuperLU
     solves on one BLAS thread (``solvers/linalg/blas.py``); for ``DENSE_RIGHT_SIDES``
     or more while n^2 doubles are at most ``DENSE_BYTES`` its factors are copied to
     dense triangles for the call and solved by BLAS-3 triangular solves
@@ -86,8 +80,7 @@ class Factor:
     """
 
     def __init__(self, matrix: sp.spmatrix, definite: bool = True):
-        matrix = sp.csc_matrix(matrix)
-        self.lu = factorised(matrix, _lu) if definite else _lu(matrix)
+        self.lu = factorise(matrix, definite)
 
     def solve(self, right: np.ndarray) -> np.ndarray:
         """M^-1 right, for one right-hand side or the columns of a matrix."""

@@ -13,23 +13,17 @@ CasADi Functions and formed dg/dx by CasADi per case: the homogeneous fit took a
 a minute at 27 x 27 x 4 that way, this path a few factorisations' worth. The states
 are the same to rounding (the same linear systems, solved directly). Without probe
 constraints M is K, symmetric positive definite, and CHOLMOD factorises it
-(``solvers.linalg.cholmod.factorised``); the saddle matrix goes to SuperLU.
+(``solvers.forward.linearpath.factorise``); the saddle matrix goes to SuperLU.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from solvers.forward.componentwise import FACTOR_OPTIONS
+from solvers.forward.linearpath import factorise
 from solvers.linalg.blas import one_thread
-from solvers.linalg.cholmod import factorised
 from symbolic.continuum import KPA
-
-
-def _lu(matrix: sp.spmatrix):
-    return spla.splu(sp.csc_matrix(matrix), **FACTOR_OPTIONS)
 
 
 def lame_derivatives(young_kpa: float, poisson: float) -> np.ndarray:
@@ -79,13 +73,6 @@ class ContinuumSystem:
             return sp.csc_matrix(stiffness)
         return sp.bmat([[stiffness, self.coupling.T], [self.coupling, None]], "csc")
 
-    def _factorised(self, matrix: sp.csc_matrix):
-        """K alone is symmetric positive definite: CHOLMOD (``solvers.linalg.cholmod``,
-        SuperLU under its switch); the saddle matrix goes to SuperLU."""
-        if self.coupling.shape[0] == 0:
-            return factorised(matrix, _lu)
-        return _lu(matrix)
-
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """States (n_state, n_cases) and their sensitivities (n_state, n_cases, n_x)."""
         values = self.model.values(dict(zip(self.names, np.asarray(x, dtype=float))))
@@ -93,7 +80,7 @@ class ContinuumSystem:
         terms = self.model.continuum
         mu_l, lam = self.model.coefficients(values)
         stiffness = float(mu_l) * terms["shear"] + float(lam) * terms["volumetric"]
-        factor = self._factorised(self._saddle(stiffness))
+        factor = factorise(self._saddle(stiffness), definite=self.coupling.shape[0] == 0)
         with one_thread():  # thin BLAS calls (solvers/linalg/blas.py)
             states = factor.solve(self.right_hand_sides)
         n, n_cases = self.n_displacement, states.shape[1]
